@@ -1,0 +1,255 @@
+//! `raytrace bench build`: GPU time of every build stage (timestamp queries, warm-up
+//! discarded, median of many runs), primitives per second, BVH bytes per primitive, and the
+//! CPU executor's time on the same input; the GPU result is checked against the CPU's after
+//! timing. Writes Markdown and JSON.
+use crate::bvh::{MortonBits, STAGES};
+use crate::cpu;
+use crate::inputs::{assets_dir, generate, load_obj, Distribution};
+use crate::lbvh::GpuLbvh;
+use crate::validate::validate;
+use crate::vk::{Gpu, Kernels};
+use anyhow::{bail, Context, Result};
+use serde::Serialize;
+use shared::types::{Sphere, Triangle};
+use std::fmt::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// One benchmark input.
+pub struct Input {
+    pub name: String,
+    pub tris: Vec<Triangle>,
+    pub spheres: Vec<Sphere>,
+}
+
+#[derive(Serialize)]
+pub struct BuildRow {
+    pub input: String,
+    pub primitives: usize,
+    pub bits: MortonBits,
+    pub runs: usize,
+    /// Median GPU microseconds per stage, in `STAGES` order.
+    pub stage_us: Vec<(String, f64)>,
+    /// Median of the per-run totals.
+    pub total_us: f64,
+    pub total_p10_us: f64,
+    pub total_p90_us: f64,
+    pub mprims_per_s: f64,
+    pub bvh_bytes_per_prim: f64,
+    pub scratch_bytes_per_prim: f64,
+    pub cpu_ms: f64,
+    pub matches_cpu: bool,
+    pub depth: u32,
+}
+
+#[derive(Serialize)]
+pub struct BuildReport {
+    pub date: String,
+    pub device: String,
+    pub command: String,
+    pub rows: Vec<BuildRow>,
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    percentile(&v, 0.5)
+}
+
+/// The standard inputs: 37 primitives, Suzanne, the bunny, and `sizes` random triangles.
+pub fn standard_inputs(sizes: &[usize]) -> Result<Vec<Input>> {
+    let mut v = Vec::new();
+    let (t, s) = generate(37, Distribution::Random, true, 37);
+    v.push(Input {
+        name: "37 mixed".into(),
+        tris: t,
+        spheres: s,
+    });
+    for mesh in ["suzanne", "bunny"] {
+        let path = assets_dir().join(format!("{mesh}.obj"));
+        v.push(Input {
+            name: mesh.into(),
+            tris: load_obj(&path)?,
+            spheres: Vec::new(),
+        });
+    }
+    for &n in sizes {
+        let (t, s) = generate(n, Distribution::Random, false, n as u64);
+        v.push(Input {
+            name: format!("{}M random", n as f64 / 1e6),
+            tris: t,
+            spheres: s,
+        });
+    }
+    Ok(v)
+}
+
+/// Times the build of every input; fails if any GPU result differs from the CPU's.
+pub fn bench_build(
+    gpu: &Arc<Gpu>,
+    inputs: &[Input],
+    bits: MortonBits,
+    runs: usize,
+    warmup: usize,
+) -> Result<Vec<BuildRow>> {
+    let kernels = Arc::new(Kernels::new(gpu)?);
+    let mut lbvh = GpuLbvh::new(gpu, &kernels)?;
+    let mut rows = Vec::new();
+    for input in inputs {
+        let n = input.tris.len() + input.spheres.len();
+        eprintln!("bench build: {} ({n} primitives, {bits:?})", input.name);
+        lbvh.upload(&input.tris, &input.spheres)?;
+        for _ in 0..warmup {
+            lbvh.build(bits, false)?;
+        }
+        let mut per_stage: Vec<Vec<f64>> = vec![Vec::new(); STAGES.len()];
+        let mut totals = Vec::new();
+        for _ in 0..runs {
+            let t = lbvh.build(bits, false)?;
+            let mut total = 0.0;
+            for (s, name) in STAGES.iter().enumerate() {
+                let ns = t
+                    .iter()
+                    .filter(|(l, _)| l == name)
+                    .map(|(_, ns)| ns)
+                    .sum::<f64>();
+                per_stage[s].push(ns / 1e3);
+                total += ns / 1e3;
+            }
+            totals.push(total);
+        }
+        totals.sort_by(f64::total_cmp);
+        let total_us = percentile(&totals, 0.5);
+
+        // Check after timing: the GPU's output must equal the CPU executor's, and be valid.
+        lbvh.build(bits, true)?;
+        let gpu_result = lbvh.result(bits)?;
+        let cpu_runs = if n >= 1_000_000 { 1 } else { 3 };
+        let mut cpu_times = Vec::new();
+        let mut cpu_result = None;
+        for _ in 0..cpu_runs {
+            let t = std::time::Instant::now();
+            let (r, _) = cpu::build(&input.tris, &input.spheres, bits);
+            cpu_times.push(t.elapsed().as_secs_f64() * 1e3);
+            cpu_result = Some(r);
+        }
+        let matches_cpu = cpu_result.as_ref() == Some(&gpu_result);
+        let stats = validate(
+            &gpu_result.nodes,
+            &gpu_result.parents,
+            &input.tris,
+            &input.spheres,
+        )
+        .map_err(|e| anyhow::anyhow!("GPU BVH of {} is invalid:\n{e}", input.name))?;
+        if !matches_cpu {
+            bail!(
+                "GPU build of {} differs from the CPU executor's",
+                input.name
+            );
+        }
+        let (bvh_bytes, scratch) = lbvh.memory();
+        rows.push(BuildRow {
+            input: input.name.clone(),
+            primitives: n,
+            bits,
+            runs,
+            stage_us: STAGES
+                .iter()
+                .zip(per_stage)
+                .map(|(s, v)| (s.to_string(), median(v)))
+                .collect(),
+            total_us,
+            total_p10_us: percentile(&totals, 0.1),
+            total_p90_us: percentile(&totals, 0.9),
+            mprims_per_s: n as f64 / total_us,
+            bvh_bytes_per_prim: ((2 * n).saturating_sub(1) * 32) as f64 / n.max(1) as f64,
+            scratch_bytes_per_prim: scratch as f64 / n.max(1) as f64,
+            cpu_ms: median(cpu_times),
+            matches_cpu,
+            depth: stats.depth,
+        });
+        let _ = bvh_bytes;
+    }
+    Ok(rows)
+}
+
+/// Markdown table of a report.
+pub fn markdown(r: &BuildReport) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# BVH build benchmark\n\n- date: {}\n- device: {}\n- command: `{}`\n",
+        r.date, r.device, r.command
+    );
+    let _ = writeln!(
+        s,
+        "Median GPU time over the runs after warm-up (timestamp queries), microseconds. \
+         `total` is the median of per-run totals (p10-p90 beside it). BVH bytes count the \
+         nodes only; scratch is everything else the builder holds (inputs included).\n"
+    );
+    let _ = write!(s, "| input | prims | bits | runs |");
+    for st in STAGES {
+        let _ = write!(s, " {st} |");
+    }
+    let _ = writeln!(s, " total (p10-p90) | Mprims/s | BVH B/prim | scratch B/prim | depth | CPU executor ms | equals CPU |");
+    let _ = writeln!(s, "|{}", "---|".repeat(4 + STAGES.len() + 7));
+    for row in &r.rows {
+        let _ = write!(
+            s,
+            "| {} | {} | {:?} | {} |",
+            row.input, row.primitives, row.bits, row.runs
+        );
+        for (_, us) in &row.stage_us {
+            let _ = write!(s, " {us:.1} |");
+        }
+        let _ = writeln!(
+            s,
+            " {:.1} ({:.1}-{:.1}) | {:.0} | {:.1} | {:.1} | {} | {:.1} | {} |",
+            row.total_us,
+            row.total_p10_us,
+            row.total_p90_us,
+            row.mprims_per_s,
+            row.bvh_bytes_per_prim,
+            row.scratch_bytes_per_prim,
+            row.depth,
+            row.cpu_ms,
+            if row.matches_cpu { "yes" } else { "NO" }
+        );
+    }
+    s
+}
+
+/// Writes `<stem>.md` and `<stem>.json` into `dir`; returns the Markdown path.
+pub fn write_report(r: &BuildReport, dir: &Path, stem: &str) -> Result<PathBuf> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let md = dir.join(format!("{stem}.md"));
+    std::fs::write(&md, markdown(r)).with_context(|| format!("writing {}", md.display()))?;
+    let json = dir.join(format!("{stem}.json"));
+    std::fs::write(&json, serde_json::to_string_pretty(r)?)
+        .with_context(|| format!("writing {}", json.display()))?;
+    Ok(md)
+}
+
+/// File-name-safe form of a device name.
+pub fn slug(s: &str) -> String {
+    let mut out: String = s
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '-'
+            }
+        })
+        .collect();
+    while out.contains("--") {
+        out = out.replace("--", "-");
+    }
+    out.trim_matches('-').to_string()
+}

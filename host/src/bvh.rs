@@ -1,0 +1,36 @@
+//! What a BVH build produces, on either backend, and the choice of Morton code width.
+use shared::types::{Node, OrderedBounds};
+
+/// Morton code width: 30 bits in `u32` keys (Karras 2012) or 63 bits in `u64` keys.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum MortonBits {
+    B30,
+    B63,
+}
+
+impl MortonBits {
+    pub fn key_bits(self) -> u32 {
+        match self {
+            MortonBits::B30 => 30,
+            MortonBits::B63 => 63,
+        }
+    }
+}
+
+/// Every stage's output of one build, for comparing backends and validating.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BuildResult {
+    pub bounds: OrderedBounds,
+    /// Morton code of each primitive, in primitive order (widened to `u64`).
+    pub morton: Vec<u64>,
+    /// Codes after the sort.
+    pub sorted_keys: Vec<u64>,
+    /// Primitive of each sorted position.
+    pub sorted_prims: Vec<u32>,
+    /// Internal nodes `0..n-1`, then leaves.
+    pub nodes: Vec<Node>,
+    pub parents: Vec<u32>,
+}
+
+/// Stage names in build order, as reported by both backends.
+pub const STAGES: [&str; 5] = ["bounds", "morton", "sort", "tree", "refit"];

@@ -1,0 +1,156 @@
+//! The CPU executor: runs the very kernels of `shared` that the GPU runs. Per-item steps run
+//! for every index in turn; workgroup kernels run each phase for every lane before the next
+//! phase (a barrier), with workgroup memory as a plain struct per group.
+use crate::bvh::{BuildResult, MortonBits};
+use bytemuck::Pod;
+use shared::bounds::{self, BoundsState};
+use shared::radix_sort::{self as sort, HistogramState, ScatterState, SortKey, RADIX};
+use shared::scan::{self, BlockScan, SCAN_STEPS};
+use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
+use shared::{karras, morton, refit};
+use std::time::Instant;
+
+const WG: usize = WORKGROUP as usize;
+
+fn block_scan() -> BlockScan {
+    BlockScan { sums: [[0; WG]; 2] }
+}
+
+/// Runs `phase` for every lane of a workgroup.
+fn lanes(mut phase: impl FnMut(u32)) {
+    for lane in 0..WORKGROUP {
+        phase(lane);
+    }
+}
+
+fn scan_steps(st: &mut BlockScan) {
+    for s in 0..SCAN_STEPS {
+        lanes(|l| scan::step(l, s, st));
+    }
+}
+
+/// Builds the BVH on the CPU; returns every stage's output and each stage's seconds.
+pub fn build(
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    bits: MortonBits,
+) -> (BuildResult, Vec<(&'static str, f64)>) {
+    match bits {
+        MortonBits::B30 => build_keyed::<u32>(tris, spheres, bits, morton::morton30),
+        MortonBits::B63 => build_keyed::<u64>(tris, spheres, bits, morton::morton63),
+    }
+}
+
+type MortonFn<K> =
+    fn(u32, &BuildParams, &OrderedBounds, &[Triangle], &[Sphere], &mut [K], &mut [u32]);
+
+fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    bits: MortonBits,
+    morton_fn: MortonFn<K>,
+) -> (BuildResult, Vec<(&'static str, f64)>) {
+    let n = (tris.len() + spheres.len()) as u32;
+    let tiles = n.div_ceil(TILE);
+    let mut p = BuildParams {
+        n_tris: tris.len() as u32,
+        n,
+        shift: 0,
+        tiles,
+    };
+    let mut times = Vec::new();
+    let mut out = BuildResult::default();
+    let mut t = Instant::now();
+    let mut lap = |name: &'static str, times: &mut Vec<(&'static str, f64)>| {
+        times.push((name, t.elapsed().as_secs_f64()));
+        t = Instant::now();
+    };
+
+    // Bounds: one workgroup per tile.
+    let mut b = OrderedBounds::EMPTY;
+    for g in 0..tiles {
+        let mut st = BoundsState {
+            b: OrderedBounds::EMPTY,
+        };
+        lanes(|l| bounds::clear(l, &mut st));
+        lanes(|l| bounds::accumulate(l, g, &mut st, &p, tris, spheres));
+        lanes(|l| bounds::flush(l, &st, &mut b));
+    }
+    out.bounds = b;
+    lap("bounds", &mut times);
+
+    let mut keys = vec![K::default(); n as usize];
+    let mut vals = vec![0u32; n as usize];
+    for i in 0..n {
+        morton_fn(i, &p, &b, tris, spheres, &mut keys, &mut vals);
+    }
+    out.morton = keys.iter().map(|&k| k.into()).collect();
+    lap("morton", &mut times);
+
+    let mut keys_b = keys.clone();
+    let mut vals_b = vals.clone();
+    let mut table = vec![0u32; (RADIX * tiles) as usize];
+    for pass in 0..sort::passes(bits.key_bits()) {
+        p.shift = pass * sort::RADIX_BITS;
+        for g in 0..tiles {
+            let mut st = HistogramState {
+                counts: [0; RADIX as usize],
+            };
+            lanes(|l| sort::histogram_clear(l, &mut st));
+            lanes(|l| sort::histogram_count(l, g, &mut st, &p, &keys));
+            lanes(|l| sort::histogram_store(l, g, &st, &p, &mut table));
+        }
+        let mut st = block_scan();
+        lanes(|l| scan::table_load(l, &mut st, &p, &table));
+        scan_steps(&mut st);
+        lanes(|l| scan::table_store(l, &st, &p, &mut table));
+        let mut st = Box::new(ScatterState {
+            counts: [0; RADIX as usize * WG],
+            base: [0; RADIX as usize],
+            scan: block_scan(),
+        });
+        for g in 0..tiles {
+            lanes(|l| sort::scatter_count(l, g, &mut st, &p, &keys));
+            lanes(|l| sort::scatter_scan_load(l, &mut st));
+            scan_steps(&mut st.scan);
+            lanes(|l| sort::scatter_scan_store(l, &mut st));
+            lanes(|l| sort::scatter_base(l, g, &mut st, &p, &table));
+            lanes(|l| {
+                sort::scatter_write(l, g, &mut st, &p, &keys, &vals, &mut keys_b, &mut vals_b)
+            });
+        }
+        std::mem::swap(&mut keys, &mut keys_b);
+        std::mem::swap(&mut vals, &mut vals_b);
+    }
+    out.sorted_keys = keys.iter().map(|&k| k.into()).collect();
+    out.sorted_prims = vals.clone();
+    lap("sort", &mut times);
+
+    let total_nodes = (2 * n).saturating_sub(1) as usize;
+    let mut nodes = vec![Node::default(); total_nodes];
+    let mut parents = vec![0u32; total_nodes];
+    let mut visits = vec![0u32; n.saturating_sub(1) as usize];
+    for i in 0..n {
+        karras::build(
+            i,
+            &p,
+            &keys,
+            &vals,
+            tris,
+            spheres,
+            &mut nodes,
+            &mut parents,
+            &mut visits,
+        );
+    }
+    lap("tree", &mut times);
+
+    let words: &mut [u32] = bytemuck::cast_slice_mut(&mut nodes);
+    for i in 0..n {
+        refit::refit::<true>(i, &p, &parents, &mut visits, words);
+    }
+    lap("refit", &mut times);
+    out.nodes = nodes;
+    out.parents = parents;
+    (out, times)
+}

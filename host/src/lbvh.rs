@@ -1,0 +1,298 @@
+//! The GPU LBVH build: bounds, Morton codes, multi-workgroup radix sort, Karras tree and
+//! refit, recorded into one command buffer with a timestamp after every stage. Buffers grow
+//! to the largest input seen and are reused by every later build.
+use crate::bvh::{BuildResult, MortonBits, STAGES};
+use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels, BINDINGS};
+use anyhow::{Context, Result};
+use bytemuck::Pod;
+use gpu_allocator::MemoryLocation;
+use shared::radix_sort::{self as sort, RADIX};
+use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
+use std::sync::Arc;
+
+/// Device buffers of the build, sized for `capacity` primitives.
+struct Buffers {
+    tris: Buffer,
+    spheres: Buffer,
+    bounds: Buffer,
+    keys_a: Buffer,
+    vals_a: Buffer,
+    keys_b: Buffer,
+    vals_b: Buffer,
+    table: Buffer,
+    nodes: Buffer,
+    parents: Buffer,
+    visits: Buffer,
+    /// Unsorted Morton codes, copied out when a build is captured for comparison.
+    capture: Buffer,
+    staging: Buffer,
+    /// Ping-pong sets: set 0 sorts A -> B, set 1 sorts B -> A.
+    sets: BindingSets,
+    tri_capacity: usize,
+    sphere_capacity: usize,
+    capacity: usize,
+}
+
+impl Buffers {
+    fn new(gpu: &Arc<Gpu>, kernels: &Kernels, n_tris: usize, n_spheres: usize) -> Result<Buffers> {
+        let n = (n_tris + n_spheres).max(1) as u64;
+        let tiles = n.div_ceil(TILE as u64);
+        let dev = |name: &str, bytes: u64| Buffer::new(gpu, name, bytes, MemoryLocation::GpuOnly);
+        let tris = dev("triangles", (n_tris * size_of::<Triangle>()) as u64)?;
+        let spheres = dev("spheres", (n_spheres * size_of::<Sphere>()) as u64)?;
+        let bounds = dev("bounds", size_of::<OrderedBounds>() as u64)?;
+        let keys_a = dev("keys A", n * 8)?;
+        let vals_a = dev("values A", n * 4)?;
+        let keys_b = dev("keys B", n * 8)?;
+        let vals_b = dev("values B", n * 4)?;
+        let table = dev("digit table", tiles * RADIX as u64 * 4)?;
+        let nodes = dev("nodes", (2 * n - 1) * size_of::<Node>() as u64)?;
+        let parents = dev("parents", (2 * n - 1) * 4)?;
+        let visits = dev("visit counters", n * 4)?;
+        let capture = dev("captured codes", n * 8)?;
+        let staging_bytes =
+            (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
+        let staging = Buffer::new(
+            gpu,
+            "staging",
+            staging_bytes.max((2 * n - 1) * size_of::<Node>() as u64),
+            MemoryLocation::CpuToGpu,
+        )?;
+        let a_to_b: [&Buffer; BINDINGS] = [
+            &tris, &spheres, &bounds, &keys_a, &vals_a, &keys_b, &vals_b, &table, &nodes, &parents,
+            &visits,
+        ];
+        let mut b_to_a = a_to_b;
+        b_to_a[3..7].copy_from_slice(&[&keys_b, &vals_b, &keys_a, &vals_a]);
+        let sets = BindingSets::new(gpu, kernels, &[a_to_b, b_to_a])?;
+        Ok(Buffers {
+            tris,
+            spheres,
+            bounds,
+            keys_a,
+            vals_a,
+            keys_b,
+            vals_b,
+            table,
+            nodes,
+            parents,
+            visits,
+            capture,
+            staging,
+            sets,
+            tri_capacity: n_tris,
+            sphere_capacity: n_spheres,
+            capacity: n as usize,
+        })
+    }
+}
+
+/// Builds BVHs on the GPU.
+pub struct GpuLbvh {
+    gpu: Arc<Gpu>,
+    kernels: Arc<Kernels>,
+    cmds: Commands,
+    bufs: Option<Buffers>,
+    n_tris: u32,
+    n: u32,
+}
+
+impl GpuLbvh {
+    pub fn new(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>) -> Result<GpuLbvh> {
+        Ok(GpuLbvh {
+            gpu: gpu.clone(),
+            kernels: kernels.clone(),
+            cmds: Commands::new(gpu)?,
+            bufs: None,
+            n_tris: 0,
+            n: 0,
+        })
+    }
+
+    /// Number of primitives of the current input.
+    pub fn len(&self) -> u32 {
+        self.n
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// Bytes of device memory held: (BVH nodes, everything else).
+    pub fn memory(&self) -> (u64, u64) {
+        match &self.bufs {
+            None => (0, 0),
+            Some(b) => {
+                let all = [
+                    &b.tris, &b.spheres, &b.bounds, &b.keys_a, &b.vals_a, &b.keys_b, &b.vals_b,
+                    &b.table, &b.parents, &b.visits, &b.capture, &b.staging,
+                ];
+                (b.nodes.size, all.iter().map(|x| x.size).sum())
+            }
+        }
+    }
+
+    /// Uploads world-space primitives, growing the buffers only when they are too small.
+    pub fn upload(&mut self, tris: &[Triangle], spheres: &[Sphere]) -> Result<()> {
+        let fits = self.bufs.as_ref().is_some_and(|b| {
+            b.tri_capacity >= tris.len()
+                && b.sphere_capacity >= spheres.len()
+                && b.capacity >= tris.len() + spheres.len()
+        });
+        if !fits {
+            self.bufs = None;
+            let grow = |x: usize| x + x / 4;
+            self.bufs = Some(Buffers::new(
+                &self.gpu,
+                &self.kernels,
+                grow(tris.len()),
+                grow(spheres.len()),
+            )?);
+        }
+        let b = self.bufs.as_mut().context("buffers missing")?;
+        self.n_tris = tris.len() as u32;
+        self.n = (tris.len() + spheres.len()) as u32;
+        let tri_bytes = std::mem::size_of_val(tris) as u64;
+        let mut data: Vec<u8> = bytemuck::cast_slice(tris).to_vec();
+        data.extend_from_slice(bytemuck::cast_slice(spheres));
+        b.staging.write(&data)?;
+        self.cmds.begin()?;
+        if tri_bytes > 0 {
+            self.cmds.copy_range(&b.staging, 0, &b.tris, 0, tri_bytes);
+        }
+        if !spheres.is_empty() {
+            self.cmds.copy_range(
+                &b.staging,
+                tri_bytes,
+                &b.spheres,
+                0,
+                std::mem::size_of_val(spheres) as u64,
+            );
+        }
+        self.cmds.barrier();
+        self.cmds.submit_wait().context("uploading primitives")
+    }
+
+    /// Records the whole build into `cmds` (which must be recording), with a timestamp
+    /// before the first stage and after each stage.
+    pub fn record(&self, cmds: &mut Commands, bits: MortonBits, capture: bool) -> Result<()> {
+        let b = self.bufs.as_ref().context("no primitives uploaded")?;
+        let n = self.n;
+        let tiles = n.div_ceil(TILE);
+        let items = n.div_ceil(WORKGROUP);
+        let k = &self.kernels;
+        let mut p = BuildParams {
+            n_tris: self.n_tris,
+            n,
+            shift: 0,
+            tiles,
+        };
+        let (set_ab, set_ba) = (b.sets.sets[0], b.sets.sets[1]);
+        let (morton, histogram, scatter, build) = match bits {
+            MortonBits::B30 => (
+                Kernel::Morton30,
+                Kernel::SortHistogramU32,
+                Kernel::SortScatterU32,
+                Kernel::KarrasBuildU32,
+            ),
+            MortonBits::B63 => (
+                Kernel::Morton63,
+                Kernel::SortHistogramU64,
+                Kernel::SortScatterU64,
+                Kernel::KarrasBuildU64,
+            ),
+        };
+        cmds.timestamp("start");
+        cmds.fill_range(&b.bounds, 0, 16, u32::MAX);
+        cmds.fill_range(&b.bounds, 16, 16, 0);
+        cmds.barrier();
+        if n == 0 {
+            for s in STAGES {
+                cmds.timestamp(s);
+            }
+            return Ok(());
+        }
+        cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, tiles);
+        cmds.barrier();
+        cmds.timestamp(STAGES[0]);
+        cmds.dispatch(k, set_ab, morton, &p, items);
+        cmds.barrier();
+        if capture {
+            cmds.copy_range(&b.keys_a, 0, &b.capture, 0, n as u64 * 8);
+            cmds.barrier();
+        }
+        cmds.timestamp(STAGES[1]);
+        for pass in 0..sort::passes(bits.key_bits()) {
+            p.shift = pass * sort::RADIX_BITS;
+            let set = if pass % 2 == 0 { set_ab } else { set_ba };
+            cmds.dispatch(k, set, histogram, &p, tiles);
+            cmds.barrier();
+            cmds.dispatch(k, set, Kernel::SortScan, &p, 1);
+            cmds.barrier();
+            cmds.dispatch(k, set, scatter, &p, tiles);
+            cmds.barrier();
+        }
+        cmds.timestamp(STAGES[2]);
+        cmds.dispatch(k, set_ab, build, &p, items);
+        cmds.barrier();
+        cmds.timestamp(STAGES[3]);
+        cmds.dispatch(k, set_ab, self.gpu.refit_kernel(), &p, items);
+        cmds.barrier();
+        cmds.timestamp(STAGES[4]);
+        Ok(())
+    }
+
+    /// Builds the BVH of the uploaded primitives; returns each stage's GPU nanoseconds.
+    pub fn build(&mut self, bits: MortonBits, capture: bool) -> Result<Vec<(&'static str, f64)>> {
+        let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
+        let r = (|| {
+            cmds.begin()?;
+            self.record(&mut cmds, bits, capture)?;
+            cmds.submit_wait().context("running the BVH build")?;
+            cmds.timings()
+        })();
+        self.cmds = cmds;
+        r
+    }
+
+    fn download<T: Pod>(&mut self, which: fn(&Buffers) -> &Buffer, count: usize) -> Result<Vec<T>> {
+        let bytes = (count * size_of::<T>()) as u64;
+        if bytes == 0 {
+            return Ok(Vec::new());
+        }
+        let readback = Buffer::new(&self.gpu, "readback", bytes, MemoryLocation::GpuToCpu)?;
+        let b = self.bufs.as_ref().context("no primitives uploaded")?;
+        self.cmds.begin()?;
+        self.cmds.copy_range(which(b), 0, &readback, 0, bytes);
+        self.cmds
+            .submit_wait()
+            .context("reading back GPU results")?;
+        readback.read(count)
+    }
+
+    /// Reads back every stage's output of the last build (run it with `capture` to get the
+    /// unsorted Morton codes).
+    pub fn result(&mut self, bits: MortonBits) -> Result<BuildResult> {
+        let n = self.n as usize;
+        let widen = |v: Vec<u32>| v.into_iter().map(u64::from).collect::<Vec<u64>>();
+        let keys = |s: &mut Self, which: fn(&Buffers) -> &Buffer| -> Result<Vec<u64>> {
+            match bits {
+                MortonBits::B30 => Ok(widen(s.download::<u32>(which, n)?)),
+                MortonBits::B63 => s.download::<u64>(which, n),
+            }
+        };
+        let total = (2 * n).saturating_sub(1);
+        Ok(BuildResult {
+            bounds: self
+                .download::<OrderedBounds>(|b| &b.bounds, 1)?
+                .first()
+                .copied()
+                .unwrap_or_default(),
+            morton: keys(self, |b| &b.capture)?,
+            sorted_keys: keys(self, |b| &b.keys_a)?,
+            sorted_prims: self.download(|b| &b.vals_a, n)?,
+            nodes: self.download(|b| &b.nodes, total)?,
+            parents: self.download(|b| &b.parents, total)?,
+        })
+    }
+}

@@ -1,0 +1,9 @@
+//! The raytrace host: Vulkan core, GPU LBVH builder, CPU executor of the same kernels,
+//! inputs, BVH validator and benchmarks.
+pub mod bench;
+pub mod bvh;
+pub mod cpu;
+pub mod inputs;
+pub mod lbvh;
+pub mod validate;
+pub mod vk;

@@ -1,0 +1,109 @@
+//! `raytrace`: the command-line front end.
+use anyhow::Result;
+use clap::{Parser, Subcommand, ValueEnum};
+use raytrace::bench::{bench_build, slug, standard_inputs, write_report, BuildReport};
+use raytrace::bvh::MortonBits;
+use raytrace::vk::{Gpu, GpuOptions};
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "raytrace",
+    version,
+    about = "GPU ray tracer with a BVH rebuilt on the GPU every frame"
+)]
+struct Cli {
+    /// Vulkan device: index or part of its name (default: first discrete GPU; env RAYTRACE_DEVICE).
+    #[arg(long, global = true)]
+    device: Option<String>,
+    /// Enable the Khronos validation layer (if installed).
+    #[arg(long, global = true)]
+    validation: bool,
+    #[command(subcommand)]
+    cmd: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        what: Bench,
+    },
+    /// Print the chosen Vulkan device and driver.
+    Info,
+}
+
+#[derive(Copy, Clone, ValueEnum)]
+enum Bits {
+    B30,
+    B63,
+}
+
+#[derive(Subcommand)]
+enum Bench {
+    /// BVH build: per-stage GPU time, throughput, memory, CPU executor time.
+    Build {
+        /// Timed runs per input (after warm-up).
+        #[arg(long, default_value_t = 50)]
+        runs: usize,
+        #[arg(long, default_value_t = 5)]
+        warmup: usize,
+        /// Sizes (millions of random triangles) to add to 37 prims, Suzanne and the bunny.
+        #[arg(long, value_delimiter = ',', default_value = "1,4,16")]
+        millions: Vec<f64>,
+        /// Morton code widths to run.
+        #[arg(long, value_delimiter = ',', default_value = "b30,b63")]
+        bits: Vec<Bits>,
+        /// Folder for the Markdown and JSON reports.
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    let opts = GpuOptions {
+        validation: cli.validation,
+        device: cli.device.clone(),
+    };
+    match cli.cmd {
+        Command::Info => {
+            let gpu = Gpu::new(&opts)?;
+            println!("{}", gpu.describe());
+        }
+        Command::Bench {
+            what:
+                Bench::Build {
+                    runs,
+                    warmup,
+                    millions,
+                    bits,
+                    out,
+                },
+        } => {
+            let gpu = Gpu::new(&opts)?;
+            let sizes: Vec<usize> = millions.iter().map(|m| (m * 1e6) as usize).collect();
+            let inputs = standard_inputs(&sizes)?;
+            let mut rows = Vec::new();
+            for b in bits {
+                let b = match b {
+                    Bits::B30 => MortonBits::B30,
+                    Bits::B63 => MortonBits::B63,
+                };
+                rows.extend(bench_build(&gpu, &inputs, b, runs, warmup)?);
+            }
+            let date = chrono::Local::now().format("%Y-%m-%d").to_string();
+            let report = BuildReport {
+                date: date.clone(),
+                device: gpu.describe(),
+                command: std::env::args().collect::<Vec<_>>().join(" "),
+                rows,
+            };
+            let md = write_report(&report, &out, &format!("build-{date}-{}", slug(&gpu.name)))?;
+            println!("{}", raytrace::bench::markdown(&report));
+            println!("wrote {}", md.display());
+        }
+    }
+    Ok(())
+}

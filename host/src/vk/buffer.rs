@@ -1,0 +1,116 @@
+//! A `VkBuffer` with its gpu-allocator memory, freed on drop.
+use super::Gpu;
+use anyhow::{anyhow, Context, Result};
+use ash::vk;
+use bytemuck::Pod;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
+use gpu_allocator::MemoryLocation;
+use std::sync::Arc;
+
+pub struct Buffer {
+    gpu: Arc<Gpu>,
+    pub raw: vk::Buffer,
+    pub size: u64,
+    alloc: Option<Allocation>,
+}
+
+impl Buffer {
+    /// A buffer of `size` bytes (at least 4) usable as storage and as copy source/target.
+    pub fn new(gpu: &Arc<Gpu>, name: &str, size: u64, location: MemoryLocation) -> Result<Buffer> {
+        let size = size.max(4);
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER
+            | vk::BufferUsageFlags::TRANSFER_SRC
+            | vk::BufferUsageFlags::TRANSFER_DST;
+        let info = vk::BufferCreateInfo::default()
+            .size(size)
+            .usage(usage)
+            .sharing_mode(vk::SharingMode::EXCLUSIVE);
+        let d = &gpu.device;
+        // SAFETY: valid create info on a live device.
+        let raw = unsafe { d.create_buffer(&info, None) }
+            .with_context(|| format!("creating buffer {name} ({size} bytes)"))?;
+        // SAFETY: `raw` was just created on this device.
+        let requirements = unsafe { d.get_buffer_memory_requirements(raw) };
+        let desc = AllocationCreateDesc {
+            name,
+            requirements,
+            location,
+            linear: true,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        };
+        let alloc = gpu
+            .allocator
+            .lock()
+            .map_err(|_| anyhow!("allocator lock poisoned"))?
+            .as_mut()
+            .ok_or_else(|| anyhow!("allocator already destroyed"))?
+            .allocate(&desc);
+        let alloc = match alloc {
+            Ok(a) => a,
+            Err(e) => {
+                // SAFETY: the buffer is unused.
+                unsafe { d.destroy_buffer(raw, None) };
+                return Err(anyhow!(
+                    "allocating {size} bytes of GPU memory for {name}: {e}"
+                ));
+            }
+        };
+        // SAFETY: memory and offset come from an allocation made for these requirements.
+        let bound = unsafe { d.bind_buffer_memory(raw, alloc.memory(), alloc.offset()) };
+        let buffer = Buffer {
+            gpu: gpu.clone(),
+            raw,
+            size,
+            alloc: Some(alloc),
+        };
+        bound.with_context(|| format!("binding memory of buffer {name}"))?;
+        Ok(buffer)
+    }
+
+    /// Copies `data` into a host-visible buffer.
+    pub fn write<T: Pod>(&mut self, data: &[T]) -> Result<()> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let dst = self
+            .alloc
+            .as_mut()
+            .and_then(|a| a.mapped_slice_mut())
+            .ok_or_else(|| anyhow!("buffer is not host visible"))?;
+        anyhow::ensure!(
+            bytes.len() <= dst.len(),
+            "writing {} bytes into a {}-byte buffer",
+            bytes.len(),
+            dst.len()
+        );
+        dst[..bytes.len()].copy_from_slice(bytes);
+        Ok(())
+    }
+
+    /// Reads `count` elements from a host-visible buffer.
+    pub fn read<T: Pod>(&self, count: usize) -> Result<Vec<T>> {
+        let src = self
+            .alloc
+            .as_ref()
+            .and_then(|a| a.mapped_slice())
+            .ok_or_else(|| anyhow!("buffer is not host visible"))?;
+        let bytes = count * size_of::<T>();
+        anyhow::ensure!(
+            bytes <= src.len(),
+            "reading {bytes} bytes from a {}-byte buffer",
+            src.len()
+        );
+        Ok(bytemuck::pod_collect_to_vec(&src[..bytes]))
+    }
+}
+
+impl Drop for Buffer {
+    fn drop(&mut self) {
+        // SAFETY: the owner guarantees the GPU no longer uses the buffer (work is waited for
+        // before buffers are dropped).
+        unsafe { self.gpu.device.destroy_buffer(self.raw, None) };
+        if let (Some(a), Ok(mut guard)) = (self.alloc.take(), self.gpu.allocator.lock()) {
+            if let Some(alloc) = guard.as_mut() {
+                let _ = alloc.free(a);
+            }
+        }
+    }
+}

@@ -1,0 +1,343 @@
+//! Instance, device selection and logical device, with the features rust-gpu's SPIR-V needs
+//! (Vulkan memory model with device scope, 64-bit integers), the Khronos validation layer when
+//! asked for and installed, and gpu-allocator for memory.
+use anyhow::{anyhow, bail, Context, Result};
+use ash::vk;
+use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
+use std::ffi::{c_void, CStr};
+use std::sync::{Arc, Mutex};
+
+const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
+
+/// How to open the GPU.
+#[derive(Clone, Debug, Default)]
+pub struct GpuOptions {
+    /// Enable the Khronos validation layer if it is installed.
+    pub validation: bool,
+    /// Pick the device whose name contains this text, or whose index is this number
+    /// (falls back to `RAYTRACE_DEVICE`); otherwise the first discrete GPU.
+    pub device: Option<String>,
+}
+
+/// Messages the validation layer reported as errors.
+#[derive(Default)]
+pub struct ValidationLog {
+    errors: Mutex<Vec<String>>,
+}
+
+/// An open Vulkan device with one compute queue.
+pub struct Gpu {
+    pub entry: ash::Entry,
+    pub instance: ash::Instance,
+    pub physical: vk::PhysicalDevice,
+    pub device: ash::Device,
+    pub queue: vk::Queue,
+    pub queue_family: u32,
+    /// Nanoseconds per timestamp tick.
+    pub timestamp_period: f64,
+    pub name: String,
+    pub driver: String,
+    pub validation_enabled: bool,
+    pub driver_id: vk::DriverId,
+    pub allocator: Mutex<Option<Allocator>>,
+    debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    log: Arc<ValidationLog>,
+}
+
+unsafe extern "system" fn on_message(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    _types: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    user: *mut c_void,
+) -> vk::Bool32 {
+    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
+        // SAFETY: the layer passes valid callback data; `user` is the `ValidationLog` that the
+        // `Gpu` keeps alive for as long as the messenger exists.
+        let (msg, log) = unsafe {
+            let p = (*data).p_message;
+            let msg = if p.is_null() {
+                String::from("(no message)")
+            } else {
+                CStr::from_ptr(p).to_string_lossy().into_owned()
+            };
+            (msg, &*(user as *const ValidationLog))
+        };
+        eprintln!("vulkan validation error: {msg}");
+        if let Ok(mut e) = log.errors.lock() {
+            e.push(msg);
+        }
+    }
+    vk::FALSE
+}
+
+impl Gpu {
+    /// Opens the best (or the chosen) Vulkan device. Fails with one clear message when no
+    /// Vulkan loader or device exists.
+    pub fn new(opts: &GpuOptions) -> Result<Arc<Gpu>> {
+        // SAFETY: loading the system Vulkan loader; its entry points are trusted.
+        let entry = unsafe { ash::Entry::load() }.context(
+            "no Vulkan loader found (install libvulkan1 and a driver, e.g. mesa-vulkan-drivers)",
+        )?;
+        // SAFETY: plain enumeration call.
+        let layers = unsafe { entry.enumerate_instance_layer_properties() }
+            .context("enumerating Vulkan layers")?;
+        let has_layer = layers
+            .iter()
+            .any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER));
+        let validation = opts.validation && has_layer;
+        let app = vk::ApplicationInfo::default()
+            .application_name(c"raytrace")
+            .api_version(vk::API_VERSION_1_2);
+        let layer_ptrs = if validation {
+            vec![VALIDATION_LAYER.as_ptr()]
+        } else {
+            vec![]
+        };
+        let ext_ptrs = if validation {
+            vec![ash::ext::debug_utils::NAME.as_ptr()]
+        } else {
+            vec![]
+        };
+        let info = vk::InstanceCreateInfo::default()
+            .application_info(&app)
+            .enabled_layer_names(&layer_ptrs)
+            .enabled_extension_names(&ext_ptrs);
+        // SAFETY: the create info points at live data.
+        let instance = unsafe { entry.create_instance(&info, None) }
+            .context("creating the Vulkan instance")?;
+        let log = Arc::new(ValidationLog::default());
+        let debug = if validation {
+            let du = ash::ext::debug_utils::Instance::new(&entry, &instance);
+            let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+                .message_severity(
+                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
+                        | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
+                )
+                .message_type(
+                    vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                        | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                        | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+                )
+                .pfn_user_callback(Some(on_message))
+                .user_data(Arc::as_ptr(&log) as *mut c_void);
+            // SAFETY: the callback's user data outlives the messenger (both owned by `Gpu`).
+            let m = unsafe { du.create_debug_utils_messenger(&info, None) }
+                .context("creating the debug messenger")?;
+            Some((du, m))
+        } else {
+            None
+        };
+        // From here on, a failure must destroy what exists: build the rest in a helper.
+        match Self::open_device(&entry, &instance, opts) {
+            Ok((physical, device, queue_family, timestamp_period, name, driver, driver_id)) => {
+                // SAFETY: the device was created with this queue family.
+                let queue = unsafe { device.get_device_queue(queue_family, 0) };
+                let allocator = Allocator::new(&AllocatorCreateDesc {
+                    instance: instance.clone(),
+                    device: device.clone(),
+                    physical_device: physical,
+                    debug_settings: Default::default(),
+                    buffer_device_address: false,
+                    allocation_sizes: Default::default(),
+                })
+                .map_err(|e| anyhow!("creating the GPU memory allocator: {e}"))?;
+                Ok(Arc::new(Gpu {
+                    entry,
+                    instance,
+                    physical,
+                    device,
+                    queue,
+                    queue_family,
+                    timestamp_period,
+                    name,
+                    driver,
+                    validation_enabled: validation,
+                    driver_id,
+                    allocator: Mutex::new(Some(allocator)),
+                    debug,
+                    log,
+                }))
+            }
+            Err(e) => {
+                // SAFETY: nothing else uses these objects.
+                unsafe {
+                    if let Some((du, m)) = debug {
+                        du.destroy_debug_utils_messenger(m, None);
+                    }
+                    instance.destroy_instance(None);
+                }
+                Err(e)
+            }
+        }
+    }
+
+    #[allow(clippy::type_complexity)]
+    fn open_device(
+        _entry: &ash::Entry,
+        instance: &ash::Instance,
+        opts: &GpuOptions,
+    ) -> Result<(
+        vk::PhysicalDevice,
+        ash::Device,
+        u32,
+        f64,
+        String,
+        String,
+        vk::DriverId,
+    )> {
+        // SAFETY: plain enumeration call on a live instance.
+        let all = unsafe { instance.enumerate_physical_devices() }
+            .context("enumerating Vulkan devices")?;
+        if all.is_empty() {
+            bail!("no Vulkan device found (on a machine without a GPU, install Mesa's lavapipe: mesa-vulkan-drivers)");
+        }
+        let mut candidates = Vec::new();
+        for (index, &pd) in all.iter().enumerate() {
+            let mut drv = vk::PhysicalDeviceDriverProperties::default();
+            let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut drv);
+            // SAFETY: `pd` comes from this instance.
+            unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
+            let props = props2.properties;
+            let name = props
+                .device_name_as_c_str()
+                .map(|c| c.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let driver = format!(
+                "{} {}",
+                drv.driver_name_as_c_str()
+                    .map(|c| c.to_string_lossy().into_owned())
+                    .unwrap_or_default(),
+                drv.driver_info_as_c_str()
+                    .map(|c| c.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            );
+            // SAFETY: as above.
+            let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
+            let Some(qf) = families.iter().position(|f| {
+                f.queue_flags.contains(vk::QueueFlags::COMPUTE) && f.timestamp_valid_bits > 0
+            }) else {
+                continue;
+            };
+            if props.api_version < vk::API_VERSION_1_2 {
+                continue;
+            }
+            let rank = match props.device_type {
+                vk::PhysicalDeviceType::DISCRETE_GPU => 0,
+                vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
+                vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
+                _ => 3,
+            };
+            candidates.push((
+                index,
+                pd,
+                qf as u32,
+                props.limits.timestamp_period as f64,
+                name,
+                driver.trim().to_string(),
+                rank,
+                drv.driver_id,
+            ));
+        }
+        let wanted = opts
+            .device
+            .clone()
+            .or_else(|| std::env::var("RAYTRACE_DEVICE").ok());
+        let chosen = match &wanted {
+            Some(w) => candidates
+                .iter()
+                .find(|c| {
+                    w.parse::<usize>().ok() == Some(c.0)
+                        || c.4.to_lowercase().contains(&w.to_lowercase())
+                })
+                .ok_or_else(|| {
+                    let names: Vec<_> = candidates
+                        .iter()
+                        .map(|c| format!("{}: {}", c.0, c.4))
+                        .collect();
+                    anyhow!(
+                        "no Vulkan device matches {w:?}; available: {}",
+                        names.join(", ")
+                    )
+                })?,
+            None => candidates.iter().min_by_key(|c| c.6).ok_or_else(|| {
+                anyhow!("no Vulkan 1.2 device with a compute queue and timestamps found")
+            })?,
+        };
+        let (_, pd, qf, period, name, driver, _, driver_id) = chosen.clone();
+
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+        let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
+        // SAFETY: `pd` comes from this instance.
+        unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+        let base = f2.features;
+        if f12.vulkan_memory_model == 0
+            || f12.vulkan_memory_model_device_scope == 0
+            || base.shader_int64 == 0
+        {
+            bail!("Vulkan device {name} lacks a feature the kernels need (vulkanMemoryModel, vulkanMemoryModelDeviceScope, shaderInt64)");
+        }
+        let mut want12 = vk::PhysicalDeviceVulkan12Features::default()
+            .vulkan_memory_model(true)
+            .vulkan_memory_model_device_scope(true);
+        let want = vk::PhysicalDeviceFeatures::default().shader_int64(true);
+        let prio = [1.0f32];
+        let queues = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(qf)
+            .queue_priorities(&prio)];
+        let info = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&queues)
+            .enabled_features(&want)
+            .push_next(&mut want12);
+        // SAFETY: the create info points at live data; the features were checked above.
+        let device = unsafe { instance.create_device(pd, &info, None) }
+            .with_context(|| format!("creating the Vulkan device on {name}"))?;
+        Ok((pd, device, qf, period, name, driver, driver_id))
+    }
+
+    /// Validation errors reported so far (empty when validation is off).
+    pub fn validation_errors(&self) -> Vec<String> {
+        self.log
+            .errors
+            .lock()
+            .map(|e| e.clone())
+            .unwrap_or_default()
+    }
+
+    /// True on Mesa's lavapipe (llvmpipe), which runs the kernels on the CPU.
+    pub fn is_lavapipe(&self) -> bool {
+        self.driver_id == vk::DriverId::MESA_LLVMPIPE
+    }
+
+    /// The refit entry point for this device: lavapipe needs the relaxed variant (see
+    /// `shared::refit`).
+    pub fn refit_kernel(&self) -> super::Kernel {
+        if self.is_lavapipe() {
+            super::Kernel::RefitRelaxed
+        } else {
+            super::Kernel::Refit
+        }
+    }
+
+    /// "name (driver)" for reports.
+    pub fn describe(&self) -> String {
+        format!("{} ({})", self.name, self.driver)
+    }
+}
+
+impl Drop for Gpu {
+    fn drop(&mut self) {
+        // SAFETY: every object created from this device is owned by something holding an
+        // `Arc<Gpu>`, so all of them are gone by now.
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            if let Ok(mut a) = self.allocator.lock() {
+                a.take();
+            }
+            self.device.destroy_device(None);
+            if let Some((du, m)) = self.debug.take() {
+                du.destroy_debug_utils_messenger(m, None);
+            }
+            self.instance.destroy_instance(None);
+        }
+    }
+}

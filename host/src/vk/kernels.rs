@@ -1,0 +1,237 @@
+//! Compute pipelines for every entry point of the embedded SPIR-V, one shared pipeline layout
+//! (set 0: `BINDINGS` storage buffers; push constants: `BuildParams`), and descriptor sets.
+use super::{Buffer, Gpu, SHADER_SPV};
+use anyhow::{Context, Result};
+use ash::vk;
+use shared::types::BuildParams;
+use std::sync::Arc;
+
+/// Storage-buffer bindings of set 0 (see `shared::types`).
+pub const BINDINGS: usize = 11;
+
+/// Entry points of `shader-crate`.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum Kernel {
+    BoundsReduce,
+    Morton30,
+    Morton63,
+    SortHistogramU32,
+    SortHistogramU64,
+    SortScan,
+    SortScatterU32,
+    SortScatterU64,
+    KarrasBuildU32,
+    KarrasBuildU64,
+    Refit,
+    RefitRelaxed,
+}
+
+impl Kernel {
+    pub const ALL: [Kernel; 12] = [
+        Kernel::BoundsReduce,
+        Kernel::Morton30,
+        Kernel::Morton63,
+        Kernel::SortHistogramU32,
+        Kernel::SortHistogramU64,
+        Kernel::SortScan,
+        Kernel::SortScatterU32,
+        Kernel::SortScatterU64,
+        Kernel::KarrasBuildU32,
+        Kernel::KarrasBuildU64,
+        Kernel::Refit,
+        Kernel::RefitRelaxed,
+    ];
+
+    /// The entry point's name in the SPIR-V module.
+    pub fn entry(self) -> &'static str {
+        match self {
+            Kernel::BoundsReduce => "bounds_reduce",
+            Kernel::Morton30 => "morton30",
+            Kernel::Morton63 => "morton63",
+            Kernel::SortHistogramU32 => "sort_histogram_u32",
+            Kernel::SortHistogramU64 => "sort_histogram_u64",
+            Kernel::SortScan => "sort_scan",
+            Kernel::SortScatterU32 => "sort_scatter_u32",
+            Kernel::SortScatterU64 => "sort_scatter_u64",
+            Kernel::KarrasBuildU32 => "karras_build_u32",
+            Kernel::KarrasBuildU64 => "karras_build_u64",
+            Kernel::Refit => "refit",
+            Kernel::RefitRelaxed => "refit_relaxed",
+        }
+    }
+}
+
+/// All compute pipelines and their shared layout.
+pub struct Kernels {
+    gpu: Arc<Gpu>,
+    module: vk::ShaderModule,
+    pub set_layout: vk::DescriptorSetLayout,
+    pub layout: vk::PipelineLayout,
+    pipelines: Vec<vk::Pipeline>,
+}
+
+impl Kernels {
+    pub fn new(gpu: &Arc<Gpu>) -> Result<Kernels> {
+        let d = &gpu.device;
+        let words = ash::util::read_spv(&mut std::io::Cursor::new(SHADER_SPV))
+            .context("reading the embedded SPIR-V")?;
+        let mut k = Kernels {
+            gpu: gpu.clone(),
+            module: vk::ShaderModule::null(),
+            set_layout: vk::DescriptorSetLayout::null(),
+            layout: vk::PipelineLayout::null(),
+            pipelines: Vec::new(),
+        };
+        // SAFETY (all calls below): valid create infos on a live device; objects are owned by
+        // `k` as soon as they exist, so an early return frees them.
+        k.module = unsafe {
+            d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None)
+        }
+        .context("creating the shader module")?;
+        let bindings: Vec<_> = (0..BINDINGS as u32)
+            .map(|b| {
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(b)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            })
+            .collect();
+        k.set_layout = unsafe {
+            d.create_descriptor_set_layout(
+                &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+                None,
+            )
+        }
+        .context("creating the descriptor set layout")?;
+        let ranges = [vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            .size(size_of::<BuildParams>() as u32)];
+        let layouts = [k.set_layout];
+        k.layout = unsafe {
+            d.create_pipeline_layout(
+                &vk::PipelineLayoutCreateInfo::default()
+                    .set_layouts(&layouts)
+                    .push_constant_ranges(&ranges),
+                None,
+            )
+        }
+        .context("creating the pipeline layout")?;
+        for kernel in Kernel::ALL {
+            let name = std::ffi::CString::new(kernel.entry())?;
+            let stage = vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::COMPUTE)
+                .module(k.module)
+                .name(&name);
+            let info = [vk::ComputePipelineCreateInfo::default()
+                .stage(stage)
+                .layout(k.layout)];
+            let p = unsafe { d.create_compute_pipelines(vk::PipelineCache::null(), &info, None) }
+                .map_err(|(_, e)| e)
+                .with_context(|| {
+                    format!(
+                        "creating the compute pipeline of entry point {}",
+                        kernel.entry()
+                    )
+                })?;
+            k.pipelines.push(p[0]);
+        }
+        Ok(k)
+    }
+
+    pub fn pipeline(&self, k: Kernel) -> vk::Pipeline {
+        self.pipelines[Kernel::ALL.iter().position(|&x| x == k).unwrap_or(0)]
+    }
+}
+
+impl Drop for Kernels {
+    fn drop(&mut self) {
+        let d = &self.gpu.device;
+        // SAFETY: owners wait for GPU work before dropping the kernels.
+        unsafe {
+            for &p in &self.pipelines {
+                d.destroy_pipeline(p, None);
+            }
+            d.destroy_pipeline_layout(self.layout, None);
+            d.destroy_descriptor_set_layout(self.set_layout, None);
+            d.destroy_shader_module(self.module, None);
+        }
+    }
+}
+
+/// A descriptor pool holding descriptor sets of the shared layout, each naming `BINDINGS`
+/// buffers.
+pub struct BindingSets {
+    gpu: Arc<Gpu>,
+    pool: vk::DescriptorPool,
+    pub sets: Vec<vk::DescriptorSet>,
+}
+
+impl BindingSets {
+    pub fn new(
+        gpu: &Arc<Gpu>,
+        kernels: &Kernels,
+        sets: &[[&Buffer; BINDINGS]],
+    ) -> Result<BindingSets> {
+        let d = &gpu.device;
+        let sizes = [vk::DescriptorPoolSize::default()
+            .ty(vk::DescriptorType::STORAGE_BUFFER)
+            .descriptor_count((BINDINGS * sets.len()) as u32)];
+        // SAFETY: valid create info; the pool is owned by the returned value.
+        let pool = unsafe {
+            d.create_descriptor_pool(
+                &vk::DescriptorPoolCreateInfo::default()
+                    .max_sets(sets.len() as u32)
+                    .pool_sizes(&sizes),
+                None,
+            )
+        }
+        .context("creating a descriptor pool")?;
+        let mut out = BindingSets {
+            gpu: gpu.clone(),
+            pool,
+            sets: Vec::new(),
+        };
+        let layouts = vec![kernels.set_layout; sets.len()];
+        // SAFETY: the pool has room for these sets.
+        out.sets = unsafe {
+            d.allocate_descriptor_sets(
+                &vk::DescriptorSetAllocateInfo::default()
+                    .descriptor_pool(pool)
+                    .set_layouts(&layouts),
+            )
+        }
+        .context("allocating descriptor sets")?;
+        for (set, buffers) in out.sets.iter().zip(sets) {
+            let infos: Vec<_> = buffers
+                .iter()
+                .map(|b| {
+                    [vk::DescriptorBufferInfo::default()
+                        .buffer(b.raw)
+                        .range(vk::WHOLE_SIZE)]
+                })
+                .collect();
+            let writes: Vec<_> = infos
+                .iter()
+                .enumerate()
+                .map(|(i, info)| {
+                    vk::WriteDescriptorSet::default()
+                        .dst_set(*set)
+                        .dst_binding(i as u32)
+                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                        .buffer_info(info)
+                })
+                .collect();
+            // SAFETY: every write names a live buffer and a set of this pool.
+            unsafe { d.update_descriptor_sets(&writes, &[]) };
+        }
+        Ok(out)
+    }
+}
+
+impl Drop for BindingSets {
+    fn drop(&mut self) {
+        // SAFETY: owners wait for GPU work before dropping; destroying the pool frees its sets.
+        unsafe { self.gpu.device.destroy_descriptor_pool(self.pool, None) };
+    }
+}

@@ -1,0 +1,32 @@
+//! The Vulkan host core: context (instance, device, allocator, validation), buffers,
+//! compute pipelines from the embedded SPIR-V, and command recording with timestamps.
+//! Every Vulkan object is owned by a type that frees it on `Drop`.
+mod buffer;
+mod commands;
+mod context;
+mod kernels;
+
+pub use buffer::Buffer;
+pub use commands::Commands;
+pub use context::{Gpu, GpuOptions};
+pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
+
+/// The SPIR-V module of `shader-crate`, compiled by `host/build.rs`.
+pub const SHADER_SPV: &[u8] = include_bytes!(env!("shader_crate.spv"));
+
+include!(concat!(env!("OUT_DIR"), "/entry_points.rs"));
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn every_kernel_is_an_entry_point_of_the_module() {
+        for k in super::Kernel::ALL {
+            assert!(
+                super::ENTRY_POINTS.contains(&k.entry()),
+                "{} missing from {:?}",
+                k.entry(),
+                super::ENTRY_POINTS
+            );
+        }
+    }
+}

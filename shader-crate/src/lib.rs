@@ -1,0 +1,180 @@
+//! rust-gpu compute entry points. Each is a few lines that call into `shared`: per-item
+//! steps with `global_invocation_id.x`, cooperative kernels as phases between barriers.
+//! Bindings follow the table in `shared::types`.
+#![cfg_attr(target_arch = "spirv", no_std)]
+
+use shared::bounds::{self, BoundsState};
+use shared::radix_sort::{self as sort, HistogramState, ScatterState};
+use shared::scan::{self, BlockScan, SCAN_STEPS};
+use shared::types::{flat_group, flat_index, BuildParams, Node, OrderedBounds, Sphere, Triangle};
+use shared::{karras, morton, refit};
+use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
+use spirv_std::glam::UVec3;
+use spirv_std::spirv;
+
+#[spirv(compute(threads(256)))]
+pub fn bounds_reduce(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut OrderedBounds,
+    #[spirv(workgroup)] st: &mut BoundsState,
+) {
+    bounds::clear(lid.x, st);
+    barrier();
+    bounds::accumulate(lid.x, flat_group(gid.x, gid.y), st, p, tris, spheres);
+    barrier();
+    bounds::flush(lid.x, st, out);
+}
+
+#[spirv(compute(threads(256)))]
+pub fn sort_scan(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] table: &mut [u32],
+    #[spirv(workgroup)] st: &mut BlockScan,
+) {
+    scan::table_load(lid.x, st, p, table);
+    barrier();
+    for s in 0..SCAN_STEPS {
+        scan::step(lid.x, s, st);
+        barrier();
+    }
+    scan::table_store(lid.x, st, p, table);
+}
+
+#[spirv(compute(threads(256)))]
+pub fn refit(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+) {
+    refit::refit::<true>(flat_index(id.x, id.y), p, parents, visits, node_words);
+}
+
+/// `refit` with a relaxed visit counter, for lavapipe only (see `shared::refit`).
+#[spirv(compute(threads(256)))]
+pub fn refit_relaxed(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+) {
+    refit::refit::<false>(flat_index(id.x, id.y), p, parents, visits, node_words);
+}
+
+/// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
+macro_rules! key_kernels {
+    ($k:ty, $morton:ident, $histogram:ident, $scatter:ident, $build:ident) => {
+        #[spirv(compute(threads(256)))]
+        pub fn $morton(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] b: &OrderedBounds,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
+        ) {
+            morton::$morton(flat_index(id.x, id.y), p, b, tris, spheres, keys, vals);
+        }
+
+        #[spirv(compute(threads(256)))]
+        pub fn $histogram(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] table: &mut [u32],
+            #[spirv(workgroup)] st: &mut HistogramState,
+        ) {
+            sort::histogram_clear(lid.x, st);
+            barrier();
+            sort::histogram_count(lid.x, flat_group(gid.x, gid.y), st, p, keys);
+            barrier();
+            sort::histogram_store(lid.x, flat_group(gid.x, gid.y), st, p, table);
+        }
+
+        #[spirv(compute(threads(256)))]
+        pub fn $scatter(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys_in: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals_in: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] table: &[u32],
+            #[spirv(workgroup)] st: &mut ScatterState,
+        ) {
+            sort::scatter_count(lid.x, flat_group(gid.x, gid.y), st, p, keys_in);
+            barrier();
+            sort::scatter_scan_load(lid.x, st);
+            barrier();
+            for s in 0..SCAN_STEPS {
+                scan::step(lid.x, s, &mut st.scan);
+                barrier();
+            }
+            sort::scatter_scan_store(lid.x, st);
+            barrier();
+            sort::scatter_base(lid.x, flat_group(gid.x, gid.y), st, p, table);
+            barrier();
+            sort::scatter_write(
+                lid.x,
+                flat_group(gid.x, gid.y),
+                st,
+                p,
+                keys_in,
+                vals_in,
+                keys_out,
+                vals_out,
+            );
+        }
+
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $build(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &mut [Node],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+        ) {
+            karras::build(
+                flat_index(id.x, id.y),
+                p,
+                keys,
+                vals,
+                tris,
+                spheres,
+                nodes,
+                parents,
+                visits,
+            );
+        }
+    };
+}
+
+key_kernels!(
+    u32,
+    morton30,
+    sort_histogram_u32,
+    sort_scatter_u32,
+    karras_build_u32
+);
+key_kernels!(
+    u64,
+    morton63,
+    sort_histogram_u64,
+    sort_scatter_u64,
+    karras_build_u64
+);

@@ -1,0 +1,113 @@
+//! Parallel construction of a binary radix tree over sorted Morton codes (Karras 2012,
+//! "Maximizing Parallelism in the Construction of BVHs, Octrees, and k-d Trees", sec. 4).
+//!
+//! Invocation `i` builds internal node `i` (for `i < n - 1`) and leaf `i`. Equal codes are
+//! told apart by their index: `delta(i, j)` is then `BITS + clz(i ^ j)` (Karras, sec. 4).
+//! Node layout: internal nodes `0..n-1`, leaves `n-1..2n-1`, root 0; see [`Node`].
+use crate::radix_sort::SortKey;
+use crate::types::{prim_box, BuildParams, Node, Sphere, Triangle, INVALID};
+
+/// Length of the common prefix of keys `i` and `j`; -1 when `j` is outside `0..n`.
+pub fn delta<K: SortKey>(keys: &[K], n: u32, i: u32, j: i32) -> i32 {
+    if j < 0 || j >= n as i32 {
+        return -1;
+    }
+    let (a, b) = (keys[i as usize], keys[j as usize]);
+    if a == b {
+        (K::BITS + (i ^ j as u32).leading_zeros()) as i32
+    } else {
+        a.clz_xor(b) as i32
+    }
+}
+
+/// The range `[first, last]` of leaves under internal node `i`, and its split `gamma`:
+/// the left child covers `[first, gamma]`, the right `[gamma + 1, last]`.
+pub fn range_and_split<K: SortKey>(keys: &[K], n: u32, i: u32) -> (u32, u32, u32) {
+    let ii = i as i32;
+    // Direction of the range: towards the neighbour sharing the longer prefix.
+    let d: i32 = if delta(keys, n, i, ii + 1) > delta(keys, n, i, ii - 1) {
+        1
+    } else {
+        -1
+    };
+    let d_min = delta(keys, n, i, ii - d);
+    // Upper bound on the range length, then binary search for the other end.
+    let mut l_max: i32 = 2;
+    while delta(keys, n, i, ii + l_max * d) > d_min {
+        l_max *= 2;
+    }
+    let mut l: i32 = 0;
+    let mut t = l_max / 2;
+    while t >= 1 {
+        if delta(keys, n, i, ii + (l + t) * d) > d_min {
+            l += t;
+        }
+        t /= 2;
+    }
+    let j = ii + l * d;
+    // Binary search for the split: the last index sharing more than d_node bits with i.
+    let d_node = delta(keys, n, i, j);
+    let mut s: i32 = 0;
+    let mut div: i32 = 2;
+    loop {
+        let t = (l + div - 1) / div;
+        if delta(keys, n, i, ii + (s + t) * d) > d_node {
+            s += t;
+        }
+        if t <= 1 {
+            break;
+        }
+        div *= 2;
+    }
+    let gamma = ii + s * d + if d < 0 { -1 } else { 0 };
+    (ii.min(j) as u32, ii.max(j) as u32, gamma as u32)
+}
+
+/// Builds internal node `i` and leaf `i`, records parents, and clears the visit counter.
+#[allow(clippy::too_many_arguments)]
+pub fn build<K: SortKey>(
+    i: u32,
+    p: &BuildParams,
+    keys: &[K],
+    vals: &[u32],
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    nodes: &mut [Node],
+    parents: &mut [u32],
+    visits: &mut [u32],
+) {
+    let n = p.n;
+    if i >= n {
+        return;
+    }
+    let leaf = n - 1 + i;
+    let prim = vals[i as usize];
+    let (lo, hi) = prim_box(prim, p.n_tris, tris, spheres);
+    nodes[leaf as usize] = Node {
+        min: lo.to_array(),
+        a: prim,
+        max: hi.to_array(),
+        b: INVALID,
+    };
+    if i == 0 {
+        parents[0] = INVALID;
+    }
+    if i + 1 < n {
+        let (first, last, gamma) = range_and_split(keys, n, i);
+        let left = if first == gamma { n - 1 + gamma } else { gamma };
+        let right = if last == gamma + 1 {
+            n + gamma
+        } else {
+            gamma + 1
+        };
+        nodes[i as usize] = Node {
+            min: [f32::INFINITY; 3],
+            a: left,
+            max: [f32::NEG_INFINITY; 3],
+            b: right,
+        };
+        parents[left as usize] = i;
+        parents[right as usize] = i;
+        visits[i as usize] = 0;
+    }
+}

@@ -1,0 +1,19 @@
+//! Kernels and GPU data shared by the SPIR-V entry points (`shader-crate`) and the host's CPU
+//! executor. Every function here runs unchanged on both: the GPU calls it from a
+//! `#[spirv(compute)]` entry point, the CPU executor calls it for every invocation in turn.
+//!
+//! Two kernel shapes (see ARCHITECTURE.md): per-item steps `fn step(i, ..)`, and
+//! workgroup-cooperative kernels written as phases `fn phase(lane, group, &mut State, ..)`
+//! separated by workgroup barriers.
+#![cfg_attr(not(test), no_std)]
+
+pub mod bounds;
+pub mod karras;
+pub mod morton;
+pub mod radix_sort;
+pub mod refit;
+pub mod scan;
+pub mod sync;
+pub mod types;
+
+pub use spirv_std::glam;

@@ -1,0 +1,184 @@
+//! Morton codes of quantised primitive centroids (Karras 2012, sec. 4; pbrt-v4 `LeftShift3`).
+//!
+//! Quantisation multiplies by a power of two chosen from the exponent of each axis's extent,
+//! so it is exact on every backend: the CPU and the GPU produce the same codes bit for bit.
+//! Each axis gets between half and all of its `2^bits` cells.
+use crate::types::{prim_centroid2, BuildParams, OrderedBounds, Sphere, Triangle};
+use spirv_std::glam::Vec3;
+
+/// Spreads the low 10 bits of `v` so that bit `k` moves to bit `3k`:
+///
+/// ```text
+/// v = ---- ---- ---- ---- ---- --98 7654 3210
+///   = ---- 9--8 --7- -6-- 5--4 --3- -2-- 1--0
+/// ```
+pub fn expand_bits_10(v: u32) -> u32 {
+    let mut v = v & 0x3FF;
+    v = (v | (v << 16)) & 0x0300_00FF;
+    v = (v | (v << 8)) & 0x0300_F00F;
+    v = (v | (v << 4)) & 0x030C_30C3;
+    v = (v | (v << 2)) & 0x0924_9249;
+    v
+}
+
+/// Spreads the low 21 bits of `v` so that bit `k` moves to bit `3k` (63 bits used).
+pub fn expand_bits_21(v: u64) -> u64 {
+    let mut v = v & 0x1F_FFFF;
+    v = (v | (v << 32)) & 0x001F_0000_0000_FFFF;
+    v = (v | (v << 16)) & 0x001F_0000_FF00_00FF;
+    v = (v | (v << 8)) & 0x100F_00F0_0F00_F00F;
+    v = (v | (v << 4)) & 0x10C3_0C30_C30C_30C3;
+    v = (v | (v << 2)) & 0x1249_2492_4924_9249;
+    v
+}
+
+/// The power of two `s` for which `extent * s` lies in `[cells/2, cells)`; `cells = 2^bits`.
+/// Built from the exponent bits of `extent`, so it is exact.
+pub fn cell_scale(extent: f32, bits: u32) -> f32 {
+    let e = ((extent.to_bits() >> 23) & 0xFF) as i32 - 127;
+    let k = bits as i32 - 1 - e;
+    let biased = (k + 127).clamp(1, 254);
+    f32::from_bits((biased as u32) << 23)
+}
+
+/// Cell of `x` on an axis starting at `lo` with scale `s`, clamped to `[0, 2^bits)`; NaN -> 0.
+pub fn quantise(x: f32, lo: f32, s: f32, bits: u32) -> u32 {
+    let q = (x - lo) * s;
+    let top = ((1u32 << bits) - 1) as f32;
+    if q >= 0.0 {
+        if q < top {
+            q as u32
+        } else {
+            top as u32
+        }
+    } else {
+        0
+    }
+}
+
+/// Quantised cell of primitive `i` on each axis.
+fn cells(
+    i: u32,
+    p: &BuildParams,
+    b: &OrderedBounds,
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    bits: u32,
+) -> [u32; 3] {
+    let c = prim_centroid2(i, p.n_tris, tris, spheres);
+    let lo = b.min();
+    let ext: Vec3 = b.max() - lo;
+    [
+        quantise(c.x, lo.x, cell_scale(ext.x, bits), bits),
+        quantise(c.y, lo.y, cell_scale(ext.y, bits), bits),
+        quantise(c.z, lo.z, cell_scale(ext.z, bits), bits),
+    ]
+}
+
+/// 30-bit code `..zyxzyx` of primitive `i`; also resets the sort value to `i`.
+pub fn morton30(
+    i: u32,
+    p: &BuildParams,
+    b: &OrderedBounds,
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    keys: &mut [u32],
+    vals: &mut [u32],
+) {
+    if i >= p.n {
+        return;
+    }
+    let q = cells(i, p, b, tris, spheres, 10);
+    keys[i as usize] =
+        (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
+    vals[i as usize] = i;
+}
+
+/// 63-bit code of primitive `i`; also resets the sort value to `i`.
+pub fn morton63(
+    i: u32,
+    p: &BuildParams,
+    b: &OrderedBounds,
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    keys: &mut [u64],
+    vals: &mut [u32],
+) {
+    if i >= p.n {
+        return;
+    }
+    let q = cells(i, p, b, tris, spheres, 21);
+    keys[i as usize] = (expand_bits_21(q[2] as u64) << 2)
+        | (expand_bits_21(q[1] as u64) << 1)
+        | expand_bits_21(q[0] as u64);
+    vals[i as usize] = i;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn slow_expand(v: u64, bits: u32) -> u64 {
+        (0..bits).map(|k| ((v >> k) & 1) << (3 * k)).sum()
+    }
+
+    #[test]
+    fn expand_bits_moves_bit_k_to_3k() {
+        for v in [0u32, 1, 2, 3, 0x155, 0x2AA, 0x3FF, 0x200, 0x1234] {
+            assert_eq!(
+                expand_bits_10(v) as u64,
+                slow_expand((v & 0x3FF) as u64, 10),
+                "{v:#x}"
+            );
+        }
+        for v in [
+            0u64,
+            1,
+            0x1F_FFFF,
+            0x15_5555,
+            0x10_0000,
+            0x12_3456,
+            0xFFFF_FFFF,
+        ] {
+            assert_eq!(expand_bits_21(v), slow_expand(v & 0x1F_FFFF, 21), "{v:#x}");
+        }
+    }
+
+    #[test]
+    fn cell_scale_fits_extent_into_cells() {
+        for ext in [
+            1e-30f32,
+            1e-6,
+            0.3,
+            1.0,
+            1.5,
+            2.0,
+            1023.0,
+            1024.0,
+            3e5,
+            1e30,
+            f32::MAX,
+        ] {
+            for bits in [10u32, 21] {
+                let s = cell_scale(ext, bits);
+                let cells = (1u64 << bits) as f64;
+                let scaled = ext as f64 * s as f64;
+                assert!(
+                    scaled < cells && scaled >= cells / 2.0,
+                    "ext {ext} bits {bits}: {scaled}"
+                );
+            }
+        }
+        // Zero extent (all centroids equal) quantises everything to cell 0.
+        assert_eq!(quantise(5.0, 5.0, cell_scale(0.0, 10), 10), 0);
+    }
+
+    #[test]
+    fn quantise_clamps_and_rejects_nan() {
+        assert_eq!(quantise(f32::NAN, 0.0, 1.0, 10), 0);
+        assert_eq!(quantise(-1.0, 0.0, 1.0, 10), 0);
+        assert_eq!(quantise(1e9, 0.0, 1.0, 10), 1023);
+        assert_eq!(quantise(1e9, 0.0, 1.0, 21), (1 << 21) - 1);
+        assert_eq!(quantise(7.9, 0.0, 1.0, 10), 7);
+    }
+}

@@ -1,0 +1,133 @@
+//! The seam between kernels and GPU-only intrinsics. On SPIR-V these are real atomics; on the
+//! CPU executor, which runs one invocation at a time, plain reads and writes have the same
+//! meaning.
+#[cfg(target_arch = "spirv")]
+use spirv_std::memory::{Scope, Semantics};
+
+#[cfg(target_arch = "spirv")]
+const DEVICE: u32 = Scope::Device as u32;
+#[cfg(target_arch = "spirv")]
+const WORKGROUP: u32 = Scope::Workgroup as u32;
+#[cfg(target_arch = "spirv")]
+const RELAXED: u32 = Semantics::NONE.bits();
+/// Acquire-release on storage-buffer memory with availability and visibility operations:
+/// what Karras's `__threadfence()` gives the refit's visit counter.
+#[cfg(target_arch = "spirv")]
+const ACQ_REL: u32 = Semantics::ACQUIRE_RELEASE.bits()
+    | Semantics::UNIFORM_MEMORY.bits()
+    | Semantics::MAKE_AVAILABLE.bits()
+    | Semantics::MAKE_VISIBLE.bits();
+
+/// Relaxed device-scope `min`; returns the old value.
+pub fn atomic_min(p: &mut u32, v: u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_u_min::<u32, DEVICE, RELAXED>(p, v)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        let old = *p;
+        *p = old.min(v);
+        old
+    }
+}
+
+/// Relaxed device-scope `max`; returns the old value.
+pub fn atomic_max(p: &mut u32, v: u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_u_max::<u32, DEVICE, RELAXED>(p, v)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        let old = *p;
+        *p = old.max(v);
+        old
+    }
+}
+
+/// Relaxed workgroup-scope `min` on workgroup memory.
+pub fn workgroup_min(p: &mut u32, v: u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_u_min::<u32, WORKGROUP, RELAXED>(p, v)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        let old = *p;
+        *p = old.min(v);
+        old
+    }
+}
+
+/// Relaxed workgroup-scope `max` on workgroup memory.
+pub fn workgroup_max(p: &mut u32, v: u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_u_max::<u32, WORKGROUP, RELAXED>(p, v)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        let old = *p;
+        *p = old.max(v);
+        old
+    }
+}
+
+/// Relaxed workgroup-scope add on workgroup memory; returns the old value.
+pub fn workgroup_add(p: &mut u32, v: u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_i_add::<u32, WORKGROUP, RELAXED>(p, v)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        let old = *p;
+        *p = old.wrapping_add(v);
+        old
+    }
+}
+
+/// Device-scope add on storage-buffer memory; returns the old value. With `ORDERED` it is
+/// acquire-release; without, relaxed (see `refit` for the one driver that needs that).
+pub fn atomic_add_device<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        if ORDERED {
+            spirv_std::arch::atomic_i_add::<u32, DEVICE, ACQ_REL>(p, v)
+        } else {
+            spirv_std::arch::atomic_i_add::<u32, DEVICE, RELAXED>(p, v)
+        }
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        let old = *p;
+        *p = old.wrapping_add(v);
+        old
+    }
+}
+
+/// Relaxed device-scope load: reads what another workgroup stored in this dispatch, past any
+/// non-coherent cache.
+pub fn atomic_load(p: &u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_load::<u32, DEVICE, RELAXED>(p)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        *p
+    }
+}
+
+/// Relaxed device-scope store, the partner of [`atomic_load`].
+pub fn atomic_store(p: &mut u32, v: u32) {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_store::<u32, DEVICE, RELAXED>(p, v)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        *p = v;
+    }
+}

@@ -1,0 +1,56 @@
+//! Helpers of the integration tests: opening the GPU (skip or fail without one), checking
+//! the validation layer, and writing both sides of a mismatch to a file.
+use raytrace::vk::{Gpu, GpuOptions};
+use std::fmt::Debug;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// The Vulkan device with validation on, or `None` (after printing a skip line) where there
+/// is none. With `REQUIRE_VULKAN=1` a missing device fails the test instead.
+pub fn gpu(test: &str) -> Option<Arc<Gpu>> {
+    match Gpu::new(&GpuOptions {
+        validation: true,
+        device: None,
+    }) {
+        Ok(g) => Some(g),
+        Err(e) => {
+            if std::env::var("REQUIRE_VULKAN").is_ok_and(|v| v == "1") {
+                panic!("{test}: REQUIRE_VULKAN=1 but no Vulkan device: {e:#}");
+            }
+            eprintln!("SKIPPED {test}: no Vulkan device ({e:#})");
+            None
+        }
+    }
+}
+
+/// Fails if the validation layer reported any error.
+pub fn assert_no_validation_errors(gpu: &Gpu) {
+    let errors = gpu.validation_errors();
+    assert!(
+        errors.is_empty(),
+        "{} Vulkan validation errors, first: {}",
+        errors.len(),
+        errors[0]
+    );
+}
+
+/// Writes `left` and `right` to a file under the test's temporary folder and returns its path.
+pub fn dump_mismatch(
+    name: &str,
+    left_label: &str,
+    left: &impl Debug,
+    right_label: &str,
+    right: &impl Debug,
+) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/tmp/mismatches");
+    let _ = std::fs::create_dir_all(&dir);
+    let path = dir.join(format!(
+        "{}.txt",
+        name.replace(|c: char| !c.is_ascii_alphanumeric(), "_")
+    ));
+    let text = format!("== {left_label}\n{left:#?}\n== {right_label}\n{right:#?}\n");
+    if let Err(e) = std::fs::write(&path, text) {
+        eprintln!("could not write {}: {e}", path.display());
+    }
+    path
+}
