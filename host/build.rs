@@ -15,11 +15,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if !matches!(result.module, ModuleResult::SingleModule(_)) {
         return Err("expected a single SPIR-V module".into());
     }
-    let names: Vec<String> = result
-        .entry_points
-        .iter()
-        .map(|e| format!("{e:?}"))
-        .collect();
+    let names: Vec<String> = result.entry_points.iter().map(|e| format!("{e:?}")).collect();
     let out = PathBuf::from(std::env::var("OUT_DIR")?).join("entry_points.rs");
     std::fs::write(
         out,

@@ -3,6 +3,17 @@
 //! CPU executor's time on the same input; the GPU result is checked against the CPU's after
 //! timing. Writes Markdown and JSON.
 use crate::bvh::{MortonBits, STAGES};
+
+/// Reported columns: the stages, and the sort's two kernels (summed over its passes).
+const COLUMNS: [&str; 7] = [
+    STAGES[0],
+    STAGES[1],
+    STAGES[2],
+    "sort.histogram",
+    "sort.scatter",
+    STAGES[3],
+    STAGES[4],
+];
 use crate::cpu;
 use crate::inputs::{assets_dir, generate, load_obj, Distribution};
 use crate::lbvh::GpuLbvh;
@@ -28,7 +39,7 @@ pub struct BuildRow {
     pub primitives: usize,
     pub bits: MortonBits,
     pub runs: usize,
-    /// Median GPU microseconds per stage, in `STAGES` order.
+    /// Median GPU microseconds per column of `COLUMNS`.
     pub stage_us: Vec<(String, f64)>,
     /// Median of the per-run totals.
     pub total_us: f64,
@@ -114,11 +125,7 @@ pub fn bench_build(
             let t = lbvh.build(bits, false)?;
             let mut total = 0.0;
             for (s, name) in STAGES.iter().enumerate() {
-                let ns = t
-                    .iter()
-                    .filter(|(l, _)| l == name)
-                    .map(|(_, ns)| ns)
-                    .sum::<f64>();
+                let ns = t.iter().filter(|(l, _)| l == name).map(|(_, ns)| ns).sum::<f64>();
                 per_stage[s].push(ns / 1e3);
                 total += ns / 1e3;
             }
@@ -140,18 +147,10 @@ pub fn bench_build(
             cpu_result = Some(r);
         }
         let matches_cpu = cpu_result.as_ref() == Some(&gpu_result);
-        let stats = validate(
-            &gpu_result.nodes,
-            &gpu_result.parents,
-            &input.tris,
-            &input.spheres,
-        )
-        .map_err(|e| anyhow::anyhow!("GPU BVH of {} is invalid:\n{e}", input.name))?;
+        let stats = validate(&gpu_result.nodes, &gpu_result.parents, &input.tris, &input.spheres)
+            .map_err(|e| anyhow::anyhow!("GPU BVH of {} is invalid:\n{e}", input.name))?;
         if !matches_cpu {
-            bail!(
-                "GPU build of {} differs from the CPU executor's",
-                input.name
-            );
+            bail!("GPU build of {} differs from the CPU executor's", input.name);
         }
         let (bvh_bytes, scratch) = lbvh.memory();
         rows.push(BuildRow {
@@ -194,11 +193,14 @@ pub fn markdown(r: &BuildReport) -> String {
          nodes only; scratch is everything else the builder holds (inputs included).\n"
     );
     let _ = write!(s, "| input | prims | bits | runs |");
-    for st in STAGES {
+    for st in COLUMNS {
         let _ = write!(s, " {st} |");
     }
-    let _ = writeln!(s, " total (p10-p90) | Mprims/s | BVH B/prim | scratch B/prim | depth | CPU executor ms | equals CPU |");
-    let _ = writeln!(s, "|{}", "---|".repeat(4 + STAGES.len() + 7));
+    let _ = writeln!(
+        s,
+        " total (p10-p90) | Mprims/s | BVH B/prim | scratch B/prim | depth | CPU executor ms | equals CPU |"
+    );
+    let _ = writeln!(s, "|{}", "---|".repeat(4 + COLUMNS.len() + 7));
     for row in &r.rows {
         let _ = write!(
             s,
@@ -231,8 +233,7 @@ pub fn write_report(r: &BuildReport, dir: &Path, stem: &str) -> Result<PathBuf> 
     let md = dir.join(format!("{stem}.md"));
     std::fs::write(&md, markdown(r)).with_context(|| format!("writing {}", md.display()))?;
     let json = dir.join(format!("{stem}.json"));
-    std::fs::write(&json, serde_json::to_string_pretty(r)?)
-        .with_context(|| format!("writing {}", json.display()))?;
+    std::fs::write(&json, serde_json::to_string_pretty(r)?).with_context(|| format!("writing {}", json.display()))?;
     Ok(md)
 }
 

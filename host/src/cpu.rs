@@ -12,10 +12,6 @@ use std::time::Instant;
 
 const WG: usize = WORKGROUP as usize;
 
-fn block_scan() -> BlockScan {
-    BlockScan { sums: [[0; WG]; 2] }
-}
-
 /// Runs `phase` for every lane of a workgroup.
 fn lanes(mut phase: impl FnMut(u32)) {
     for lane in 0..WORKGROUP {
@@ -30,19 +26,14 @@ fn scan_steps(st: &mut BlockScan) {
 }
 
 /// Builds the BVH on the CPU; returns every stage's output and each stage's seconds.
-pub fn build(
-    tris: &[Triangle],
-    spheres: &[Sphere],
-    bits: MortonBits,
-) -> (BuildResult, Vec<(&'static str, f64)>) {
+pub fn build(tris: &[Triangle], spheres: &[Sphere], bits: MortonBits) -> (BuildResult, Vec<(&'static str, f64)>) {
     match bits {
         MortonBits::B30 => build_keyed::<u32>(tris, spheres, bits, morton::morton30),
         MortonBits::B63 => build_keyed::<u64>(tris, spheres, bits, morton::morton63),
     }
 }
 
-type MortonFn<K> =
-    fn(u32, &BuildParams, &OrderedBounds, &[Triangle], &[Sphere], &mut [K], &mut [u32]);
+type MortonFn<K> = fn(u32, &BuildParams, &OrderedBounds, &[Triangle], &[Sphere], &mut [K], &mut [u32]);
 
 fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     tris: &[Triangle],
@@ -89,7 +80,8 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     let mut keys_b = keys.clone();
     let mut vals_b = vals.clone();
-    let mut table = vec![0u32; (RADIX * tiles) as usize];
+    let mut counts = vec![0u32; (RADIX * tiles) as usize];
+    let mut supers = vec![0u32; (sort::passes(bits.key_bits()) * RADIX * sort::super_count(&p)) as usize];
     for pass in 0..sort::passes(bits.key_bits()) {
         p.shift = pass * sort::RADIX_BITS;
         for g in 0..tiles {
@@ -98,26 +90,22 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
             };
             lanes(|l| sort::histogram_clear(l, &mut st));
             lanes(|l| sort::histogram_count(l, g, &mut st, &p, &keys));
-            lanes(|l| sort::histogram_store(l, g, &st, &p, &mut table));
+            lanes(|l| sort::histogram_store(l, g, &st, &p, &mut counts, &mut supers));
         }
-        let mut st = block_scan();
-        lanes(|l| scan::table_load(l, &mut st, &p, &table));
-        scan_steps(&mut st);
-        lanes(|l| scan::table_store(l, &st, &p, &mut table));
         let mut st = Box::new(ScatterState {
             counts: [0; RADIX as usize * WG],
+            total: [0; WG],
+            before: [0; WG],
             base: [0; RADIX as usize],
-            scan: block_scan(),
+            scan: BlockScan { sums: [[0; WG]; 2] },
         });
         for g in 0..tiles {
-            lanes(|l| sort::scatter_count(l, g, &mut st, &p, &keys));
+            lanes(|l| sort::scatter_count(l, g, &mut st, &p, &keys, &counts, &supers));
             lanes(|l| sort::scatter_scan_load(l, &mut st));
             scan_steps(&mut st.scan);
             lanes(|l| sort::scatter_scan_store(l, &mut st));
-            lanes(|l| sort::scatter_base(l, g, &mut st, &p, &table));
-            lanes(|l| {
-                sort::scatter_write(l, g, &mut st, &p, &keys, &vals, &mut keys_b, &mut vals_b)
-            });
+            lanes(|l| sort::scatter_base(l, &mut st));
+            lanes(|l| sort::scatter_write(l, g, &mut st, &p, &keys, &vals, &mut keys_b, &mut vals_b));
         }
         std::mem::swap(&mut keys, &mut keys_b);
         std::mem::swap(&mut vals, &mut vals_b);

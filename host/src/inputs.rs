@@ -47,19 +47,12 @@ fn tri(c: [f32; 3], size: f32, rng: &mut Pcg64) -> Triangle {
 }
 
 /// `n` primitives of `dist`; every fifth one is a sphere when `spheres` is set.
-pub fn generate(
-    n: usize,
-    dist: Distribution,
-    spheres: bool,
-    seed: u64,
-) -> (Vec<Triangle>, Vec<Sphere>) {
+pub fn generate(n: usize, dist: Distribution, spheres: bool, seed: u64) -> (Vec<Triangle>, Vec<Sphere>) {
     let mut rng = Pcg64::seed_from_u64(seed);
     let size = 1.0 / (n.max(1) as f32).cbrt();
     let mut ts = Vec::with_capacity(n);
     let mut ss = Vec::new();
-    let fixed: Vec<[f32; 3]> = (0..7)
-        .map(|_| [rng.random(), rng.random(), rng.random()])
-        .collect();
+    let fixed: Vec<[f32; 3]> = (0..7).map(|_| [rng.random(), rng.random(), rng.random()]).collect();
     for i in 0..n {
         let c = match dist {
             Distribution::Random => [rng.random(), rng.random(), rng.random()],
@@ -95,8 +88,7 @@ pub fn load_obj(path: &Path) -> Result<Vec<Triangle>> {
         single_index: true,
         ..Default::default()
     };
-    let (models, _) = tobj::load_obj(path, &opts)
-        .with_context(|| format!("reading OBJ file {}", path.display()))?;
+    let (models, _) = tobj::load_obj(path, &opts).with_context(|| format!("reading OBJ file {}", path.display()))?;
     let mut tris = Vec::new();
     for m in &models {
         let pos = &m.mesh.positions;

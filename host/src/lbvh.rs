@@ -6,7 +6,7 @@ use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels, BINDINGS};
 use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
-use shared::radix_sort::{self as sort, RADIX};
+use shared::radix_sort::{self as sort, RADIX, SUPER};
 use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;
 
@@ -20,6 +20,8 @@ struct Buffers {
     keys_b: Buffer,
     vals_b: Buffer,
     table: Buffer,
+    /// Per-super-tile digit sums of every pass of the sort.
+    supers: Buffer,
     nodes: Buffer,
     parents: Buffer,
     visits: Buffer,
@@ -34,6 +36,11 @@ struct Buffers {
 }
 
 impl Buffers {
+    /// Bytes of the super-tile sums for `n` primitives: every pass of the widest sort.
+    fn supers_bytes(n: u64) -> u64 {
+        sort::passes(64) as u64 * RADIX as u64 * n.div_ceil(TILE as u64).div_ceil(SUPER as u64) * 4
+    }
+
     fn new(gpu: &Arc<Gpu>, kernels: &Kernels, n_tris: usize, n_spheres: usize) -> Result<Buffers> {
         let n = (n_tris + n_spheres).max(1) as u64;
         let tiles = n.div_ceil(TILE as u64);
@@ -46,12 +53,12 @@ impl Buffers {
         let keys_b = dev("keys B", n * 8)?;
         let vals_b = dev("values B", n * 4)?;
         let table = dev("digit table", tiles * RADIX as u64 * 4)?;
+        let supers = dev("super-tile sums", Self::supers_bytes(n))?;
         let nodes = dev("nodes", (2 * n - 1) * size_of::<Node>() as u64)?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters", n * 4)?;
         let capture = dev("captured codes", n * 8)?;
-        let staging_bytes =
-            (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
+        let staging_bytes = (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
         let staging = Buffer::new(
             gpu,
             "staging",
@@ -59,8 +66,7 @@ impl Buffers {
             MemoryLocation::CpuToGpu,
         )?;
         let a_to_b: [&Buffer; BINDINGS] = [
-            &tris, &spheres, &bounds, &keys_a, &vals_a, &keys_b, &vals_b, &table, &nodes, &parents,
-            &visits,
+            &tris, &spheres, &bounds, &keys_a, &vals_a, &keys_b, &vals_b, &table, &nodes, &parents, &visits, &supers,
         ];
         let mut b_to_a = a_to_b;
         b_to_a[3..7].copy_from_slice(&[&keys_b, &vals_b, &keys_a, &vals_a]);
@@ -74,6 +80,7 @@ impl Buffers {
             keys_b,
             vals_b,
             table,
+            supers,
             nodes,
             parents,
             visits,
@@ -124,8 +131,8 @@ impl GpuLbvh {
             None => (0, 0),
             Some(b) => {
                 let all = [
-                    &b.tris, &b.spheres, &b.bounds, &b.keys_a, &b.vals_a, &b.keys_b, &b.vals_b,
-                    &b.table, &b.parents, &b.visits, &b.capture, &b.staging,
+                    &b.tris, &b.spheres, &b.bounds, &b.keys_a, &b.vals_a, &b.keys_b, &b.vals_b, &b.table, &b.parents,
+                    &b.visits, &b.capture, &b.staging,
                 ];
                 (b.nodes.size, all.iter().map(|x| x.size).sum())
             }
@@ -205,6 +212,7 @@ impl GpuLbvh {
         cmds.timestamp("start");
         cmds.fill_range(&b.bounds, 0, 16, u32::MAX);
         cmds.fill_range(&b.bounds, 16, 16, 0);
+        cmds.fill_range(&b.supers, 0, Buffers::supers_bytes(n as u64), 0);
         cmds.barrier();
         if n == 0 {
             for s in STAGES {
@@ -227,12 +235,11 @@ impl GpuLbvh {
             let set = if pass % 2 == 0 { set_ab } else { set_ba };
             cmds.dispatch(k, set, histogram, &p, tiles);
             cmds.barrier();
-            cmds.dispatch(k, set, Kernel::SortScan, &p, 1);
-            cmds.barrier();
+            cmds.timestamp("sort.histogram");
             cmds.dispatch(k, set, scatter, &p, tiles);
             cmds.barrier();
+            cmds.timestamp("sort.scatter");
         }
-        cmds.timestamp(STAGES[2]);
         cmds.dispatch(k, set_ab, build, &p, items);
         cmds.barrier();
         cmds.timestamp(STAGES[3]);
@@ -264,9 +271,7 @@ impl GpuLbvh {
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         self.cmds.begin()?;
         self.cmds.copy_range(which(b), 0, &readback, 0, bytes);
-        self.cmds
-            .submit_wait()
-            .context("reading back GPU results")?;
+        self.cmds.submit_wait().context("reading back GPU results")?;
         readback.read(count)
     }
 

@@ -17,12 +17,7 @@ fn contains(outer: &Node, min: [f32; 3], max: [f32; 3]) -> bool {
 }
 
 /// Checks the BVH over `tris` then `spheres`; the error lists the first problems found.
-pub fn validate(
-    nodes: &[Node],
-    parents: &[u32],
-    tris: &[Triangle],
-    spheres: &[Sphere],
-) -> Result<BvhStats, String> {
+pub fn validate(nodes: &[Node], parents: &[u32], tris: &[Triangle], spheres: &[Sphere]) -> Result<BvhStats, String> {
     let n = tris.len() + spheres.len();
     let mut problems = String::new();
     let mut report = |s: String| {
@@ -84,10 +79,7 @@ pub fn validate(
                     continue;
                 }
                 if parents.get(c) != Some(&(i as u32)) {
-                    report(format!(
-                        "node {c} has parent {:?}, expected {i}",
-                        parents.get(c)
-                    ));
+                    report(format!("node {c} has parent {:?}, expected {i}", parents.get(c)));
                 }
                 if !contains(node, nodes[c].min, nodes[c].max) {
                     report(format!("node {i} box does not contain child {c}"));
@@ -97,10 +89,7 @@ pub fn validate(
         }
     }
     if parents.first() != Some(&INVALID) {
-        report(format!(
-            "root parent is {:?}, expected none",
-            parents.first()
-        ));
+        report(format!("root parent is {:?}, expected none", parents.first()));
     }
     if let Some(i) = seen_node.iter().position(|s| !s) {
         report(format!("node {i} is not reachable from the root"));

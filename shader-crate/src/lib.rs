@@ -5,7 +5,7 @@
 
 use shared::bounds::{self, BoundsState};
 use shared::radix_sort::{self as sort, HistogramState, ScatterState};
-use shared::scan::{self, BlockScan, SCAN_STEPS};
+use shared::scan::{self, SCAN_STEPS};
 use shared::types::{flat_group, flat_index, BuildParams, Node, OrderedBounds, Sphere, Triangle};
 use shared::{karras, morton, refit};
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
@@ -27,22 +27,6 @@ pub fn bounds_reduce(
     bounds::accumulate(lid.x, flat_group(gid.x, gid.y), st, p, tris, spheres);
     barrier();
     bounds::flush(lid.x, st, out);
-}
-
-#[spirv(compute(threads(256)))]
-pub fn sort_scan(
-    #[spirv(local_invocation_id)] lid: UVec3,
-    #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] table: &mut [u32],
-    #[spirv(workgroup)] st: &mut BlockScan,
-) {
-    scan::table_load(lid.x, st, p, table);
-    barrier();
-    for s in 0..SCAN_STEPS {
-        scan::step(lid.x, s, st);
-        barrier();
-    }
-    scan::table_store(lid.x, st, p, table);
 }
 
 #[spirv(compute(threads(256)))]
@@ -90,17 +74,19 @@ macro_rules! key_kernels {
             #[spirv(workgroup_id)] gid: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
             #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] table: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &mut [u32],
             #[spirv(workgroup)] st: &mut HistogramState,
         ) {
             sort::histogram_clear(lid.x, st);
             barrier();
             sort::histogram_count(lid.x, flat_group(gid.x, gid.y), st, p, keys);
             barrier();
-            sort::histogram_store(lid.x, flat_group(gid.x, gid.y), st, p, table);
+            sort::histogram_store(lid.x, flat_group(gid.x, gid.y), st, p, counts, supers);
         }
 
         #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
         pub fn $scatter(
             #[spirv(local_invocation_id)] lid: UVec3,
             #[spirv(workgroup_id)] gid: UVec3,
@@ -109,10 +95,11 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals_in: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] table: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &[u32],
             #[spirv(workgroup)] st: &mut ScatterState,
         ) {
-            sort::scatter_count(lid.x, flat_group(gid.x, gid.y), st, p, keys_in);
+            sort::scatter_count(lid.x, flat_group(gid.x, gid.y), st, p, keys_in, counts, supers);
             barrier();
             sort::scatter_scan_load(lid.x, st);
             barrier();
@@ -122,7 +109,7 @@ macro_rules! key_kernels {
             }
             sort::scatter_scan_store(lid.x, st);
             barrier();
-            sort::scatter_base(lid.x, flat_group(gid.x, gid.y), st, p, table);
+            sort::scatter_base(lid.x, st);
             barrier();
             sort::scatter_write(
                 lid.x,
@@ -164,17 +151,5 @@ macro_rules! key_kernels {
     };
 }
 
-key_kernels!(
-    u32,
-    morton30,
-    sort_histogram_u32,
-    sort_scatter_u32,
-    karras_build_u32
-);
-key_kernels!(
-    u64,
-    morton63,
-    sort_histogram_u64,
-    sort_scatter_u64,
-    karras_build_u64
-);
+key_kernels!(u32, morton30, sort_histogram_u32, sort_scatter_u32, karras_build_u32);
+key_kernels!(u64, morton63, sort_histogram_u64, sort_scatter_u64, karras_build_u64);

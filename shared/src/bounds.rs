@@ -5,9 +5,7 @@
 //! Phases: [`clear`] | barrier | [`accumulate`] | barrier | [`flush`]. The global bounds start
 //! as [`OrderedBounds::EMPTY`] (the host fills them before the dispatch).
 use crate::sync;
-use crate::types::{
-    f32_to_ordered, prim_centroid2, BuildParams, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP,
-};
+use crate::types::{f32_to_ordered, prim_centroid2, BuildParams, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
 
 /// Workgroup memory of the bounds reduction.
 pub struct BoundsState {
@@ -21,14 +19,7 @@ pub fn clear(lane: u32, st: &mut BoundsState) {
     }
 }
 
-pub fn accumulate(
-    lane: u32,
-    group: u32,
-    st: &mut BoundsState,
-    p: &BuildParams,
-    tris: &[Triangle],
-    spheres: &[Sphere],
-) {
+pub fn accumulate(lane: u32, group: u32, st: &mut BoundsState, p: &BuildParams, tris: &[Triangle], spheres: &[Sphere]) {
     let mut i = group * TILE + lane;
     let end = (group * TILE + TILE).min(p.n);
     if i >= end {

@@ -95,11 +95,7 @@ pub fn build<K: SortKey>(
     if i + 1 < n {
         let (first, last, gamma) = range_and_split(keys, n, i);
         let left = if first == gamma { n - 1 + gamma } else { gamma };
-        let right = if last == gamma + 1 {
-            n + gamma
-        } else {
-            gamma + 1
-        };
+        let right = if last == gamma + 1 { n + gamma } else { gamma + 1 };
         nodes[i as usize] = Node {
             min: [f32::INFINITY; 3],
             a: left,

@@ -57,14 +57,7 @@ pub fn quantise(x: f32, lo: f32, s: f32, bits: u32) -> u32 {
 }
 
 /// Quantised cell of primitive `i` on each axis.
-fn cells(
-    i: u32,
-    p: &BuildParams,
-    b: &OrderedBounds,
-    tris: &[Triangle],
-    spheres: &[Sphere],
-    bits: u32,
-) -> [u32; 3] {
+fn cells(i: u32, p: &BuildParams, b: &OrderedBounds, tris: &[Triangle], spheres: &[Sphere], bits: u32) -> [u32; 3] {
     let c = prim_centroid2(i, p.n_tris, tris, spheres);
     let lo = b.min();
     let ext: Vec3 = b.max() - lo;
@@ -89,8 +82,7 @@ pub fn morton30(
         return;
     }
     let q = cells(i, p, b, tris, spheres, 10);
-    keys[i as usize] =
-        (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
+    keys[i as usize] = (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
     vals[i as usize] = i;
 }
 
@@ -108,9 +100,8 @@ pub fn morton63(
         return;
     }
     let q = cells(i, p, b, tris, spheres, 21);
-    keys[i as usize] = (expand_bits_21(q[2] as u64) << 2)
-        | (expand_bits_21(q[1] as u64) << 1)
-        | expand_bits_21(q[0] as u64);
+    keys[i as usize] =
+        (expand_bits_21(q[2] as u64) << 2) | (expand_bits_21(q[1] as u64) << 1) | expand_bits_21(q[0] as u64);
     vals[i as usize] = i;
 }
 
@@ -125,40 +116,16 @@ mod tests {
     #[test]
     fn expand_bits_moves_bit_k_to_3k() {
         for v in [0u32, 1, 2, 3, 0x155, 0x2AA, 0x3FF, 0x200, 0x1234] {
-            assert_eq!(
-                expand_bits_10(v) as u64,
-                slow_expand((v & 0x3FF) as u64, 10),
-                "{v:#x}"
-            );
+            assert_eq!(expand_bits_10(v) as u64, slow_expand((v & 0x3FF) as u64, 10), "{v:#x}");
         }
-        for v in [
-            0u64,
-            1,
-            0x1F_FFFF,
-            0x15_5555,
-            0x10_0000,
-            0x12_3456,
-            0xFFFF_FFFF,
-        ] {
+        for v in [0u64, 1, 0x1F_FFFF, 0x15_5555, 0x10_0000, 0x12_3456, 0xFFFF_FFFF] {
             assert_eq!(expand_bits_21(v), slow_expand(v & 0x1F_FFFF, 21), "{v:#x}");
         }
     }
 
     #[test]
     fn cell_scale_fits_extent_into_cells() {
-        for ext in [
-            1e-30f32,
-            1e-6,
-            0.3,
-            1.0,
-            1.5,
-            2.0,
-            1023.0,
-            1024.0,
-            3e5,
-            1e30,
-            f32::MAX,
-        ] {
+        for ext in [1e-30f32, 1e-6, 0.3, 1.0, 1.5, 2.0, 1023.0, 1024.0, 3e5, 1e30, f32::MAX] {
             for bits in [10u32, 21] {
                 let s = cell_scale(ext, bits);
                 let cells = (1u64 << bits) as f64;

@@ -1,29 +1,36 @@
 //! Stable least-significant-digit radix sort of (key, primitive) pairs over many workgroups
-//! (reduce-then-scan; Merrill & Grimshaw 2011, without their subgroup tricks).
+//! (reduce-then-scan, Merrill & Grimshaw 2011, without their subgroup tricks), two
+//! dispatches per `RADIX_BITS`-bit digit:
 //!
-//! One pass sorts by the `RADIX_BITS`-bit digit at `BuildParams::shift` in three dispatches:
-//! 1. [`histogram`]: each tile of `TILE` keys counts its digits into the table
-//!    `counts[digit * tiles + tile]`;
-//! 2. the table scan of [`crate::scan`]: one workgroup turns counts into output offsets;
-//! 3. [`scatter`]: each tile ranks its keys stably and writes them to their offsets.
+//! 1. [`histogram`]: each tile of `TILE` keys counts its digits, stores them in the tile
+//!    table `counts[digit * tiles + tile]`, and adds them atomically into the super-tile
+//!    table `supers[digit * n_supers + tile / SUPER]` of this pass (zeroed before the sort).
+//! 2. [`scatter`]: each tile finds the output offset of every digit from the two tables,
+//!    reading at most `16 * (n_supers + SUPER)` words, ranks its keys stably and writes them.
 //!
-//! In the scatter, invocation `lane` of a tile owns the `ITEMS` consecutive keys starting at
-//! `lane * ITEMS`, so order within a tile is (lane, item) = input order, which makes the
-//! pass stable. The workgroup keeps one counter per (digit, lane):
+//! The offset of digit `d` for tile `t` in super-tile `s = t / SUPER`:
 //!
 //! ```text
-//! counts[d * WORKGROUP + lane]   digit-major: an exclusive scan of the whole array gives,
-//!                                for lane l, (#keys of tile with digit < d)
-//!                                          + (#keys with digit d owned by lanes < l)
+//! offset(d, t) = sum_{d' < d} sum_S supers[d'][S]      keys with a smaller digit
+//!              + sum_{S < s} supers[d][S]              digit d in earlier super-tiles
+//!              + sum_{s*SUPER <= t' < t} counts[d][t'] digit d in earlier tiles of s
 //! ```
+//!
+//! In the scatter, lane `l` owns the `ITEMS` consecutive keys at `l * ITEMS`, so order
+//! within a tile is (lane, item) = input order: the pass is stable. The workgroup keeps one
+//! counter per (digit, lane), digit-major; an exclusive scan of the whole array gives, for
+//! lane `l`, (#keys of the tile with a smaller digit) + (#keys with digit d of lanes < l).
 use crate::scan::{self, BlockScan};
 use crate::sync;
 use crate::types::{BuildParams, ITEMS, TILE, WORKGROUP};
 
 pub const RADIX_BITS: u32 = 4;
 pub const RADIX: u32 = 1 << RADIX_BITS;
-const PER_LANE: u32 = RADIX * WORKGROUP / WORKGROUP;
-const _: () = assert!(RADIX * WORKGROUP % WORKGROUP == 0 && PER_LANE == RADIX);
+/// Tiles per super-tile.
+pub const SUPER: u32 = 64;
+/// Lanes that share one digit when the scatter sums the tables.
+const LANES_PER_DIGIT: u32 = WORKGROUP / RADIX;
+const _: () = assert!(RADIX * LANES_PER_DIGIT == WORKGROUP && RADIX * WORKGROUP / WORKGROUP == RADIX);
 
 /// A key the sort can take apart into digits.
 pub trait SortKey: Copy + PartialEq {
@@ -59,6 +66,23 @@ impl SortKey for u64 {
     }
 }
 
+/// Number of super-tiles.
+pub fn super_count(p: &BuildParams) -> u32 {
+    p.tiles.div_ceil(SUPER)
+}
+
+/// Start of this pass's super-tile table in the `supers` buffer (`RADIX * supers` per pass).
+pub fn supers_base(p: &BuildParams) -> u32 {
+    p.shift / RADIX_BITS * RADIX * super_count(p)
+}
+
+/// Number of digit passes for keys of `bits` significant bits (always even, so that the
+/// sorted pairs end in the input buffers).
+pub fn passes(bits: u32) -> u32 {
+    let p = bits.div_ceil(RADIX_BITS);
+    p + (p & 1)
+}
+
 /// Workgroup memory of the histogram kernel.
 pub struct HistogramState {
     pub counts: [u32; RADIX as usize],
@@ -70,18 +94,12 @@ pub fn histogram_clear(lane: u32, st: &mut HistogramState) {
     }
 }
 
-pub fn histogram_count<K: SortKey>(
-    lane: u32,
-    group: u32,
-    st: &mut HistogramState,
-    p: &BuildParams,
-    keys: &[K],
-) {
-    let mut i = group * TILE + lane;
-    let end = (group * TILE + TILE).min(p.n);
-    while i < end {
-        sync::workgroup_add(&mut st.counts[keys[i as usize].digit(p.shift) as usize], 1);
-        i += WORKGROUP;
+pub fn histogram_count<K: SortKey>(lane: u32, group: u32, st: &mut HistogramState, p: &BuildParams, keys: &[K]) {
+    for k in 0..ITEMS {
+        let i = group * TILE + k * WORKGROUP + lane;
+        if i < p.n {
+            sync::workgroup_add(&mut st.counts[keys[i as usize].digit(p.shift) as usize], 1);
+        }
     }
 }
 
@@ -90,55 +108,91 @@ pub fn histogram_store(
     group: u32,
     st: &HistogramState,
     p: &BuildParams,
-    table: &mut [u32],
+    counts: &mut [u32],
+    supers: &mut [u32],
 ) {
     if lane < RADIX {
-        table[(lane * p.tiles + group) as usize] = st.counts[lane as usize];
+        let c = st.counts[lane as usize];
+        counts[(lane * p.tiles + group) as usize] = c;
+        if c != 0 {
+            sync::atomic_add_device::<false>(
+                &mut supers[(supers_base(p) + lane * super_count(p) + group / SUPER) as usize],
+                c,
+            );
+        }
     }
 }
 
 /// Workgroup memory of the scatter kernel.
 pub struct ScatterState {
+    /// Per (digit, lane) key counts, digit-major; then their exclusive prefix sums.
     pub counts: [u32; (RADIX * WORKGROUP) as usize],
+    /// Per lane: partial sums of the tables (all of its digit; before this tile).
+    pub total: [u32; WORKGROUP as usize],
+    pub before: [u32; WORKGROUP as usize],
     /// Per digit: global offset of this tile's first key with that digit, minus the tile-local
     /// exclusive count of smaller digits.
     pub base: [u32; RADIX as usize],
     pub scan: BlockScan,
 }
 
-fn owned(lane: u32, group: u32, p: &BuildParams) -> (u32, u32) {
-    let start = (group * TILE + lane * ITEMS).min(p.n);
-    (start, (start + ITEMS).min(p.n))
+fn owned(lane: u32, group: u32) -> u32 {
+    group * TILE + lane * ITEMS
 }
 
-/// Phase 1: lane counts the digits of the keys it owns into its column.
+/// Phase 1: lane counts the digits of the keys it owns into its column, and sums its share
+/// of the tables for the tile offsets.
+#[allow(clippy::too_many_arguments)]
 pub fn scatter_count<K: SortKey>(
     lane: u32,
     group: u32,
     st: &mut ScatterState,
     p: &BuildParams,
     keys: &[K],
+    counts: &[u32],
+    supers: &[u32],
 ) {
-    let mut d = 0;
-    while d < RADIX {
+    for d in 0..RADIX {
         st.counts[(d * WORKGROUP + lane) as usize] = 0;
-        d += 1;
     }
-    let (start, end) = owned(lane, group, p);
-    let mut i = start;
-    while i < end {
-        st.counts[(keys[i as usize].digit(p.shift) * WORKGROUP + lane) as usize] += 1;
-        i += 1;
+    let start = owned(lane, group);
+    for k in 0..ITEMS {
+        let i = start + k;
+        if i < p.n {
+            st.counts[(keys[i as usize].digit(p.shift) * WORKGROUP + lane) as usize] += 1;
+        }
     }
+    // Table sums: lane = digit * LANES_PER_DIGIT + j takes every LANES_PER_DIGIT-th entry.
+    let d = lane / LANES_PER_DIGIT;
+    let j = lane % LANES_PER_DIGIT;
+    let n_supers = super_count(p);
+    let row = supers_base(p) + d * n_supers;
+    let s = group / SUPER;
+    let mut total = 0;
+    let mut before = 0;
+    let mut x = j;
+    while x < n_supers {
+        let v = supers[(row + x) as usize];
+        total += v;
+        if x < s {
+            before += v;
+        }
+        x += LANES_PER_DIGIT;
+    }
+    let mut t = s * SUPER + j;
+    while t < group {
+        before += counts[(d * p.tiles + t) as usize];
+        t += LANES_PER_DIGIT;
+    }
+    st.total[lane as usize] = total;
+    st.before[lane as usize] = before;
 }
 
 /// Phase 2: lane sums its `RADIX` consecutive entries of the digit-major counter array.
 pub fn scatter_scan_load(lane: u32, st: &mut ScatterState) {
     let mut s = 0;
-    let mut k = 0;
-    while k < PER_LANE {
-        s += st.counts[(lane * PER_LANE + k) as usize];
-        k += 1;
+    for k in 0..RADIX {
+        s += st.counts[(lane * RADIX + k) as usize];
     }
     st.scan.sums[0][lane as usize] = s;
 }
@@ -146,21 +200,25 @@ pub fn scatter_scan_load(lane: u32, st: &mut ScatterState) {
 /// Phase 3 (after the block scan): the counters become exclusive prefix sums.
 pub fn scatter_scan_store(lane: u32, st: &mut ScatterState) {
     let mut run = scan::exclusive(lane, &st.scan);
-    let mut k = 0;
-    while k < PER_LANE {
-        let i = (lane * PER_LANE + k) as usize;
+    for k in 0..RADIX {
+        let i = (lane * RADIX + k) as usize;
         let c = st.counts[i];
         st.counts[i] = run;
         run += c;
-        k += 1;
     }
 }
 
-/// Phase 4: the per-digit base of this tile from the scanned global table.
-pub fn scatter_base(lane: u32, group: u32, st: &mut ScatterState, p: &BuildParams, table: &[u32]) {
+/// Phase 4: the global offset of every digit of this tile (see the module docs).
+pub fn scatter_base(lane: u32, st: &mut ScatterState) {
     if lane < RADIX {
-        let global = table[(lane * p.tiles + group) as usize];
-        st.base[lane as usize] = global.wrapping_sub(st.counts[(lane * WORKGROUP) as usize]);
+        let mut offset = 0;
+        for x in 0..lane * LANES_PER_DIGIT {
+            offset += st.total[x as usize];
+        }
+        for j in 0..LANES_PER_DIGIT {
+            offset += st.before[(lane * LANES_PER_DIGIT + j) as usize];
+        }
+        st.base[lane as usize] = offset.wrapping_sub(st.counts[(lane * WORKGROUP) as usize]);
     }
 }
 
@@ -176,22 +234,17 @@ pub fn scatter_write<K: SortKey>(
     keys_out: &mut [K],
     vals_out: &mut [u32],
 ) {
-    let (start, end) = owned(lane, group, p);
-    let mut i = start;
-    while i < end {
-        let k = keys_in[i as usize];
-        let slot = (k.digit(p.shift) * WORKGROUP + lane) as usize;
-        let dst = st.base[k.digit(p.shift) as usize].wrapping_add(st.counts[slot]);
-        st.counts[slot] += 1;
-        keys_out[dst as usize] = k;
-        vals_out[dst as usize] = vals_in[i as usize];
-        i += 1;
+    let start = owned(lane, group);
+    for k in 0..ITEMS {
+        let i = start + k;
+        if i < p.n {
+            let key = keys_in[i as usize];
+            let d = key.digit(p.shift);
+            let slot = (d * WORKGROUP + lane) as usize;
+            let dst = st.base[d as usize].wrapping_add(st.counts[slot]);
+            st.counts[slot] += 1;
+            keys_out[dst as usize] = key;
+            vals_out[dst as usize] = vals_in[i as usize];
+        }
     }
-}
-
-/// Number of digit passes for keys of `bits` significant bits (always even, so that the
-/// sorted pairs end in the input buffers).
-pub fn passes(bits: u32) -> u32 {
-    let p = bits.div_ceil(RADIX_BITS);
-    p + (p & 1)
 }

@@ -15,50 +15,56 @@ fn load_f(words: &[u32], at: u32) -> f32 {
     f32::from_bits(sync::atomic_load(&words[at as usize]))
 }
 
-/// Climbs from leaf `i`, fitting every internal node this invocation arrives at second.
+/// Climbs from leaf `i`, fitting every internal node this invocation arrives at second. The
+/// invocation carries the box it just fitted and reads only the sibling's; children are
+/// combined in (left, right) order so that `min(-0.0, +0.0)` is the same on every backend.
 ///
 /// `ORDERED` selects the acquire-release counter that real GPUs need. Mesa 22.3's lavapipe
 /// (Debian 12, our CI device) loses the second arrival when any acquire/release semantics or
 /// memory barrier sits in this divergent loop (its coroutine barrier lowering); there the
 /// host runs the relaxed variant, which is sound on lavapipe's coherent x86 memory.
-pub fn refit<const ORDERED: bool>(
-    i: u32,
-    p: &BuildParams,
-    parents: &[u32],
-    visits: &mut [u32],
-    words: &mut [u32],
-) {
+pub fn refit<const ORDERED: bool>(i: u32, p: &BuildParams, parents: &[u32], visits: &mut [u32], words: &mut [u32]) {
     let n = p.n;
     if i >= n {
         return;
     }
     let mut node = n - 1 + i;
+    let base = node * WORDS;
+    let mut lo = [
+        f32::from_bits(words[base as usize]),
+        f32::from_bits(words[(base + 1) as usize]),
+        f32::from_bits(words[(base + 2) as usize]),
+    ];
+    let mut hi = [
+        f32::from_bits(words[(base + 4) as usize]),
+        f32::from_bits(words[(base + 5) as usize]),
+        f32::from_bits(words[(base + 6) as usize]),
+    ];
     let mut climbing = true;
     while climbing {
         let parent = parents[node as usize];
         // The first arrival at a node stops; the second fits it and climbs on.
-        if parent == INVALID
-            || sync::atomic_add_device::<ORDERED>(&mut visits[parent as usize], 1) == 0
-        {
+        if parent == INVALID || sync::atomic_add_device::<ORDERED>(&mut visits[parent as usize], 1) == 0 {
             climbing = false;
         } else {
-            fit(parent, words);
+            let pb = parent * WORDS;
+            let left = words[(pb + 3) as usize];
+            let sibling = if left == node { words[(pb + 7) as usize] } else { left };
+            let sb = sibling * WORDS;
+            for k in 0..3 {
+                let s_lo = load_f(words, sb + k);
+                let s_hi = load_f(words, sb + 4 + k);
+                let (l_lo, r_lo, l_hi, r_hi) = if left == node {
+                    (lo[k as usize], s_lo, hi[k as usize], s_hi)
+                } else {
+                    (s_lo, lo[k as usize], s_hi, hi[k as usize])
+                };
+                lo[k as usize] = l_lo.min(r_lo);
+                hi[k as usize] = l_hi.max(r_hi);
+                sync::atomic_store(&mut words[(pb + k) as usize], lo[k as usize].to_bits());
+                sync::atomic_store(&mut words[(pb + 4 + k) as usize], hi[k as usize].to_bits());
+            }
             node = parent;
         }
-    }
-}
-
-/// Sets the box of internal node `parent` to the union of its children's boxes.
-fn fit(parent: u32, words: &mut [u32]) {
-    let base = parent * WORDS;
-    let l = words[(base + 3) as usize] * WORDS;
-    let r = words[(base + 7) as usize] * WORDS;
-    let mut k = 0;
-    while k < 3 {
-        let lo = load_f(words, l + k).min(load_f(words, r + k));
-        let hi = load_f(words, l + 4 + k).max(load_f(words, r + 4 + k));
-        sync::atomic_store(&mut words[(base + k) as usize], lo.to_bits());
-        sync::atomic_store(&mut words[(base + 4 + k) as usize], hi.to_bits());
-        k += 1;
     }
 }

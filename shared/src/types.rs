@@ -9,10 +9,11 @@
 //! | 2       | `OrderedBounds` scene bounds of centroids   |
 //! | 3, 4    | sort input keys, values                     |
 //! | 5, 6    | sort output keys, values                    |
-//! | 7       | per-tile digit counts of the radix sort     |
+//! | 7       | radix sort: per-tile digit counts          |
 //! | 8       | `[Node]` the BVH (internal nodes, then leaves) |
 //! | 9       | parent of every node                        |
 //! | 10      | refit visit counter of every internal node  |
+//! | 11      | radix sort: per-super-tile digit sums, every pass |
 use bytemuck::{Pod, Zeroable};
 use core::mem::size_of;
 use spirv_std::glam::Vec3;
@@ -186,12 +187,7 @@ mod tests {
             f32::INFINITY,
         ];
         for w in xs.windows(2) {
-            assert!(
-                f32_to_ordered(w[0]) < f32_to_ordered(w[1]),
-                "{} !< {}",
-                w[0],
-                w[1]
-            );
+            assert!(f32_to_ordered(w[0]) < f32_to_ordered(w[1]), "{} !< {}", w[0], w[1]);
         }
         for x in xs {
             assert_eq!(ordered_to_f32(f32_to_ordered(x)).to_bits(), x.to_bits());

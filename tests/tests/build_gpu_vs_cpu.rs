@@ -9,6 +9,7 @@ use raytrace::inputs::{assets_dir, generate, load_obj, Distribution};
 use raytrace::lbvh::GpuLbvh;
 use raytrace::validate::validate;
 use raytrace::vk::Kernels;
+use shared::radix_sort::SUPER;
 use shared::types::{Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;
 
@@ -20,12 +21,8 @@ fn check(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[Sphere], 
     let stages: [(&str, fn(&BuildResult) -> Vec<u8>); 6] = [
         ("bounds", |r| bytemuck::bytes_of(&r.bounds).to_vec()),
         ("morton", |r| bytemuck::cast_slice(&r.morton).to_vec()),
-        ("sorted keys", |r| {
-            bytemuck::cast_slice(&r.sorted_keys).to_vec()
-        }),
-        ("sorted primitives", |r| {
-            bytemuck::cast_slice(&r.sorted_prims).to_vec()
-        }),
+        ("sorted keys", |r| bytemuck::cast_slice(&r.sorted_keys).to_vec()),
+        ("sorted primitives", |r| bytemuck::cast_slice(&r.sorted_prims).to_vec()),
         ("nodes", |r| bytemuck::cast_slice(&r.nodes).to_vec()),
         ("parents", |r| bytemuck::cast_slice(&r.parents).to_vec()),
     ];
@@ -78,6 +75,12 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
             }
         }
     }
+    // More than one super-tile of the sort's offset tables.
+    let n = (2 * SUPER * TILE + 1) as usize;
+    for bits in [MortonBits::B30, MortonBits::B63] {
+        let (t, s) = generate(n, Distribution::Random, true, 77);
+        check(&mut lbvh, &format!("Random-{n}"), &t, &s, bits);
+    }
     assert_no_validation_errors(&gpu);
 }
 
@@ -107,14 +110,9 @@ fn buffers_are_reused_across_builds() {
     lbvh.upload(&t, &s).unwrap();
     let before = lbvh.memory();
     for n in [4000, 5000, 10] {
-        lbvh.upload(&t[..n.min(t.len())], &s[..n.min(s.len()) / 5])
-            .unwrap();
+        lbvh.upload(&t[..n.min(t.len())], &s[..n.min(s.len()) / 5]).unwrap();
         lbvh.build(MortonBits::B30, false).unwrap();
-        assert_eq!(
-            lbvh.memory(),
-            before,
-            "buffers were reallocated for {n} primitives"
-        );
+        assert_eq!(lbvh.memory(), before, "buffers were reallocated for {n} primitives");
     }
     assert_no_validation_errors(&gpu);
 }

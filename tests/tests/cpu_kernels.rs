@@ -28,9 +28,7 @@ fn radix_sort_is_a_stable_sort_of_the_morton_codes() {
 #[test]
 fn karras_splits_match_the_papers_figure() {
     // Karras 2012, figure 3: eight 5-bit codes.
-    let keys: [u32; 8] = [
-        0b00001, 0b00010, 0b00100, 0b00101, 0b10011, 0b11000, 0b11001, 0b11110,
-    ];
+    let keys: [u32; 8] = [0b00001, 0b00010, 0b00100, 0b00101, 0b10011, 0b11000, 0b11001, 0b11110];
     assert_eq!(range_and_split(&keys, 8, 0), (0, 7, 3));
     assert_eq!(range_and_split(&keys, 8, 1), (0, 1, 0));
     assert_eq!(range_and_split(&keys, 8, 3), (0, 3, 1));
@@ -49,8 +47,8 @@ fn every_input_shape_gives_a_valid_tree() {
             for n in [0, 1, 2, 3, wg - 1, wg, wg + 1, 5000] {
                 let (t, s) = generate(n, dist, n % 2 == 0, 9);
                 let (r, _) = cpu::build(&t, &s, bits);
-                let stats = validate(&r.nodes, &r.parents, &t, &s)
-                    .unwrap_or_else(|e| panic!("{dist:?} n={n} {bits:?}: {e}"));
+                let stats =
+                    validate(&r.nodes, &r.parents, &t, &s).unwrap_or_else(|e| panic!("{dist:?} n={n} {bits:?}: {e}"));
                 assert_eq!(stats.leaves, n);
                 if dist == Distribution::AllEqual && n % 2 == 1 {
                     // Only identical triangles (odd n has no spheres): every code is equal, and
@@ -102,10 +100,7 @@ fn obj_error(name: &str, text: &str) -> String {
 
 #[test]
 fn bad_mesh_files_get_errors_naming_file_and_problem() {
-    let missing = format!(
-        "{:#}",
-        load_obj(std::path::Path::new("/no/such/mesh.obj")).unwrap_err()
-    );
+    let missing = format!("{:#}", load_obj(std::path::Path::new("/no/such/mesh.obj")).unwrap_err());
     assert!(missing.contains("/no/such/mesh.obj"), "{missing}");
 
     let nan = obj_error("nan.obj", "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n");
@@ -118,10 +113,7 @@ fn bad_mesh_files_get_errors_naming_file_and_problem() {
     assert!(inf.contains("inf.obj") && inf.contains("vertex 2"), "{inf}");
 
     let empty = obj_error("empty.obj", "# nothing\n");
-    assert!(
-        empty.contains("empty.obj") && empty.contains("no triangles"),
-        "{empty}"
-    );
+    assert!(empty.contains("empty.obj") && empty.contains("no triangles"), "{empty}");
 
     let bad_index = obj_error("bad_index.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n");
     assert!(bad_index.contains("bad_index.obj"), "{bad_index}");

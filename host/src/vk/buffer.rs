@@ -50,9 +50,7 @@ impl Buffer {
             Err(e) => {
                 // SAFETY: the buffer is unused.
                 unsafe { d.destroy_buffer(raw, None) };
-                return Err(anyhow!(
-                    "allocating {size} bytes of GPU memory for {name}: {e}"
-                ));
+                return Err(anyhow!("allocating {size} bytes of GPU memory for {name}: {e}"));
             }
         };
         // SAFETY: memory and offset come from an allocation made for these requirements.

@@ -47,8 +47,7 @@ impl Commands {
             )
         }
         .context("allocating a command buffer")?[0];
-        c.fence = unsafe { d.create_fence(&vk::FenceCreateInfo::default(), None) }
-            .context("creating a fence")?;
+        c.fence = unsafe { d.create_fence(&vk::FenceCreateInfo::default(), None) }.context("creating a fence")?;
         c.queries = unsafe {
             d.create_query_pool(
                 &vk::QueryPoolCreateInfo::default()
@@ -110,19 +109,8 @@ impl Commands {
         let (x, y) = shared::types::grid(groups);
         // SAFETY: recording state; pipeline, layout and set belong to this device.
         unsafe {
-            d.cmd_bind_pipeline(
-                self.cb,
-                vk::PipelineBindPoint::COMPUTE,
-                kernels.pipeline(kernel),
-            );
-            d.cmd_bind_descriptor_sets(
-                self.cb,
-                vk::PipelineBindPoint::COMPUTE,
-                kernels.layout,
-                0,
-                &[set],
-                &[],
-            );
+            d.cmd_bind_pipeline(self.cb, vk::PipelineBindPoint::COMPUTE, kernels.pipeline(kernel));
+            d.cmd_bind_descriptor_sets(self.cb, vk::PipelineBindPoint::COMPUTE, kernels.layout, 0, &[set], &[]);
             d.cmd_push_constants(
                 self.cb,
                 kernels.layout,
@@ -147,37 +135,23 @@ impl Commands {
         let stages = vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER;
         // SAFETY: recording state.
         unsafe {
-            self.gpu.device.cmd_pipeline_barrier(
-                self.cb,
-                stages,
-                stages,
-                vk::DependencyFlags::empty(),
-                &m,
-                &[],
-                &[],
-            )
+            self.gpu
+                .device
+                .cmd_pipeline_barrier(self.cb, stages, stages, vk::DependencyFlags::empty(), &m, &[], &[])
         };
     }
 
     /// Fills `bytes` bytes of `buf` from `offset` with copies of `word`.
     pub fn fill_range(&self, buf: &Buffer, offset: u64, bytes: u64, word: u32) {
+        if bytes == 0 {
+            return;
+        }
         // SAFETY: recording state; the range is a multiple of 4 within the buffer.
-        unsafe {
-            self.gpu
-                .device
-                .cmd_fill_buffer(self.cb, buf.raw, offset, bytes, word)
-        };
+        unsafe { self.gpu.device.cmd_fill_buffer(self.cb, buf.raw, offset, bytes, word) };
     }
 
     /// Copies `bytes` bytes from `src` at `src_offset` to `dst` at `dst_offset`.
-    pub fn copy_range(
-        &self,
-        src: &Buffer,
-        src_offset: u64,
-        dst: &Buffer,
-        dst_offset: u64,
-        bytes: u64,
-    ) {
+    pub fn copy_range(&self, src: &Buffer, src_offset: u64, dst: &Buffer, dst_offset: u64, bytes: u64) {
         if bytes == 0 {
             return;
         }
@@ -186,11 +160,7 @@ impl Commands {
             .dst_offset(dst_offset)
             .size(bytes)];
         // SAFETY: recording state; both buffers hold at least `bytes`.
-        unsafe {
-            self.gpu
-                .device
-                .cmd_copy_buffer(self.cb, src.raw, dst.raw, &r)
-        };
+        unsafe { self.gpu.device.cmd_copy_buffer(self.cb, src.raw, dst.raw, &r) };
     }
 
     /// Ends recording, submits, and waits for the GPU to finish.
@@ -198,8 +168,7 @@ impl Commands {
         let d = &self.gpu.device;
         // SAFETY: the command buffer is in the recording state and the fence is unsignalled.
         unsafe {
-            d.end_command_buffer(self.cb)
-                .context("ending the command buffer")?;
+            d.end_command_buffer(self.cb).context("ending the command buffer")?;
             let cbs = [self.cb];
             let submit = [vk::SubmitInfo::default().command_buffers(&cbs)];
             d.queue_submit(self.gpu.queue, &submit, self.fence)

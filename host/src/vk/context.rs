@@ -75,12 +75,10 @@ impl Gpu {
     /// Vulkan loader or device exists.
     pub fn new(opts: &GpuOptions) -> Result<Arc<Gpu>> {
         // SAFETY: loading the system Vulkan loader; its entry points are trusted.
-        let entry = unsafe { ash::Entry::load() }.context(
-            "no Vulkan loader found (install libvulkan1 and a driver, e.g. mesa-vulkan-drivers)",
-        )?;
+        let entry = unsafe { ash::Entry::load() }
+            .context("no Vulkan loader found (install libvulkan1 and a driver, e.g. mesa-vulkan-drivers)")?;
         // SAFETY: plain enumeration call.
-        let layers = unsafe { entry.enumerate_instance_layer_properties() }
-            .context("enumerating Vulkan layers")?;
+        let layers = unsafe { entry.enumerate_instance_layer_properties() }.context("enumerating Vulkan layers")?;
         let has_layer = layers
             .iter()
             .any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER));
@@ -103,15 +101,13 @@ impl Gpu {
             .enabled_layer_names(&layer_ptrs)
             .enabled_extension_names(&ext_ptrs);
         // SAFETY: the create info points at live data.
-        let instance = unsafe { entry.create_instance(&info, None) }
-            .context("creating the Vulkan instance")?;
+        let instance = unsafe { entry.create_instance(&info, None) }.context("creating the Vulkan instance")?;
         let log = Arc::new(ValidationLog::default());
         let debug = if validation {
             let du = ash::ext::debug_utils::Instance::new(&entry, &instance);
             let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
                 .message_severity(
-                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
-                        | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
+                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
                 )
                 .message_type(
                     vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
@@ -121,8 +117,7 @@ impl Gpu {
                 .pfn_user_callback(Some(on_message))
                 .user_data(Arc::as_ptr(&log) as *mut c_void);
             // SAFETY: the callback's user data outlives the messenger (both owned by `Gpu`).
-            let m = unsafe { du.create_debug_utils_messenger(&info, None) }
-                .context("creating the debug messenger")?;
+            let m = unsafe { du.create_debug_utils_messenger(&info, None) }.context("creating the debug messenger")?;
             Some((du, m))
         } else {
             None
@@ -176,18 +171,9 @@ impl Gpu {
         _entry: &ash::Entry,
         instance: &ash::Instance,
         opts: &GpuOptions,
-    ) -> Result<(
-        vk::PhysicalDevice,
-        ash::Device,
-        u32,
-        f64,
-        String,
-        String,
-        vk::DriverId,
-    )> {
+    ) -> Result<(vk::PhysicalDevice, ash::Device, u32, f64, String, String, vk::DriverId)> {
         // SAFETY: plain enumeration call on a live instance.
-        let all = unsafe { instance.enumerate_physical_devices() }
-            .context("enumerating Vulkan devices")?;
+        let all = unsafe { instance.enumerate_physical_devices() }.context("enumerating Vulkan devices")?;
         if all.is_empty() {
             bail!("no Vulkan device found (on a machine without a GPU, install Mesa's lavapipe: mesa-vulkan-drivers)");
         }
@@ -213,9 +199,10 @@ impl Gpu {
             );
             // SAFETY: as above.
             let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
-            let Some(qf) = families.iter().position(|f| {
-                f.queue_flags.contains(vk::QueueFlags::COMPUTE) && f.timestamp_valid_bits > 0
-            }) else {
+            let Some(qf) = families
+                .iter()
+                .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE) && f.timestamp_valid_bits > 0)
+            else {
                 continue;
             };
             if props.api_version < vk::API_VERSION_1_2 {
@@ -238,30 +225,19 @@ impl Gpu {
                 drv.driver_id,
             ));
         }
-        let wanted = opts
-            .device
-            .clone()
-            .or_else(|| std::env::var("RAYTRACE_DEVICE").ok());
+        let wanted = opts.device.clone().or_else(|| std::env::var("RAYTRACE_DEVICE").ok());
         let chosen = match &wanted {
             Some(w) => candidates
                 .iter()
-                .find(|c| {
-                    w.parse::<usize>().ok() == Some(c.0)
-                        || c.4.to_lowercase().contains(&w.to_lowercase())
-                })
+                .find(|c| w.parse::<usize>().ok() == Some(c.0) || c.4.to_lowercase().contains(&w.to_lowercase()))
                 .ok_or_else(|| {
-                    let names: Vec<_> = candidates
-                        .iter()
-                        .map(|c| format!("{}: {}", c.0, c.4))
-                        .collect();
-                    anyhow!(
-                        "no Vulkan device matches {w:?}; available: {}",
-                        names.join(", ")
-                    )
+                    let names: Vec<_> = candidates.iter().map(|c| format!("{}: {}", c.0, c.4)).collect();
+                    anyhow!("no Vulkan device matches {w:?}; available: {}", names.join(", "))
                 })?,
-            None => candidates.iter().min_by_key(|c| c.6).ok_or_else(|| {
-                anyhow!("no Vulkan 1.2 device with a compute queue and timestamps found")
-            })?,
+            None => candidates
+                .iter()
+                .min_by_key(|c| c.6)
+                .ok_or_else(|| anyhow!("no Vulkan 1.2 device with a compute queue and timestamps found"))?,
         };
         let (_, pd, qf, period, name, driver, _, driver_id) = chosen.clone();
 
@@ -270,10 +246,7 @@ impl Gpu {
         // SAFETY: `pd` comes from this instance.
         unsafe { instance.get_physical_device_features2(pd, &mut f2) };
         let base = f2.features;
-        if f12.vulkan_memory_model == 0
-            || f12.vulkan_memory_model_device_scope == 0
-            || base.shader_int64 == 0
-        {
+        if f12.vulkan_memory_model == 0 || f12.vulkan_memory_model_device_scope == 0 || base.shader_int64 == 0 {
             bail!("Vulkan device {name} lacks a feature the kernels need (vulkanMemoryModel, vulkanMemoryModelDeviceScope, shaderInt64)");
         }
         let mut want12 = vk::PhysicalDeviceVulkan12Features::default()
@@ -296,11 +269,7 @@ impl Gpu {
 
     /// Validation errors reported so far (empty when validation is off).
     pub fn validation_errors(&self) -> Vec<String> {
-        self.log
-            .errors
-            .lock()
-            .map(|e| e.clone())
-            .unwrap_or_default()
+        self.log.errors.lock().map(|e| e.clone()).unwrap_or_default()
     }
 
     /// True on Mesa's lavapipe (llvmpipe), which runs the kernels on the CPU.

@@ -7,7 +7,7 @@ use shared::types::BuildParams;
 use std::sync::Arc;
 
 /// Storage-buffer bindings of set 0 (see `shared::types`).
-pub const BINDINGS: usize = 11;
+pub const BINDINGS: usize = 12;
 
 /// Entry points of `shader-crate`.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
@@ -17,7 +17,6 @@ pub enum Kernel {
     Morton63,
     SortHistogramU32,
     SortHistogramU64,
-    SortScan,
     SortScatterU32,
     SortScatterU64,
     KarrasBuildU32,
@@ -27,13 +26,12 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    pub const ALL: [Kernel; 12] = [
+    pub const ALL: [Kernel; 11] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
         Kernel::SortHistogramU32,
         Kernel::SortHistogramU64,
-        Kernel::SortScan,
         Kernel::SortScatterU32,
         Kernel::SortScatterU64,
         Kernel::KarrasBuildU32,
@@ -50,7 +48,6 @@ impl Kernel {
             Kernel::Morton63 => "morton63",
             Kernel::SortHistogramU32 => "sort_histogram_u32",
             Kernel::SortHistogramU64 => "sort_histogram_u64",
-            Kernel::SortScan => "sort_scan",
             Kernel::SortScatterU32 => "sort_scatter_u32",
             Kernel::SortScatterU64 => "sort_scatter_u64",
             Kernel::KarrasBuildU32 => "karras_build_u32",
@@ -73,8 +70,8 @@ pub struct Kernels {
 impl Kernels {
     pub fn new(gpu: &Arc<Gpu>) -> Result<Kernels> {
         let d = &gpu.device;
-        let words = ash::util::read_spv(&mut std::io::Cursor::new(SHADER_SPV))
-            .context("reading the embedded SPIR-V")?;
+        let words =
+            ash::util::read_spv(&mut std::io::Cursor::new(SHADER_SPV)).context("reading the embedded SPIR-V")?;
         let mut k = Kernels {
             gpu: gpu.clone(),
             module: vk::ShaderModule::null(),
@@ -84,10 +81,8 @@ impl Kernels {
         };
         // SAFETY (all calls below): valid create infos on a live device; objects are owned by
         // `k` as soon as they exist, so an early return frees them.
-        k.module = unsafe {
-            d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None)
-        }
-        .context("creating the shader module")?;
+        k.module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
+            .context("creating the shader module")?;
         let bindings: Vec<_> = (0..BINDINGS as u32)
             .map(|b| {
                 vk::DescriptorSetLayoutBinding::default()
@@ -98,10 +93,7 @@ impl Kernels {
             })
             .collect();
         k.set_layout = unsafe {
-            d.create_descriptor_set_layout(
-                &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
-                None,
-            )
+            d.create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings), None)
         }
         .context("creating the descriptor set layout")?;
         let ranges = [vk::PushConstantRange::default()
@@ -123,17 +115,10 @@ impl Kernels {
                 .stage(vk::ShaderStageFlags::COMPUTE)
                 .module(k.module)
                 .name(&name);
-            let info = [vk::ComputePipelineCreateInfo::default()
-                .stage(stage)
-                .layout(k.layout)];
+            let info = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(k.layout)];
             let p = unsafe { d.create_compute_pipelines(vk::PipelineCache::null(), &info, None) }
                 .map_err(|(_, e)| e)
-                .with_context(|| {
-                    format!(
-                        "creating the compute pipeline of entry point {}",
-                        kernel.entry()
-                    )
-                })?;
+                .with_context(|| format!("creating the compute pipeline of entry point {}", kernel.entry()))?;
             k.pipelines.push(p[0]);
         }
         Ok(k)
@@ -168,11 +153,7 @@ pub struct BindingSets {
 }
 
 impl BindingSets {
-    pub fn new(
-        gpu: &Arc<Gpu>,
-        kernels: &Kernels,
-        sets: &[[&Buffer; BINDINGS]],
-    ) -> Result<BindingSets> {
+    pub fn new(gpu: &Arc<Gpu>, kernels: &Kernels, sets: &[[&Buffer; BINDINGS]]) -> Result<BindingSets> {
         let d = &gpu.device;
         let sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
@@ -205,11 +186,7 @@ impl BindingSets {
         for (set, buffers) in out.sets.iter().zip(sets) {
             let infos: Vec<_> = buffers
                 .iter()
-                .map(|b| {
-                    [vk::DescriptorBufferInfo::default()
-                        .buffer(b.raw)
-                        .range(vk::WHOLE_SIZE)]
-                })
+                .map(|b| [vk::DescriptorBufferInfo::default().buffer(b.raw).range(vk::WHOLE_SIZE)])
                 .collect();
             let writes: Vec<_> = infos
                 .iter()
