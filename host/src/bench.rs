@@ -61,6 +61,14 @@ pub struct BuildReport {
     pub rows: Vec<BuildRow>,
 }
 
+/// Nanoseconds of the intervals labelled `name` or `name.<part>`.
+fn column_ns(t: &[(&str, f64)], name: &str) -> f64 {
+    t.iter()
+        .filter(|(l, _)| *l == name || l.strip_prefix(name).is_some_and(|r| r.starts_with('.')))
+        .map(|(_, ns)| ns)
+        .sum()
+}
+
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
@@ -116,20 +124,22 @@ pub fn bench_build(
         let n = input.tris.len() + input.spheres.len();
         eprintln!("bench build: {} ({n} primitives, {bits:?})", input.name);
         lbvh.upload(&input.tris, &input.spheres)?;
-        for _ in 0..warmup {
+        // Warm up for at least `warmup` builds and half a second: after the CPU executor's
+        // idle stretches the GPU needs that long to return to full clocks.
+        let warm_start = std::time::Instant::now();
+        let mut warmed = 0;
+        while warmed < warmup || warm_start.elapsed() < std::time::Duration::from_millis(500) {
             lbvh.build(bits, false)?;
+            warmed += 1;
         }
-        let mut per_stage: Vec<Vec<f64>> = vec![Vec::new(); STAGES.len()];
+        let mut per_column: Vec<Vec<f64>> = vec![Vec::new(); COLUMNS.len()];
         let mut totals = Vec::new();
         for _ in 0..runs {
             let t = lbvh.build(bits, false)?;
-            let mut total = 0.0;
-            for (s, name) in STAGES.iter().enumerate() {
-                let ns = t.iter().filter(|(l, _)| l == name).map(|(_, ns)| ns).sum::<f64>();
-                per_stage[s].push(ns / 1e3);
-                total += ns / 1e3;
+            for (c, name) in COLUMNS.iter().enumerate() {
+                per_column[c].push(column_ns(&t, name) / 1e3);
             }
-            totals.push(total);
+            totals.push(t.iter().map(|(_, ns)| ns).sum::<f64>() / 1e3);
         }
         totals.sort_by(f64::total_cmp);
         let total_us = percentile(&totals, 0.5);
@@ -158,9 +168,9 @@ pub fn bench_build(
             primitives: n,
             bits,
             runs,
-            stage_us: STAGES
+            stage_us: COLUMNS
                 .iter()
-                .zip(per_stage)
+                .zip(per_column)
                 .map(|(s, v)| (s.to_string(), median(v)))
                 .collect(),
             total_us,

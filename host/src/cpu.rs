@@ -5,7 +5,7 @@ use crate::bvh::{BuildResult, MortonBits};
 use bytemuck::Pod;
 use shared::bounds::{self, BoundsState};
 use shared::radix_sort::{self as sort, HistogramState, ScatterState, SortKey, RADIX};
-use shared::scan::{self, BlockScan, SCAN_STEPS};
+use shared::scan::{self, BlockScan};
 use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
 use shared::{karras, morton, refit};
 use std::time::Instant;
@@ -16,12 +16,6 @@ const WG: usize = WORKGROUP as usize;
 fn lanes(mut phase: impl FnMut(u32)) {
     for lane in 0..WORKGROUP {
         phase(lane);
-    }
-}
-
-fn scan_steps(st: &mut BlockScan) {
-    for s in 0..SCAN_STEPS {
-        lanes(|l| scan::step(l, s, st));
     }
 }
 
@@ -93,18 +87,23 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
             lanes(|l| sort::histogram_store(l, g, &st, &p, &mut counts, &mut supers));
         }
         let mut st = Box::new(ScatterState {
-            counts: [0; RADIX as usize * WG],
+            counts: [0; sort::COUNTERS],
             total: [0; WG],
             before: [0; WG],
+            digit_total: [0; RADIX as usize],
+            digit_before: [0; RADIX as usize],
             base: [0; RADIX as usize],
-            scan: BlockScan { sums: [[0; WG]; 2] },
+            scan: BlockScan {
+                sums: [0; WG],
+                totals: [0; scan::RAKES as usize],
+            },
         });
         for g in 0..tiles {
             lanes(|l| sort::scatter_count(l, g, &mut st, &p, &keys, &counts, &supers));
-            lanes(|l| sort::scatter_scan_load(l, &mut st));
-            scan_steps(&mut st.scan);
-            lanes(|l| sort::scatter_scan_store(l, &mut st));
-            lanes(|l| sort::scatter_base(l, &mut st));
+            lanes(|l| sort::scatter_sums(l, &mut st));
+            lanes(|l| scan::rake(l, &mut st.scan));
+            lanes(|l| scan::rake_totals(l, &mut st.scan));
+            lanes(|l| sort::scatter_offsets(l, &mut st));
             lanes(|l| sort::scatter_write(l, g, &mut st, &p, &keys, &vals, &mut keys_b, &mut vals_b));
         }
         std::mem::swap(&mut keys, &mut keys_b);

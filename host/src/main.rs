@@ -30,8 +30,13 @@ enum Command {
         #[command(subcommand)]
         what: Bench,
     },
-    /// Print the chosen Vulkan device and driver.
-    Info,
+        /// Print the chosen Vulkan device and driver.
+    Info {
+        /// Also print the driver's statistics of every kernel (registers, spills...), where
+        /// the driver offers VK_KHR_pipeline_executable_properties.
+        #[arg(long)]
+        kernels: bool,
+    },
 }
 
 #[derive(Copy, Clone, ValueEnum)]
@@ -63,14 +68,22 @@ enum Bench {
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
-    let opts = GpuOptions {
-        validation: cli.validation,
-        device: cli.device.clone(),
-    };
+        let kernel_stats = matches!(cli.cmd, Command::Info { kernels: true });
+    let opts = GpuOptions { validation: cli.validation, device: cli.device.clone(), kernel_stats };
     match cli.cmd {
-        Command::Info => {
+                Command::Info { kernels } => {
             let gpu = Gpu::new(&opts)?;
             println!("{}", gpu.describe());
+            if kernels {
+                let k = raytrace::vk::Kernels::new(&gpu)?;
+                let stats = k.statistics()?;
+                if stats.is_empty() {
+                    println!("the driver offers no pipeline statistics");
+                }
+                for (entry, lines) in stats {
+                    println!("{entry}: {}", lines.join(", "));
+                }
+            }
         }
         Command::Bench {
             what:

@@ -5,7 +5,7 @@
 
 use shared::bounds::{self, BoundsState};
 use shared::radix_sort::{self as sort, HistogramState, ScatterState};
-use shared::scan::{self, SCAN_STEPS};
+use shared::scan;
 use shared::types::{flat_group, flat_index, BuildParams, Node, OrderedBounds, Sphere, Triangle};
 use shared::{karras, morton, refit};
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
@@ -101,15 +101,13 @@ macro_rules! key_kernels {
         ) {
             sort::scatter_count(lid.x, flat_group(gid.x, gid.y), st, p, keys_in, counts, supers);
             barrier();
-            sort::scatter_scan_load(lid.x, st);
+            sort::scatter_sums(lid.x, st);
             barrier();
-            for s in 0..SCAN_STEPS {
-                scan::step(lid.x, s, &mut st.scan);
-                barrier();
-            }
-            sort::scatter_scan_store(lid.x, st);
+            scan::rake(lid.x, &mut st.scan);
             barrier();
-            sort::scatter_base(lid.x, st);
+            scan::rake_totals(lid.x, &mut st.scan);
+            barrier();
+            sort::scatter_offsets(lid.x, st);
             barrier();
             sort::scatter_write(
                 lid.x,

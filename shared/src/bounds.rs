@@ -5,7 +5,9 @@
 //! Phases: [`clear`] | barrier | [`accumulate`] | barrier | [`flush`]. The global bounds start
 //! as [`OrderedBounds::EMPTY`] (the host fills them before the dispatch).
 use crate::sync;
-use crate::types::{f32_to_ordered, prim_centroid2, BuildParams, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
+use crate::types::{
+    f32_to_ordered, prim_centroid2, BuildParams, OrderedBounds, Sphere, Triangle, ITEMS, TILE, WORKGROUP,
+};
 
 /// Workgroup memory of the bounds reduction.
 pub struct BoundsState {
@@ -20,19 +22,20 @@ pub fn clear(lane: u32, st: &mut BoundsState) {
 }
 
 pub fn accumulate(lane: u32, group: u32, st: &mut BoundsState, p: &BuildParams, tris: &[Triangle], spheres: &[Sphere]) {
-    let mut i = group * TILE + lane;
-    let end = (group * TILE + TILE).min(p.n);
-    if i >= end {
+    let first = group * TILE + lane;
+    if first >= p.n {
         return;
     }
-    let mut lo = prim_centroid2(i, p.n_tris, tris, spheres);
+    let mut lo = prim_centroid2(first, p.n_tris, tris, spheres);
     let mut hi = lo;
-    i += WORKGROUP;
-    while i < end {
-        let c = prim_centroid2(i, p.n_tris, tris, spheres);
-        lo = lo.min(c);
-        hi = hi.max(c);
-        i += WORKGROUP;
+    // A fixed trip count lets the compiler issue all the loads at once.
+    for k in 1..ITEMS {
+        let i = first + k * WORKGROUP;
+        if i < p.n {
+            let c = prim_centroid2(i, p.n_tris, tris, spheres);
+            lo = lo.min(c);
+            hi = hi.max(c);
+        }
     }
     sync::workgroup_min(&mut st.b.min[0], f32_to_ordered(lo.x));
     sync::workgroup_min(&mut st.b.min[1], f32_to_ordered(lo.y));

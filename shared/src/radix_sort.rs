@@ -33,7 +33,7 @@ const LANES_PER_DIGIT: u32 = WORKGROUP / RADIX;
 const _: () = assert!(RADIX * LANES_PER_DIGIT == WORKGROUP && RADIX * WORKGROUP / WORKGROUP == RADIX);
 
 /// A key the sort can take apart into digits.
-pub trait SortKey: Copy + PartialEq {
+pub trait SortKey: Copy + PartialEq + Default {
     const BITS: u32;
     fn digit(self, shift: u32) -> u32;
     /// Leading zeros of `self ^ other`.
@@ -123,13 +123,26 @@ pub fn histogram_store(
     }
 }
 
+/// Words of the scatter's (digit, lane) counters: one padding word after every `RADIX`, so
+/// that lanes reading `RADIX` consecutive counters hit different banks.
+pub const COUNTERS: usize = (RADIX * WORKGROUP + WORKGROUP) as usize;
+
+/// Address of flat counter `f = digit * WORKGROUP + lane` in the padded array.
+fn slot(f: u32) -> usize {
+    (f + f / RADIX) as usize
+}
+
 /// Workgroup memory of the scatter kernel.
 pub struct ScatterState {
-    /// Per (digit, lane) key counts, digit-major; then their exclusive prefix sums.
-    pub counts: [u32; (RADIX * WORKGROUP) as usize],
-    /// Per lane: partial sums of the tables (all of its digit; before this tile).
+    /// Per (digit, lane) key counts, digit-major and padded (see [`slot`]); then their
+    /// exclusive prefix sums.
+    pub counts: [u32; COUNTERS],
+    /// Per lane: its share of the tables' sums (all of its digit; before this tile).
     pub total: [u32; WORKGROUP as usize],
     pub before: [u32; WORKGROUP as usize],
+    /// Per digit: keys in all tiles; keys in the tiles before this one.
+    pub digit_total: [u32; RADIX as usize],
+    pub digit_before: [u32; RADIX as usize],
     /// Per digit: global offset of this tile's first key with that digit, minus the tile-local
     /// exclusive count of smaller digits.
     pub base: [u32; RADIX as usize],
@@ -138,6 +151,18 @@ pub struct ScatterState {
 
 fn owned(lane: u32, group: u32) -> u32 {
     group * TILE + lane * ITEMS
+}
+
+/// The keys lane owns (all loads first, so they are in flight together); past the end: 0.
+fn load_owned<K: SortKey>(lane: u32, group: u32, p: &BuildParams, keys: &[K]) -> [K; ITEMS as usize] {
+    let start = owned(lane, group);
+    let mut ks = [K::default(); ITEMS as usize];
+    for k in 0..ITEMS {
+        if start + k < p.n {
+            ks[k as usize] = keys[(start + k) as usize];
+        }
+    }
+    ks
 }
 
 /// Phase 1: lane counts the digits of the keys it owns into its column, and sums its share
@@ -153,13 +178,13 @@ pub fn scatter_count<K: SortKey>(
     supers: &[u32],
 ) {
     for d in 0..RADIX {
-        st.counts[(d * WORKGROUP + lane) as usize] = 0;
+        st.counts[slot(d * WORKGROUP + lane)] = 0;
     }
+    let ks = load_owned(lane, group, p, keys);
     let start = owned(lane, group);
     for k in 0..ITEMS {
-        let i = start + k;
-        if i < p.n {
-            st.counts[(keys[i as usize].digit(p.shift) * WORKGROUP + lane) as usize] += 1;
+        if start + k < p.n {
+            st.counts[slot(ks[k as usize].digit(p.shift) * WORKGROUP + lane)] += 1;
         }
     }
     // Table sums: lane = digit * LANES_PER_DIGIT + j takes every LANES_PER_DIGIT-th entry.
@@ -188,41 +213,47 @@ pub fn scatter_count<K: SortKey>(
     st.before[lane as usize] = before;
 }
 
-/// Phase 2: lane sums its `RADIX` consecutive entries of the digit-major counter array.
-pub fn scatter_scan_load(lane: u32, st: &mut ScatterState) {
+/// Phase 2: lane sums its `RADIX` consecutive counters for the block scan; lanes below
+/// `RADIX` also finish the table sums of their digit.
+pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
     let mut s = 0;
     for k in 0..RADIX {
-        s += st.counts[(lane * RADIX + k) as usize];
+        s += st.counts[slot(lane * RADIX + k)];
     }
-    st.scan.sums[0][lane as usize] = s;
+    st.scan.sums[lane as usize] = s;
+    if lane < RADIX {
+        let (mut total, mut before) = (0, 0);
+        for j in 0..LANES_PER_DIGIT {
+            total += st.total[(lane * LANES_PER_DIGIT + j) as usize];
+            before += st.before[(lane * LANES_PER_DIGIT + j) as usize];
+        }
+        st.digit_total[lane as usize] = total;
+        st.digit_before[lane as usize] = before;
+    }
 }
 
-/// Phase 3 (after the block scan): the counters become exclusive prefix sums.
-pub fn scatter_scan_store(lane: u32, st: &mut ScatterState) {
+/// Phase 3 (after the block scan): the counters become exclusive prefix sums, and lanes
+/// below `RADIX` find the global offset of their digit for this tile (see the module docs).
+pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
     let mut run = scan::exclusive(lane, &st.scan);
     for k in 0..RADIX {
-        let i = (lane * RADIX + k) as usize;
+        let i = slot(lane * RADIX + k);
         let c = st.counts[i];
         st.counts[i] = run;
         run += c;
     }
-}
-
-/// Phase 4: the global offset of every digit of this tile (see the module docs).
-pub fn scatter_base(lane: u32, st: &mut ScatterState) {
     if lane < RADIX {
-        let mut offset = 0;
-        for x in 0..lane * LANES_PER_DIGIT {
-            offset += st.total[x as usize];
+        // Keys of this tile with a smaller digit: the scan up to counter (lane, 0).
+        let smaller = scan::exclusive(lane * WORKGROUP / RADIX, &st.scan);
+        let mut offset = st.digit_before[lane as usize];
+        for d in 0..lane {
+            offset += st.digit_total[d as usize];
         }
-        for j in 0..LANES_PER_DIGIT {
-            offset += st.before[(lane * LANES_PER_DIGIT + j) as usize];
-        }
-        st.base[lane as usize] = offset.wrapping_sub(st.counts[(lane * WORKGROUP) as usize]);
+        st.base[lane as usize] = offset.wrapping_sub(smaller);
     }
 }
 
-/// Phase 5: lane writes its keys, in order, to their sorted places.
+/// Phase 4: lane writes its keys, in order, to their sorted places.
 #[allow(clippy::too_many_arguments)]
 pub fn scatter_write<K: SortKey>(
     lane: u32,
@@ -234,17 +265,18 @@ pub fn scatter_write<K: SortKey>(
     keys_out: &mut [K],
     vals_out: &mut [u32],
 ) {
+    let ks = load_owned(lane, group, p, keys_in);
+    let vs = load_owned(lane, group, p, vals_in);
     let start = owned(lane, group);
     for k in 0..ITEMS {
-        let i = start + k;
-        if i < p.n {
-            let key = keys_in[i as usize];
+        if start + k < p.n {
+            let key = ks[k as usize];
             let d = key.digit(p.shift);
-            let slot = (d * WORKGROUP + lane) as usize;
-            let dst = st.base[d as usize].wrapping_add(st.counts[slot]);
-            st.counts[slot] += 1;
+            let at = slot(d * WORKGROUP + lane);
+            let dst = st.base[d as usize].wrapping_add(st.counts[at]);
+            st.counts[at] += 1;
             keys_out[dst as usize] = key;
-            vals_out[dst as usize] = vals_in[i as usize];
+            vals_out[dst as usize] = vs[k as usize];
         }
     }
 }

@@ -40,31 +40,32 @@ pub fn refit<const ORDERED: bool>(i: u32, p: &BuildParams, parents: &[u32], visi
         f32::from_bits(words[(base + 5) as usize]),
         f32::from_bits(words[(base + 6) as usize]),
     ];
-    let mut climbing = true;
-    while climbing {
-        let parent = parents[node as usize];
+    let mut parent = parents[node as usize];
+    while parent != INVALID {
+        // Immutable during the refit, so loaded before the counter, in its shadow.
+        let pb = parent * WORDS;
+        let left = words[(pb + 3) as usize];
+        let right = words[(pb + 7) as usize];
+        let grandparent = parents[parent as usize];
         // The first arrival at a node stops; the second fits it and climbs on.
-        if parent == INVALID || sync::atomic_add_device::<ORDERED>(&mut visits[parent as usize], 1) == 0 {
-            climbing = false;
-        } else {
-            let pb = parent * WORDS;
-            let left = words[(pb + 3) as usize];
-            let sibling = if left == node { words[(pb + 7) as usize] } else { left };
-            let sb = sibling * WORDS;
-            for k in 0..3 {
-                let s_lo = load_f(words, sb + k);
-                let s_hi = load_f(words, sb + 4 + k);
-                let (l_lo, r_lo, l_hi, r_hi) = if left == node {
-                    (lo[k as usize], s_lo, hi[k as usize], s_hi)
-                } else {
-                    (s_lo, lo[k as usize], s_hi, hi[k as usize])
-                };
-                lo[k as usize] = l_lo.min(r_lo);
-                hi[k as usize] = l_hi.max(r_hi);
-                sync::atomic_store(&mut words[(pb + k) as usize], lo[k as usize].to_bits());
-                sync::atomic_store(&mut words[(pb + 4 + k) as usize], hi[k as usize].to_bits());
-            }
-            node = parent;
+        if sync::atomic_add_device::<ORDERED>(&mut visits[parent as usize], 1) == 0 {
+            return;
         }
+        let sb = if left == node { right } else { left } * WORDS;
+        for k in 0..3 {
+            let s_lo = load_f(words, sb + k);
+            let s_hi = load_f(words, sb + 4 + k);
+            let (l_lo, r_lo, l_hi, r_hi) = if left == node {
+                (lo[k as usize], s_lo, hi[k as usize], s_hi)
+            } else {
+                (s_lo, lo[k as usize], s_hi, hi[k as usize])
+            };
+            lo[k as usize] = l_lo.min(r_lo);
+            hi[k as usize] = l_hi.max(r_hi);
+            sync::atomic_store(&mut words[(pb + k) as usize], lo[k as usize].to_bits());
+            sync::atomic_store(&mut words[(pb + 4 + k) as usize], hi[k as usize].to_bits());
+        }
+        node = parent;
+        parent = grandparent;
     }
 }

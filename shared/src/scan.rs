@@ -1,34 +1,58 @@
-//! Workgroup-wide inclusive prefix sum (Hillis & Steele 1986).
+//! Workgroup-wide exclusive prefix sum of one `u32` per lane, by raking (Blelloch 1990;
+//! Merrill & Grimshaw 2011): `RAKES` lanes each scan a run of `RUN` sums serially, one lane
+//! scans the run totals, and every lane reads its result. Three phases, two barriers:
 //!
-//! A scan is `SCAN_STEPS` phases of [`step`], each followed by a barrier; the sums ping-pong
-//! between the two rows of [`BlockScan::sums`] and end in row 0 (the step count is even).
+//! ```text
+//! sums:    | run 0: lanes 0..16 | run 1: lanes 16..32 | ... | run 15 |
+//! rake:      inclusive scan inside each run; totals[r] = last of run r
+//! totals:    exclusive scan of the 16 run totals (lane 0)
+//! result:    exclusive(l) = sums[l - 1] within its run (0 at a run start) + totals[l / RUN]
+//! ```
 use crate::types::WORKGROUP;
 
-/// log2(WORKGROUP) Hillis-Steele steps.
-pub const SCAN_STEPS: u32 = 8;
-const _: () = assert!(1 << SCAN_STEPS == WORKGROUP && SCAN_STEPS % 2 == 0);
+/// Lanes per raking run, and number of runs.
+pub const RUN: u32 = 16;
+pub const RAKES: u32 = WORKGROUP / RUN;
+const _: () = assert!(RUN * RAKES == WORKGROUP);
 
-/// Workgroup memory of a block scan.
+/// Workgroup memory of a block scan. Each lane writes its value to `sums[lane]`, then the
+/// phases [`rake`] | barrier | [`rake_totals`] | barrier run, then [`exclusive`] reads.
 pub struct BlockScan {
-    pub sums: [[u32; WORKGROUP as usize]; 2],
+    pub sums: [u32; WORKGROUP as usize],
+    pub totals: [u32; RAKES as usize],
 }
 
-/// One Hillis-Steele step: `out[l] = in[l] + in[l - 2^step]`.
-pub fn step(lane: u32, step: u32, st: &mut BlockScan) {
-    let src = (step & 1) as usize;
-    let off = 1u32 << step;
-    let mut v = st.sums[src][lane as usize];
-    if lane >= off {
-        v += st.sums[src][(lane - off) as usize];
+/// Phase 1: lanes below `RAKES` scan their run in place (inclusive).
+pub fn rake(lane: u32, st: &mut BlockScan) {
+    if lane < RAKES {
+        let mut run = 0;
+        for k in 0..RUN {
+            let i = (lane * RUN + k) as usize;
+            run += st.sums[i];
+            st.sums[i] = run;
+        }
+        st.totals[lane as usize] = run;
     }
-    st.sums[1 - src][lane as usize] = v;
 }
 
-/// Sum of the lanes before `lane`, once the steps are done.
-pub fn exclusive(lane: u32, st: &BlockScan) -> u32 {
+/// Phase 2: lane 0 turns the run totals into exclusive offsets.
+pub fn rake_totals(lane: u32, st: &mut BlockScan) {
     if lane == 0 {
+        let mut run = 0;
+        for r in 0..RAKES {
+            let t = st.totals[r as usize];
+            st.totals[r as usize] = run;
+            run += t;
+        }
+    }
+}
+
+/// Sum of the values of the lanes before `lane`, once both phases are done.
+pub fn exclusive(lane: u32, st: &BlockScan) -> u32 {
+    let within = if lane % RUN == 0 {
         0
     } else {
-        st.sums[0][(lane - 1) as usize]
-    }
+        st.sums[(lane - 1) as usize]
+    };
+    within + st.totals[(lane / RUN) as usize]
 }

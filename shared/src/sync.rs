@@ -10,13 +10,11 @@ const DEVICE: u32 = Scope::Device as u32;
 const WORKGROUP: u32 = Scope::Workgroup as u32;
 #[cfg(target_arch = "spirv")]
 const RELAXED: u32 = Semantics::NONE.bits();
-/// Acquire-release on storage-buffer memory with availability and visibility operations:
-/// what Karras's `__threadfence()` gives the refit's visit counter.
+/// Acquire-release on storage-buffer memory: orders the atomic loads and stores around the
+/// refit's visit counter, what Karras's `__threadfence()` does. (No availability or
+/// visibility operations: everything the counter publishes is itself accessed atomically.)
 #[cfg(target_arch = "spirv")]
-const ACQ_REL: u32 = Semantics::ACQUIRE_RELEASE.bits()
-    | Semantics::UNIFORM_MEMORY.bits()
-    | Semantics::MAKE_AVAILABLE.bits()
-    | Semantics::MAKE_VISIBLE.bits();
+const ACQ_REL: u32 = Semantics::ACQUIRE_RELEASE.bits() | Semantics::UNIFORM_MEMORY.bits();
 
 /// Relaxed device-scope `min`; returns the old value.
 pub fn atomic_min(p: &mut u32, v: u32) -> u32 {

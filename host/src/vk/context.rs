@@ -16,7 +16,10 @@ pub struct GpuOptions {
     pub validation: bool,
     /// Pick the device whose name contains this text, or whose index is this number
     /// (falls back to `RAYTRACE_DEVICE`); otherwise the first discrete GPU.
-    pub device: Option<String>,
+        pub device: Option<String>,
+    /// Ask the driver for per-pipeline statistics (registers, spills...) where it offers
+    /// VK_KHR_pipeline_executable_properties.
+    pub kernel_stats: bool,
 }
 
 /// Messages the validation layer reported as errors.
@@ -38,7 +41,9 @@ pub struct Gpu {
     pub name: String,
     pub driver: String,
     pub validation_enabled: bool,
-    pub driver_id: vk::DriverId,
+        pub driver_id: vk::DriverId,
+    /// Pipelines capture driver statistics (see `Kernels::statistics`).
+    pub kernel_stats: bool,
     pub allocator: Mutex<Option<Allocator>>,
     debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     log: Arc<ValidationLog>,
@@ -124,7 +129,7 @@ impl Gpu {
         };
         // From here on, a failure must destroy what exists: build the rest in a helper.
         match Self::open_device(&entry, &instance, opts) {
-            Ok((physical, device, queue_family, timestamp_period, name, driver, driver_id)) => {
+            Ok((physical, device, queue_family, timestamp_period, name, driver, driver_id, kernel_stats)) => {
                 // SAFETY: the device was created with this queue family.
                 let queue = unsafe { device.get_device_queue(queue_family, 0) };
                 let allocator = Allocator::new(&AllocatorCreateDesc {
@@ -148,6 +153,7 @@ impl Gpu {
                     driver,
                     validation_enabled: validation,
                     driver_id,
+                    kernel_stats,
                     allocator: Mutex::new(Some(allocator)),
                     debug,
                     log,
@@ -171,7 +177,7 @@ impl Gpu {
         _entry: &ash::Entry,
         instance: &ash::Instance,
         opts: &GpuOptions,
-    ) -> Result<(vk::PhysicalDevice, ash::Device, u32, f64, String, String, vk::DriverId)> {
+    ) -> Result<(vk::PhysicalDevice, ash::Device, u32, f64, String, String, vk::DriverId, bool)> {
         // SAFETY: plain enumeration call on a live instance.
         let all = unsafe { instance.enumerate_physical_devices() }.context("enumerating Vulkan devices")?;
         if all.is_empty() {
@@ -253,18 +259,28 @@ impl Gpu {
             .vulkan_memory_model(true)
             .vulkan_memory_model_device_scope(true);
         let want = vk::PhysicalDeviceFeatures::default().shader_int64(true);
+                // SAFETY: `pd` comes from this instance.
+        let exts = unsafe { instance.enumerate_device_extension_properties(pd) }.context("listing device extensions")?;
+        let stats_ext = ash::khr::pipeline_executable_properties::NAME;
+        let stats = opts.kernel_stats && exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == stats_ext));
+        let ext_ptrs = if stats { vec![stats_ext.as_ptr()] } else { vec![] };
+        let mut want_stats = vk::PhysicalDevicePipelineExecutablePropertiesFeaturesKHR::default().pipeline_executable_info(true);
         let prio = [1.0f32];
         let queues = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(qf)
             .queue_priorities(&prio)];
-        let info = vk::DeviceCreateInfo::default()
+                let mut info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queues)
             .enabled_features(&want)
+            .enabled_extension_names(&ext_ptrs)
             .push_next(&mut want12);
+        if stats {
+            info = info.push_next(&mut want_stats);
+        }
         // SAFETY: the create info points at live data; the features were checked above.
         let device = unsafe { instance.create_device(pd, &info, None) }
             .with_context(|| format!("creating the Vulkan device on {name}"))?;
-        Ok((pd, device, qf, period, name, driver, driver_id))
+        Ok((pd, device, qf, period, name, driver, driver_id, stats))
     }
 
     /// Validation errors reported so far (empty when validation is off).
