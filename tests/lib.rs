@@ -9,7 +9,7 @@ use std::sync::Arc;
 /// is none. With `REQUIRE_VULKAN=1` a missing device fails the test instead.
 pub fn gpu(test: &str) -> Option<Arc<Gpu>> {
     match Gpu::new(&GpuOptions {
-                validation: true,
+        validation: true,
         device: None,
         kernel_stats: false,
     }) {

@@ -30,7 +30,7 @@ enum Command {
         #[command(subcommand)]
         what: Bench,
     },
-        /// Print the chosen Vulkan device and driver.
+    /// Print the chosen Vulkan device and driver.
     Info {
         /// Also print the driver's statistics of every kernel (registers, spills...), where
         /// the driver offers VK_KHR_pipeline_executable_properties.
@@ -68,10 +68,14 @@ enum Bench {
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
-        let kernel_stats = matches!(cli.cmd, Command::Info { kernels: true });
-    let opts = GpuOptions { validation: cli.validation, device: cli.device.clone(), kernel_stats };
+    let kernel_stats = matches!(cli.cmd, Command::Info { kernels: true });
+    let opts = GpuOptions {
+        validation: cli.validation,
+        device: cli.device.clone(),
+        kernel_stats,
+    };
     match cli.cmd {
-                Command::Info { kernels } => {
+        Command::Info { kernels } => {
             let gpu = Gpu::new(&opts)?;
             println!("{}", gpu.describe());
             if kernels {

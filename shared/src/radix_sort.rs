@@ -22,7 +22,7 @@
 //! lane `l`, (#keys of the tile with a smaller digit) + (#keys with digit d of lanes < l).
 use crate::scan::{self, BlockScan};
 use crate::sync;
-use crate::types::{BuildParams, ITEMS, TILE, WORKGROUP};
+use crate::types::{load4, BuildParams, GROUP, ITEMS, TILE, WORKGROUP};
 
 pub const RADIX_BITS: u32 = 4;
 pub const RADIX: u32 = 1 << RADIX_BITS;
@@ -95,11 +95,16 @@ pub fn histogram_clear(lane: u32, st: &mut HistogramState) {
 }
 
 pub fn histogram_count<K: SortKey>(lane: u32, group: u32, st: &mut HistogramState, p: &BuildParams, keys: &[K]) {
-    for k in 0..ITEMS {
-        let i = group * TILE + k * WORKGROUP + lane;
-        if i < p.n {
-            sync::workgroup_add(&mut st.counts[keys[i as usize].digit(p.shift) as usize], 1);
+    let mut k = 0;
+    while k < ITEMS {
+        let first = group * TILE + k * WORKGROUP + lane;
+        let g = load4(keys, first, WORKGROUP, p.n);
+        for j in 0..GROUP {
+            if first + j * WORKGROUP < p.n {
+                sync::workgroup_add(&mut st.counts[g[j as usize].digit(p.shift) as usize], 1);
+            }
         }
+        k += GROUP;
     }
 }
 
@@ -157,10 +162,14 @@ fn owned(lane: u32, group: u32) -> u32 {
 fn load_owned<K: SortKey>(lane: u32, group: u32, p: &BuildParams, keys: &[K]) -> [K; ITEMS as usize] {
     let start = owned(lane, group);
     let mut ks = [K::default(); ITEMS as usize];
-    for k in 0..ITEMS {
-        if start + k < p.n {
-            ks[k as usize] = keys[(start + k) as usize];
-        }
+    let mut k = 0;
+    while k < ITEMS {
+        let g = load4(keys, start + k, 1, p.n);
+        ks[k as usize] = g[0];
+        ks[(k + 1) as usize] = g[1];
+        ks[(k + 2) as usize] = g[2];
+        ks[(k + 3) as usize] = g[3];
+        k += GROUP;
     }
     ks
 }

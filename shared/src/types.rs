@@ -21,7 +21,7 @@ use spirv_std::glam::Vec3;
 /// Invocations per workgroup of every build kernel.
 pub const WORKGROUP: u32 = 256;
 /// Keys handled by one invocation of the radix sort; a tile is `WORKGROUP * ITEMS` keys.
-pub const ITEMS: u32 = 16;
+pub const ITEMS: u32 = 8;
 /// Keys per workgroup ("tile") in the bounds, histogram and scatter kernels.
 pub const TILE: u32 = WORKGROUP * ITEMS;
 /// Marks "no node" (the root's parent) and a leaf's `right` field.
@@ -215,4 +215,22 @@ pub fn flat_group(group_x: u32, group_y: u32) -> u32 {
 /// Flat invocation index of a per-item kernel dispatched with [`grid`].
 pub fn flat_index(global_x: u32, global_y: u32) -> u32 {
     global_y * GRID_X * WORKGROUP + global_x
+}
+
+/// Loads issued back to back by [`load4`].
+pub const GROUP: u32 = 4;
+const _: () = assert!(ITEMS % GROUP == 0);
+
+/// `buf[first + k * stride]` for `k` in `0..4`, indices past `n - 1` clamped to it (`n >= 1`).
+///
+/// rust-gpu 0.11 emits no loop-unroll hints and the GPU compiler does not unroll loops with
+/// bounds checks, so a loop that loads and then uses one value per iteration waits a full
+/// memory round trip per item. Loading four before using any keeps four in flight.
+pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
+    let last = n - 1;
+    let a = buf[first.min(last) as usize];
+    let b = buf[(first + stride).min(last) as usize];
+    let c = buf[(first + 2 * stride).min(last) as usize];
+    let d = buf[(first + 3 * stride).min(last) as usize];
+    [a, b, c, d]
 }

@@ -16,7 +16,7 @@ pub struct GpuOptions {
     pub validation: bool,
     /// Pick the device whose name contains this text, or whose index is this number
     /// (falls back to `RAYTRACE_DEVICE`); otherwise the first discrete GPU.
-        pub device: Option<String>,
+    pub device: Option<String>,
     /// Ask the driver for per-pipeline statistics (registers, spills...) where it offers
     /// VK_KHR_pipeline_executable_properties.
     pub kernel_stats: bool,
@@ -41,7 +41,7 @@ pub struct Gpu {
     pub name: String,
     pub driver: String,
     pub validation_enabled: bool,
-        pub driver_id: vk::DriverId,
+    pub driver_id: vk::DriverId,
     /// Pipelines capture driver statistics (see `Kernels::statistics`).
     pub kernel_stats: bool,
     pub allocator: Mutex<Option<Allocator>>,
@@ -177,7 +177,16 @@ impl Gpu {
         _entry: &ash::Entry,
         instance: &ash::Instance,
         opts: &GpuOptions,
-    ) -> Result<(vk::PhysicalDevice, ash::Device, u32, f64, String, String, vk::DriverId, bool)> {
+    ) -> Result<(
+        vk::PhysicalDevice,
+        ash::Device,
+        u32,
+        f64,
+        String,
+        String,
+        vk::DriverId,
+        bool,
+    )> {
         // SAFETY: plain enumeration call on a live instance.
         let all = unsafe { instance.enumerate_physical_devices() }.context("enumerating Vulkan devices")?;
         if all.is_empty() {
@@ -259,17 +268,22 @@ impl Gpu {
             .vulkan_memory_model(true)
             .vulkan_memory_model_device_scope(true);
         let want = vk::PhysicalDeviceFeatures::default().shader_int64(true);
-                // SAFETY: `pd` comes from this instance.
-        let exts = unsafe { instance.enumerate_device_extension_properties(pd) }.context("listing device extensions")?;
+        // SAFETY: `pd` comes from this instance.
+        let exts =
+            unsafe { instance.enumerate_device_extension_properties(pd) }.context("listing device extensions")?;
         let stats_ext = ash::khr::pipeline_executable_properties::NAME;
-        let stats = opts.kernel_stats && exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == stats_ext));
+        let stats = opts.kernel_stats
+            && exts
+                .iter()
+                .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == stats_ext));
         let ext_ptrs = if stats { vec![stats_ext.as_ptr()] } else { vec![] };
-        let mut want_stats = vk::PhysicalDevicePipelineExecutablePropertiesFeaturesKHR::default().pipeline_executable_info(true);
+        let mut want_stats =
+            vk::PhysicalDevicePipelineExecutablePropertiesFeaturesKHR::default().pipeline_executable_info(true);
         let prio = [1.0f32];
         let queues = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(qf)
             .queue_priorities(&prio)];
-                let mut info = vk::DeviceCreateInfo::default()
+        let mut info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queues)
             .enabled_features(&want)
             .enabled_extension_names(&ext_ptrs)

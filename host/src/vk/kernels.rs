@@ -115,12 +115,15 @@ impl Kernels {
                 .stage(vk::ShaderStageFlags::COMPUTE)
                 .module(k.module)
                 .name(&name);
-                        let flags = if gpu.kernel_stats {
+            let flags = if gpu.kernel_stats {
                 vk::PipelineCreateFlags::CAPTURE_STATISTICS_KHR
             } else {
                 vk::PipelineCreateFlags::empty()
             };
-            let info = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(k.layout).flags(flags)];
+            let info = [vk::ComputePipelineCreateInfo::default()
+                .stage(stage)
+                .layout(k.layout)
+                .flags(flags)];
             let p = unsafe { d.create_compute_pipelines(vk::PipelineCache::null(), &info, None) }
                 .map_err(|(_, e)| e)
                 .with_context(|| format!("creating the compute pipeline of entry point {}", kernel.entry()))?;
@@ -129,7 +132,7 @@ impl Kernels {
         Ok(k)
     }
 
-        /// The driver's statistics of every pipeline, as "name: value" strings (empty unless the
+    /// The driver's statistics of every pipeline, as "name: value" strings (empty unless the
     /// GPU was opened with `kernel_stats` and the driver offers them).
     pub fn statistics(&self) -> Result<Vec<(&'static str, Vec<String>)>> {
         if !self.gpu.kernel_stats {
@@ -138,14 +141,20 @@ impl Kernels {
         let ext = ash::khr::pipeline_executable_properties::Device::new(&self.gpu.instance, &self.gpu.device);
         let mut out = Vec::new();
         for (kernel, &pipeline) in Kernel::ALL.iter().zip(&self.pipelines) {
-            let info = vk::PipelineExecutableInfoKHR::default().pipeline(pipeline).executable_index(0);
-                        // SAFETY: the pipeline was created with CAPTURE_STATISTICS on a device with the
+            let info = vk::PipelineExecutableInfoKHR::default()
+                .pipeline(pipeline)
+                .executable_index(0);
+            // SAFETY: the pipeline was created with CAPTURE_STATISTICS on a device with the
             // extension enabled.
-            let stats = unsafe { ext.get_pipeline_executable_statistics(&info) }.context("reading pipeline statistics")?;
+            let stats =
+                unsafe { ext.get_pipeline_executable_statistics(&info) }.context("reading pipeline statistics")?;
             let lines = stats
                 .iter()
                 .map(|st| {
-                    let name = st.name_as_c_str().map(|c| c.to_string_lossy().into_owned()).unwrap_or_default();
+                    let name = st
+                        .name_as_c_str()
+                        .map(|c| c.to_string_lossy().into_owned())
+                        .unwrap_or_default();
                     // SAFETY: the union member read is the one `format` names.
                     let value = unsafe {
                         match st.format {
