@@ -113,7 +113,7 @@ pub fn load_obj(path: &Path) -> Result<Vec<Triangle>> {
             })?;
             Ok([p[0], p[1], p[2], 0.0])
         };
-        for f in m.mesh.indices.chunks_exact(3) {
+        for f in m.mesh.indices.as_chunks::<3>().0 {
             tris.push(Triangle {
                 v0: v(f[0])?,
                 v1: v(f[1])?,

@@ -49,7 +49,7 @@ pub fn rake_totals(lane: u32, st: &mut BlockScan) {
 
 /// Sum of the values of the lanes before `lane`, once both phases are done.
 pub fn exclusive(lane: u32, st: &BlockScan) -> u32 {
-    let within = if lane % RUN == 0 {
+    let within = if lane.is_multiple_of(RUN) {
         0
     } else {
         st.sums[(lane - 1) as usize]

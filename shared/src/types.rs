@@ -168,6 +168,46 @@ const _: () = assert!(size_of::<Node>() == 32);
 const _: () = assert!(size_of::<OrderedBounds>() == 32);
 const _: () = assert!(size_of::<BuildParams>() == 16);
 
+/// Workgroups per dispatch row: dispatches larger than this use the y dimension.
+pub const GRID_X: u32 = 32768;
+
+/// The dispatch shape `(x, y)` for `groups` workgroups.
+pub fn grid(groups: u32) -> (u32, u32) {
+    if groups <= GRID_X {
+        (groups, 1)
+    } else {
+        (GRID_X, groups.div_ceil(GRID_X))
+    }
+}
+
+/// Flat workgroup index of a tile kernel dispatched with [`grid`].
+pub fn flat_group(group_x: u32, group_y: u32) -> u32 {
+    group_y * GRID_X + group_x
+}
+
+/// Flat invocation index of a per-item kernel dispatched with [`grid`].
+pub fn flat_index(global_x: u32, global_y: u32) -> u32 {
+    global_y * GRID_X * WORKGROUP + global_x
+}
+
+/// Loads issued back to back by [`load4`].
+pub const GROUP: u32 = 4;
+const _: () = assert!(ITEMS.is_multiple_of(GROUP));
+
+/// `buf[first + k * stride]` for `k` in `0..4`, indices past `n - 1` clamped to it (`n >= 1`).
+///
+/// rust-gpu 0.11 emits no loop-unroll hints and the GPU compiler does not unroll loops with
+/// bounds checks, so a loop that loads and then uses one value per iteration waits a full
+/// memory round trip per item. Loading four before using any keeps four in flight.
+pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
+    let last = n - 1;
+    let a = buf[first.min(last) as usize];
+    let b = buf[(first + stride).min(last) as usize];
+    let c = buf[(first + 2 * stride).min(last) as usize];
+    let d = buf[(first + 3 * stride).min(last) as usize];
+    [a, b, c, d]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -193,44 +233,4 @@ mod tests {
             assert_eq!(ordered_to_f32(f32_to_ordered(x)).to_bits(), x.to_bits());
         }
     }
-}
-
-/// Workgroups per dispatch row: dispatches larger than this use the y dimension.
-pub const GRID_X: u32 = 32768;
-
-/// The dispatch shape `(x, y)` for `groups` workgroups.
-pub fn grid(groups: u32) -> (u32, u32) {
-    if groups <= GRID_X {
-        (groups, 1)
-    } else {
-        (GRID_X, groups.div_ceil(GRID_X))
-    }
-}
-
-/// Flat workgroup index of a tile kernel dispatched with [`grid`].
-pub fn flat_group(group_x: u32, group_y: u32) -> u32 {
-    group_y * GRID_X + group_x
-}
-
-/// Flat invocation index of a per-item kernel dispatched with [`grid`].
-pub fn flat_index(global_x: u32, global_y: u32) -> u32 {
-    global_y * GRID_X * WORKGROUP + global_x
-}
-
-/// Loads issued back to back by [`load4`].
-pub const GROUP: u32 = 4;
-const _: () = assert!(ITEMS % GROUP == 0);
-
-/// `buf[first + k * stride]` for `k` in `0..4`, indices past `n - 1` clamped to it (`n >= 1`).
-///
-/// rust-gpu 0.11 emits no loop-unroll hints and the GPU compiler does not unroll loops with
-/// bounds checks, so a loop that loads and then uses one value per iteration waits a full
-/// memory round trip per item. Loading four before using any keeps four in flight.
-pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
-    let last = n - 1;
-    let a = buf[first.min(last) as usize];
-    let b = buf[(first + stride).min(last) as usize];
-    let c = buf[(first + 2 * stride).min(last) as usize];
-    let d = buf[(first + 3 * stride).min(last) as usize];
-    [a, b, c, d]
 }

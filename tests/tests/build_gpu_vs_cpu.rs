@@ -13,12 +13,15 @@ use shared::radix_sort::SUPER;
 use shared::types::{Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;
 
+/// The bytes of one stage's output.
+type StageBytes = fn(&BuildResult) -> Vec<u8>;
+
 fn check(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[Sphere], bits: MortonBits) {
     lbvh.upload(tris, spheres).unwrap();
     lbvh.build(bits, true).unwrap();
     let g = lbvh.result(bits).unwrap();
     let (c, _) = cpu::build(tris, spheres, bits);
-    let stages: [(&str, fn(&BuildResult) -> Vec<u8>); 6] = [
+    let stages: [(&str, StageBytes); 6] = [
         ("bounds", |r| bytemuck::bytes_of(&r.bounds).to_vec()),
         ("morton", |r| bytemuck::cast_slice(&r.morton).to_vec()),
         ("sorted keys", |r| bytemuck::cast_slice(&r.sorted_keys).to_vec()),
