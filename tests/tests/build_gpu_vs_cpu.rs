@@ -8,10 +8,18 @@ use raytrace::cpu;
 use raytrace::inputs::{assets_dir, generate, load_obj, Distribution};
 use raytrace::lbvh::GpuLbvh;
 use raytrace::validate::validate;
-use raytrace::vk::Kernels;
+use raytrace::vk::{Gpu, Kernels};
 use shared::radix_sort::SUPER;
 use shared::types::{Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;
+
+/// The GPU (see `gpu`) and a BVH builder on it.
+fn builder(test: &str) -> Option<(Arc<Gpu>, GpuLbvh)> {
+    let gpu = gpu(test)?;
+    let kernels = Arc::new(Kernels::new(&gpu).unwrap());
+    let lbvh = GpuLbvh::new(&gpu, &kernels).unwrap();
+    Some((gpu, lbvh))
+}
 
 /// The bytes of one stage's output.
 type StageBytes = fn(&BuildResult) -> Vec<u8>;
@@ -51,11 +59,9 @@ fn check(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[Sphere], 
 
 #[test]
 fn generated_inputs_build_identically_on_gpu_and_cpu() {
-    let Some(gpu) = gpu("generated_inputs_build_identically_on_gpu_and_cpu") else {
+    let Some((gpu, mut lbvh)) = builder("generated_inputs_build_identically_on_gpu_and_cpu") else {
         return;
     };
-    let kernels = Arc::new(Kernels::new(&gpu).unwrap());
-    let mut lbvh = GpuLbvh::new(&gpu, &kernels).unwrap();
     let (wg, tile) = (WORKGROUP as usize, TILE as usize);
     let sizes = [
         0,
@@ -89,11 +95,9 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
 
 #[test]
 fn bunny_builds_identically_on_gpu_and_cpu() {
-    let Some(gpu) = gpu("bunny_builds_identically_on_gpu_and_cpu") else {
+    let Some((gpu, mut lbvh)) = builder("bunny_builds_identically_on_gpu_and_cpu") else {
         return;
     };
-    let kernels = Arc::new(Kernels::new(&gpu).unwrap());
-    let mut lbvh = GpuLbvh::new(&gpu, &kernels).unwrap();
     let bunny = load_obj(&assets_dir().join("bunny.obj")).unwrap();
     assert_eq!(bunny.len(), 69_666);
     for bits in [MortonBits::B30, MortonBits::B63] {
@@ -104,11 +108,9 @@ fn bunny_builds_identically_on_gpu_and_cpu() {
 
 #[test]
 fn buffers_are_reused_across_builds() {
-    let Some(gpu) = gpu("buffers_are_reused_across_builds") else {
+    let Some((gpu, mut lbvh)) = builder("buffers_are_reused_across_builds") else {
         return;
     };
-    let kernels = Arc::new(Kernels::new(&gpu).unwrap());
-    let mut lbvh = GpuLbvh::new(&gpu, &kernels).unwrap();
     let (t, s) = generate(5000, Distribution::Random, true, 7);
     lbvh.upload(&t, &s).unwrap();
     let before = lbvh.memory();
