@@ -30,7 +30,7 @@ pub const RADIX: u32 = 1 << RADIX_BITS;
 pub const SUPER: u32 = 64;
 /// Lanes that share one digit when the scatter sums the tables.
 const LANES_PER_DIGIT: u32 = WORKGROUP / RADIX;
-const _: () = assert!(RADIX * LANES_PER_DIGIT == WORKGROUP && RADIX * WORKGROUP / WORKGROUP == RADIX);
+const _: () = assert!(RADIX * LANES_PER_DIGIT == WORKGROUP);
 
 /// A key the sort can take apart into digits.
 pub trait SortKey: Copy + PartialEq + Default {

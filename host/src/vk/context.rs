@@ -128,7 +128,7 @@ impl Gpu {
             None
         };
         // From here on, a failure must destroy what exists: build the rest in a helper.
-        match Self::open_device(&entry, &instance, opts) {
+        match Self::open_device(&instance, opts) {
             Ok((physical, device, queue_family, timestamp_period, name, driver, driver_id, kernel_stats)) => {
                 // SAFETY: the device was created with this queue family.
                 let queue = unsafe { device.get_device_queue(queue_family, 0) };
@@ -174,7 +174,6 @@ impl Gpu {
 
     #[allow(clippy::type_complexity)]
     fn open_device(
-        _entry: &ash::Entry,
         instance: &ash::Instance,
         opts: &GpuOptions,
     ) -> Result<(
