@@ -158,20 +158,37 @@ fn owned(lane: u32, group: u32) -> u32 {
     group * TILE + lane * ITEMS
 }
 
-/// The keys lane owns (all loads first, so they are in flight together); past the end: 0.
-fn load_owned<K: SortKey>(lane: u32, group: u32, p: &BuildParams, keys: &[K]) -> [K; ITEMS as usize] {
-    let start = owned(lane, group);
-    let mut ks = [K::default(); ITEMS as usize];
-    let mut k = 0;
-    while k < ITEMS {
-        let g = load4(keys, start + k, 1, p.n);
-        ks[k as usize] = g[0];
-        ks[(k + 1) as usize] = g[1];
-        ks[(k + 2) as usize] = g[2];
-        ks[(k + 3) as usize] = g[3];
-        k += GROUP;
+// A lane owns two groups of four keys; the item loops below are written out so that every
+// key stays in a register (see `types::load4` for why loops are not).
+const _: () = assert!(ITEMS == 2 * GROUP);
+
+/// Counts key `i` (if it exists) into lane's column.
+fn count_key<K: SortKey>(st: &mut ScatterState, lane: u32, p: &BuildParams, i: u32, key: K) {
+    if i < p.n {
+        st.counts[slot(key.digit(p.shift) * WORKGROUP + lane)] += 1;
     }
-    ks
+}
+
+/// Writes key `i` (if it exists) and its value to the next free place of its digit.
+#[allow(clippy::too_many_arguments)]
+fn place_key<K: SortKey>(
+    st: &mut ScatterState,
+    lane: u32,
+    p: &BuildParams,
+    i: u32,
+    key: K,
+    val: u32,
+    keys_out: &mut [K],
+    vals_out: &mut [u32],
+) {
+    if i < p.n {
+        let d = key.digit(p.shift);
+        let at = slot(d * WORKGROUP + lane);
+        let dst = st.base[d as usize].wrapping_add(st.counts[at]);
+        st.counts[at] += 1;
+        keys_out[dst as usize] = key;
+        vals_out[dst as usize] = val;
+    }
 }
 
 /// Phase 1: lane counts the digits of the keys it owns into its column, and sums its share
@@ -189,13 +206,16 @@ pub fn scatter_count<K: SortKey>(
     for d in 0..RADIX {
         st.counts[slot(d * WORKGROUP + lane)] = 0;
     }
-    let ks = load_owned(lane, group, p, keys);
     let start = owned(lane, group);
-    for k in 0..ITEMS {
-        if start + k < p.n {
-            st.counts[slot(ks[k as usize].digit(p.shift) * WORKGROUP + lane)] += 1;
-        }
-    }
+    let (a, b) = (load4(keys, start, 1, p.n), load4(keys, start + GROUP, 1, p.n));
+    count_key(st, lane, p, start, a[0]);
+    count_key(st, lane, p, start + 1, a[1]);
+    count_key(st, lane, p, start + 2, a[2]);
+    count_key(st, lane, p, start + 3, a[3]);
+    count_key(st, lane, p, start + 4, b[0]);
+    count_key(st, lane, p, start + 5, b[1]);
+    count_key(st, lane, p, start + 6, b[2]);
+    count_key(st, lane, p, start + 7, b[3]);
     // Table sums: lane = digit * LANES_PER_DIGIT + j takes every LANES_PER_DIGIT-th entry.
     let d = lane / LANES_PER_DIGIT;
     let j = lane % LANES_PER_DIGIT;
@@ -274,18 +294,15 @@ pub fn scatter_write<K: SortKey>(
     keys_out: &mut [K],
     vals_out: &mut [u32],
 ) {
-    let ks = load_owned(lane, group, p, keys_in);
-    let vs = load_owned(lane, group, p, vals_in);
     let start = owned(lane, group);
-    for k in 0..ITEMS {
-        if start + k < p.n {
-            let key = ks[k as usize];
-            let d = key.digit(p.shift);
-            let at = slot(d * WORKGROUP + lane);
-            let dst = st.base[d as usize].wrapping_add(st.counts[at]);
-            st.counts[at] += 1;
-            keys_out[dst as usize] = key;
-            vals_out[dst as usize] = vs[k as usize];
-        }
-    }
+    let (ka, kb) = (load4(keys_in, start, 1, p.n), load4(keys_in, start + GROUP, 1, p.n));
+    let (va, vb) = (load4(vals_in, start, 1, p.n), load4(vals_in, start + GROUP, 1, p.n));
+    place_key(st, lane, p, start, ka[0], va[0], keys_out, vals_out);
+    place_key(st, lane, p, start + 1, ka[1], va[1], keys_out, vals_out);
+    place_key(st, lane, p, start + 2, ka[2], va[2], keys_out, vals_out);
+    place_key(st, lane, p, start + 3, ka[3], va[3], keys_out, vals_out);
+    place_key(st, lane, p, start + 4, kb[0], vb[0], keys_out, vals_out);
+    place_key(st, lane, p, start + 5, kb[1], vb[1], keys_out, vals_out);
+    place_key(st, lane, p, start + 6, kb[2], vb[2], keys_out, vals_out);
+    place_key(st, lane, p, start + 7, kb[3], vb[3], keys_out, vals_out);
 }
