@@ -59,12 +59,7 @@ impl Buffers {
         let visits = dev("visit counters", n * 4)?;
         let capture = dev("captured codes", n * 8)?;
         let staging_bytes = (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
-        let staging = Buffer::new(
-            gpu,
-            "staging",
-            staging_bytes.max((2 * n - 1) * size_of::<Node>() as u64),
-            MemoryLocation::CpuToGpu,
-        )?;
+        let staging = Buffer::new(gpu, "staging", staging_bytes, MemoryLocation::CpuToGpu)?;
         let a_to_b: [&Buffer; BINDINGS] = [
             &tris, &spheres, &bounds, &keys_a, &vals_a, &keys_b, &vals_b, &table, &nodes, &parents, &visits, &supers,
         ];
@@ -131,8 +126,8 @@ impl GpuLbvh {
             None => (0, 0),
             Some(b) => {
                 let all = [
-                    &b.tris, &b.spheres, &b.bounds, &b.keys_a, &b.vals_a, &b.keys_b, &b.vals_b, &b.table, &b.parents,
-                    &b.visits, &b.capture, &b.staging,
+                    &b.tris, &b.spheres, &b.bounds, &b.keys_a, &b.vals_a, &b.keys_b, &b.vals_b, &b.table, &b.supers,
+                    &b.parents, &b.visits, &b.capture, &b.staging,
                 ];
                 (b.nodes.size, all.iter().map(|x| x.size).sum())
             }

@@ -28,7 +28,7 @@ pub fn accumulate(lane: u32, group: u32, st: &mut BoundsState, p: &BuildParams, 
     }
     let mut lo = prim_centroid2(first, p.n_tris, tris, spheres);
     let mut hi = lo;
-    // A fixed trip count lets the compiler issue all the loads at once.
+    // Grid-stride over the tile: lane takes every WORKGROUP-th primitive.
     for k in 1..ITEMS {
         let i = first + k * WORKGROUP;
         if i < p.n {
