@@ -208,6 +208,161 @@ pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
     [a, b, c, d]
 }
 
+// ---------------------------------------------------------------------------------------------
+// Rendering (descriptor set 1)
+//
+// | binding | contents                                                  |
+// |---------|-----------------------------------------------------------|
+// | 0       | `[Object]` transform and material of every object          |
+// | 1       | `[Triangle]` model-space triangles                         |
+// | 2       | `[Sphere]` model-space spheres                             |
+// | 3       | object of every primitive (triangles, then spheres)        |
+// | 4       | `[Material]`                                               |
+// | 5       | emissive primitives (next-event estimation's lights)       |
+// | 6       | `Frame`: camera and render settings                       |
+// | 7       | accumulated radiance per pixel, `[f32; 4]` (w: rays traced) |
+// | 8       | display image, RGBA8 per pixel                             |
+// | 9, 10   | ray casts: `[Ray]` in, `[Hit]` out                         |
+// ---------------------------------------------------------------------------------------------
+
+/// Storage buffers of descriptor set 1.
+pub const RENDER_BINDINGS: u32 = 11;
+/// Render kernels run on 8x8 pixel tiles.
+pub const TILE_SIDE: u32 = 8;
+
+/// An object: its model-to-world transform (3x4, row-major) and its material.
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Object {
+    pub rows: [[f32; 4]; 3],
+    /// Factor applied to sphere radii: the largest scale of the transform.
+    pub radius_scale: f32,
+    pub material: u32,
+    pub _pad: [u32; 2],
+}
+
+/// How a surface scatters light.
+#[repr(u32)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub enum MaterialKind {
+    /// Ideal diffuse reflection (Lambert).
+    #[default]
+    Diffuse = 0,
+    /// Mirror reflection, blurred by `roughness`.
+    Metal = 1,
+    /// Smooth glass: Fresnel reflection and refraction with `ior`.
+    Dielectric = 2,
+    /// A light that does not scatter.
+    Emissive = 3,
+}
+
+/// A material: `kind` is a [`MaterialKind`]; every kind may also emit `emission`.
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Material {
+    /// Reflectance (`xyz`); `w` unused.
+    pub albedo: [f32; 4],
+    /// Emitted radiance (`xyz`); `w` unused.
+    pub emission: [f32; 4],
+    pub kind: u32,
+    pub roughness: f32,
+    pub ior: f32,
+    pub _pad: u32,
+}
+
+/// Thin-lens camera (pinhole when `lens_radius == 0`): the image plane lies at the focus
+/// distance, spanned from `lower_left` by `horizontal` and `vertical`.
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Camera {
+    pub origin: [f32; 4],
+    pub lower_left: [f32; 4],
+    pub horizontal: [f32; 4],
+    pub vertical: [f32; 4],
+    /// Unit vectors of the lens plane (`w` of `u`: lens radius).
+    pub u: [f32; 4],
+    pub v: [f32; 4],
+}
+
+/// Flags of [`Frame::flags`].
+pub const FLAG_NEE: u32 = 1;
+pub const FLAG_RUSSIAN_ROULETTE: u32 = 2;
+/// Trace through the BVH (otherwise test every primitive: the thesis's brute force).
+pub const FLAG_BVH: u32 = 4;
+/// Display with the thesis's gamma 1/2 instead of the sRGB curve.
+pub const FLAG_GAMMA2: u32 = 8;
+/// Weight next-event estimation and BSDF sampling by multiple importance sampling.
+pub const FLAG_MIS: u32 = 16;
+
+/// Camera and settings of a render.
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Frame {
+    pub camera: Camera,
+    /// Radiance of rays that leave the scene: `sky_top` straight up, `sky_bottom` down.
+    pub sky_top: [f32; 4],
+    pub sky_bottom: [f32; 4],
+    pub width: u32,
+    pub height: u32,
+    pub max_depth: u32,
+    pub flags: u32,
+    pub n_tris: u32,
+    pub n_prims: u32,
+    pub n_lights: u32,
+    pub seed: u32,
+    pub exposure: f32,
+    pub _pad: [u32; 3],
+}
+
+/// Push constants of the render kernels.
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct RenderPush {
+    /// Samples per pixel accumulated before this dispatch (the first sample's index).
+    pub sample_base: u32,
+    /// Samples per pixel this dispatch adds (path tracing) or has in all (display).
+    pub samples: u32,
+    /// Number of rays (ray casts).
+    pub count: u32,
+    pub _pad: u32,
+}
+
+/// A ray: origin `xyz` (`w`: smallest distance), direction `xyz` (`w`: largest distance).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Ray {
+    pub origin: [f32; 4],
+    pub dir: [f32; 4],
+}
+
+/// The closest hit of a ray: distance ([`f32::INFINITY`] for a miss), primitive ([`INVALID`]
+/// for a miss) and barycentric coordinates of the hit (triangles).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Hit {
+    pub t: f32,
+    pub prim: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
+impl Hit {
+    pub const MISS: Hit = Hit {
+        t: f32::INFINITY,
+        prim: INVALID,
+        u: 0.0,
+        v: 0.0,
+    };
+}
+
+const _: () = assert!(size_of::<Object>() == 64);
+const _: () = assert!(size_of::<Material>() == 48);
+const _: () = assert!(size_of::<Camera>() == 96);
+const _: () = assert!(size_of::<Frame>() == 176);
+const _: () = assert!(size_of::<RenderPush>() == 16);
+const _: () = assert!(size_of::<Ray>() == 32);
+const _: () = assert!(size_of::<Hit>() == 16);
+
 #[cfg(test)]
 mod tests {
     use super::*;
