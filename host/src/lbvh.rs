@@ -65,7 +65,7 @@ impl Buffers {
         ];
         let mut b_to_a = a_to_b;
         b_to_a[3..7].copy_from_slice(&[&keys_b, &vals_b, &keys_a, &vals_a]);
-        let sets = BindingSets::new(gpu, kernels, &[a_to_b, b_to_a])?;
+        let sets = BindingSets::new(gpu, kernels, 0, &[&a_to_b, &b_to_a])?;
         Ok(Buffers {
             tris,
             spheres,

@@ -6,8 +6,13 @@
 use shared::bounds::{self, BoundsState};
 use shared::radix_sort::{self as sort, HistogramState, ScatterState};
 use shared::scan;
-use shared::types::{flat_group, flat_index, BuildParams, Node, OrderedBounds, Sphere, Triangle};
-use shared::{karras, morton, refit};
+use shared::path::{self, World};
+use shared::traverse::Scene;
+use shared::types::{
+    flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,
+    Triangle,
+};
+use shared::{display, karras, morton, refit, transform as xform};
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
@@ -151,3 +156,90 @@ macro_rules! key_kernels {
 
 key_kernels!(u32, morton30, sort_histogram_u32, sort_scatter_u32, karras_build_u32);
 key_kernels!(u64, morton63, sort_histogram_u64, sort_scatter_u64, karras_build_u64);
+
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn transform(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &mut [Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &mut [Sphere],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 1)] model_tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 2)] model_spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+) {
+    let i = flat_index(id.x, id.y);
+    xform::transform(i, p, objects, prim_object, model_tris, model_spheres, tris, spheres);
+}
+
+/// The scene as the render kernels see it (set 0: world primitives and BVH; set 1: the rest).
+macro_rules! world {
+    ($tris:ident, $spheres:ident, $nodes:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident) => {
+        World {
+            scene: Scene {
+                tris: $tris,
+                spheres: $spheres,
+                nodes: $nodes,
+                n_tris: $frame.n_tris,
+                n_prims: $frame.n_prims,
+            },
+            objects: $objects,
+            prim_object: $prim_object,
+            materials: $materials,
+            lights: $lights,
+            frame: $frame,
+        }
+    };
+}
+
+#[spirv(compute(threads(8, 8)))]
+#[allow(clippy::too_many_arguments)]
+pub fn path_trace(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &RenderPush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
+) {
+    let w = world!(tris, spheres, nodes, objects, prim_object, materials, lights, frame);
+    path::render_pixel(id.x, id.y, p, &w, accum);
+}
+
+#[spirv(compute(threads(256)))]
+pub fn display_image(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &RenderPush,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32],
+) {
+    display::display(flat_index(id.x, id.y), p, frame, accum, image);
+}
+
+/// Closest hits of a batch of rays (tests and benchmarks of the traversal).
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn cast_rays(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &RenderPush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] rays: &[Ray],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit],
+) {
+    let w = world!(tris, spheres, nodes, objects, prim_object, materials, lights, frame);
+    path::cast(flat_index(id.x, id.y), p, &w, rays, hits);
+}

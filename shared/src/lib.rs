@@ -6,14 +6,24 @@
 //! workgroup-cooperative kernels written as phases `fn phase(lane, group, &mut State, ..)`
 //! separated by workgroup barriers.
 #![cfg_attr(not(test), no_std)]
+#![cfg_attr(not(target_arch = "spirv"), feature(core_float_math))]
 
 pub mod bounds;
+pub mod display;
+pub mod intersect;
 pub mod karras;
+pub mod material;
+pub mod math;
 pub mod morton;
+pub mod path;
 pub mod radix_sort;
 pub mod refit;
+pub mod rng;
+pub mod sampling;
 pub mod scan;
 pub mod sync;
+pub mod transform;
+pub mod traverse;
 pub mod types;
 
 pub use spirv_std::glam;

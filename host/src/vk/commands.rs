@@ -93,7 +93,7 @@ impl Commands {
         self.labels.push(label);
     }
 
-    /// Dispatches `groups` workgroups of `kernel` (split over y beyond the x limit).
+    /// Dispatches `groups` workgroups of a set-0 kernel (split over y beyond the x limit).
     pub fn dispatch(
         &self,
         kernels: &Kernels,
@@ -102,22 +102,30 @@ impl Commands {
         params: &BuildParams,
         groups: u32,
     ) {
-        if groups == 0 {
+        let (x, y) = shared::types::grid(groups);
+        self.dispatch_sets(kernels, &[set], kernel, bytemuck::bytes_of(params), x, y);
+    }
+
+    /// Dispatches `x * y` workgroups of `kernel` with descriptor sets `sets` (from set 0)
+    /// and 16 bytes of push constants.
+    pub fn dispatch_sets(
+        &self,
+        kernels: &Kernels,
+        sets: &[vk::DescriptorSet],
+        kernel: Kernel,
+        push: &[u8],
+        x: u32,
+        y: u32,
+    ) {
+        if x == 0 || y == 0 {
             return;
         }
         let d = &self.gpu.device;
-        let (x, y) = shared::types::grid(groups);
-        // SAFETY: recording state; pipeline, layout and set belong to this device.
+        // SAFETY: recording state; pipeline, layout and sets belong to this device.
         unsafe {
             d.cmd_bind_pipeline(self.cb, vk::PipelineBindPoint::COMPUTE, kernels.pipeline(kernel));
-            d.cmd_bind_descriptor_sets(self.cb, vk::PipelineBindPoint::COMPUTE, kernels.layout, 0, &[set], &[]);
-            d.cmd_push_constants(
-                self.cb,
-                kernels.layout,
-                vk::ShaderStageFlags::COMPUTE,
-                0,
-                bytemuck::bytes_of(params),
-            );
+            d.cmd_bind_descriptor_sets(self.cb, vk::PipelineBindPoint::COMPUTE, kernels.layout, 0, sets, &[]);
+            d.cmd_push_constants(self.cb, kernels.layout, vk::ShaderStageFlags::COMPUTE, 0, push);
             d.cmd_dispatch(self.cb, x, y, 1);
         }
     }

@@ -1,13 +1,16 @@
 //! Compute pipelines for every entry point of the embedded SPIR-V, one shared pipeline layout
-//! (set 0: `BINDINGS` storage buffers; push constants: `BuildParams`), and descriptor sets.
+//! (set 0: the build's `BINDINGS` storage buffers; set 1: the renderer's `RENDER_BINDINGS`;
+//! 16 bytes of push constants: `BuildParams` or `RenderPush`), and descriptor sets.
 use super::{Buffer, Gpu, SHADER_SPV};
 use anyhow::{Context, Result};
 use ash::vk;
-use shared::types::BuildParams;
+use shared::types::{BuildParams, RenderPush, RENDER_BINDINGS};
 use std::sync::Arc;
 
 /// Storage-buffer bindings of set 0 (see `shared::types`).
 pub const BINDINGS: usize = 12;
+
+const _: () = assert!(size_of::<BuildParams>() == size_of::<RenderPush>());
 
 /// Entry points of `shader-crate`.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
@@ -23,10 +26,14 @@ pub enum Kernel {
     KarrasBuildU64,
     Refit,
     RefitRelaxed,
+    Transform,
+    PathTrace,
+    DisplayImage,
+    CastRays,
 }
 
 impl Kernel {
-    pub const ALL: [Kernel; 11] = [
+    pub const ALL: [Kernel; 15] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -38,6 +45,10 @@ impl Kernel {
         Kernel::KarrasBuildU64,
         Kernel::Refit,
         Kernel::RefitRelaxed,
+        Kernel::Transform,
+        Kernel::PathTrace,
+        Kernel::DisplayImage,
+        Kernel::CastRays,
     ];
 
     /// The entry point's name in the SPIR-V module.
@@ -54,6 +65,10 @@ impl Kernel {
             Kernel::KarrasBuildU64 => "karras_build_u64",
             Kernel::Refit => "refit",
             Kernel::RefitRelaxed => "refit_relaxed",
+            Kernel::Transform => "transform",
+            Kernel::PathTrace => "path_trace",
+            Kernel::DisplayImage => "display_image",
+            Kernel::CastRays => "cast_rays",
         }
     }
 }
@@ -62,7 +77,8 @@ impl Kernel {
 pub struct Kernels {
     gpu: Arc<Gpu>,
     module: vk::ShaderModule,
-    pub set_layout: vk::DescriptorSetLayout,
+    /// Layouts of set 0 (build) and set 1 (render).
+    pub set_layouts: [vk::DescriptorSetLayout; 2],
     pub layout: vk::PipelineLayout,
     pipelines: Vec<vk::Pipeline>,
 }
@@ -75,7 +91,7 @@ impl Kernels {
         let mut k = Kernels {
             gpu: gpu.clone(),
             module: vk::ShaderModule::null(),
-            set_layout: vk::DescriptorSetLayout::null(),
+            set_layouts: [vk::DescriptorSetLayout::null(); 2],
             layout: vk::PipelineLayout::null(),
             pipelines: Vec::new(),
         };
@@ -83,23 +99,25 @@ impl Kernels {
         // `k` as soon as they exist, so an early return frees them.
         k.module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
             .context("creating the shader module")?;
-        let bindings: Vec<_> = (0..BINDINGS as u32)
-            .map(|b| {
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(b)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            })
-            .collect();
-        k.set_layout = unsafe {
-            d.create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings), None)
+        for (set, count) in [BINDINGS as u32, RENDER_BINDINGS].into_iter().enumerate() {
+            let bindings: Vec<_> = (0..count)
+                .map(|b| {
+                    vk::DescriptorSetLayoutBinding::default()
+                        .binding(b)
+                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                        .descriptor_count(1)
+                        .stage_flags(vk::ShaderStageFlags::COMPUTE)
+                })
+                .collect();
+            k.set_layouts[set] = unsafe {
+                d.create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings), None)
+            }
+            .with_context(|| format!("creating the layout of descriptor set {set}"))?;
         }
-        .context("creating the descriptor set layout")?;
         let ranges = [vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::COMPUTE)
             .size(size_of::<BuildParams>() as u32)];
-        let layouts = [k.set_layout];
+        let layouts = k.set_layouts;
         k.layout = unsafe {
             d.create_pipeline_layout(
                 &vk::PipelineLayoutCreateInfo::default()
@@ -186,14 +204,16 @@ impl Drop for Kernels {
                 d.destroy_pipeline(p, None);
             }
             d.destroy_pipeline_layout(self.layout, None);
-            d.destroy_descriptor_set_layout(self.set_layout, None);
+            for &l in &self.set_layouts {
+                d.destroy_descriptor_set_layout(l, None);
+            }
             d.destroy_shader_module(self.module, None);
         }
     }
 }
 
-/// A descriptor pool holding descriptor sets of the shared layout, each naming `BINDINGS`
-/// buffers.
+/// A descriptor pool holding descriptor sets of one of the shared set layouts, each naming
+/// one buffer per binding.
 pub struct BindingSets {
     gpu: Arc<Gpu>,
     pool: vk::DescriptorPool,
@@ -201,11 +221,12 @@ pub struct BindingSets {
 }
 
 impl BindingSets {
-    pub fn new(gpu: &Arc<Gpu>, kernels: &Kernels, sets: &[[&Buffer; BINDINGS]]) -> Result<BindingSets> {
+    /// Sets of layout `layout` (0: build, 1: render), binding `i` of each naming `buffers[i]`.
+    pub fn new(gpu: &Arc<Gpu>, kernels: &Kernels, layout: usize, sets: &[&[&Buffer]]) -> Result<BindingSets> {
         let d = &gpu.device;
         let sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
-            .descriptor_count((BINDINGS * sets.len()) as u32)];
+            .descriptor_count(sets.iter().map(|s| s.len() as u32).sum::<u32>().max(1))];
         // SAFETY: valid create info; the pool is owned by the returned value.
         let pool = unsafe {
             d.create_descriptor_pool(
@@ -221,7 +242,7 @@ impl BindingSets {
             pool,
             sets: Vec::new(),
         };
-        let layouts = vec![kernels.set_layout; sets.len()];
+        let layouts = vec![kernels.set_layouts[layout]; sets.len()];
         // SAFETY: the pool has room for these sets.
         out.sets = unsafe {
             d.allocate_descriptor_sets(

@@ -1,0 +1,172 @@
+//! Ray-primitive tests under the numerics policy of DESIGN.md section 3:
+//! - triangles: the watertight test of Woop, Benthin & Wald (JCGT 2013) with edge functions
+//!   computed by Kahan's difference of products, so their signs are exact and two triangles
+//!   sharing an edge never both miss a ray through it (pbrt-v4 `IntersectTriangle`);
+//! - spheres: the stable quadratic of Haines et al., Ray Tracing Gems ch. 7 (small far
+//!   spheres and large near ones);
+//! - boxes: the slab test with NaN-safe min/max and Ize's widening of the far distance;
+//! - secondary rays leave surfaces from origins offset by Wachter & Binder, Ray Tracing Gems
+//!   ch. 6, so they never re-hit the surface they start on.
+use crate::math::{difference_of_products, fma, sqrt, SLAB_WIDEN};
+use crate::types::{xyz, Sphere, Triangle};
+use spirv_std::glam::Vec3;
+
+/// A ray with what every triangle test of it shares: the permutation that makes the largest
+/// direction component `z`, and the shear that maps the direction to `+z`.
+#[derive(Copy, Clone, Debug)]
+pub struct TriRay {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    pub inv_dir: Vec3,
+    /// Index of the direction's largest component.
+    kz: u32,
+    shear: Vec3,
+}
+
+/// `v` permuted so that component `kz` comes last: `(x, y, z)` cyclically rotated.
+fn permute(v: Vec3, kz: u32) -> Vec3 {
+    match kz {
+        0 => Vec3::new(v.y, v.z, v.x),
+        1 => Vec3::new(v.z, v.x, v.y),
+        _ => v,
+    }
+}
+
+impl TriRay {
+    pub fn new(origin: Vec3, dir: Vec3) -> TriRay {
+        let a = dir.abs();
+        let kz = if a.x > a.y && a.x > a.z {
+            0
+        } else if a.y > a.z {
+            1
+        } else {
+            2
+        };
+        let d = permute(dir, kz);
+        TriRay {
+            origin,
+            dir,
+            inv_dir: Vec3::ONE / dir,
+            kz,
+            shear: Vec3::new(-d.x / d.z, -d.y / d.z, 1.0 / d.z),
+        }
+    }
+}
+
+/// Watertight ray-triangle test. Returns `(t, b1, b2)` of a hit with `0 < t < t_max`
+/// (barycentric weights of `v1` and `v2`), or `t = INFINITY`. Zero-area triangles never hit.
+pub fn triangle(r: &TriRay, tri: &Triangle, t_max: f32) -> (f32, f32, f32) {
+    const MISS: (f32, f32, f32) = (f32::INFINITY, 0.0, 0.0);
+    let s = r.shear;
+    // Vertices relative to the origin, permuted, then sheared so the ray is the +z axis.
+    let p0 = permute(xyz(tri.v0) - r.origin, r.kz);
+    let p1 = permute(xyz(tri.v1) - r.origin, r.kz);
+    let p2 = permute(xyz(tri.v2) - r.origin, r.kz);
+    let (x0, y0) = (fma(s.x, p0.z, p0.x), fma(s.y, p0.z, p0.y));
+    let (x1, y1) = (fma(s.x, p1.z, p1.x), fma(s.y, p1.z, p1.y));
+    let (x2, y2) = (fma(s.x, p2.z, p2.x), fma(s.y, p2.z, p2.y));
+    let e0 = difference_of_products(x1, y2, y1, x2);
+    let e1 = difference_of_products(x2, y0, y2, x0);
+    let e2 = difference_of_products(x0, y1, y0, x1);
+    if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0) {
+        return MISS;
+    }
+    let det = e0 + e1 + e2;
+    if det == 0.0 {
+        return MISS;
+    }
+    let t_scaled = e0 * (s.z * p0.z) + e1 * (s.z * p1.z) + e2 * (s.z * p2.z);
+    if det < 0.0 && (t_scaled >= 0.0 || t_scaled < t_max * det) {
+        return MISS;
+    }
+    if det > 0.0 && (t_scaled <= 0.0 || t_scaled > t_max * det) {
+        return MISS;
+    }
+    let inv = 1.0 / det;
+    let t = t_scaled * inv;
+    if t <= 0.0 || t >= t_max {
+        return MISS;
+    }
+    (t, e1 * inv, e2 * inv)
+}
+
+/// Nearest intersection distance in `(0, t_max)` of a ray with a sphere, or `INFINITY`.
+/// Ray Tracing Gems ch. 7: the discriminant from `r^2 - |f - (f.d) d / d.d|^2` and the
+/// roots as `c / q` and `q / a`, which lose no precision to cancellation.
+pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32) -> f32 {
+    let center = xyz(s.center_radius);
+    let r = s.center_radius[3];
+    let f = origin - center;
+    let a = dir.dot(dir);
+    let b = -f.dot(dir);
+    let l = f + (b / a) * dir;
+    let disc = (r + l.length()) * (r - l.length());
+    if disc < 0.0 {
+        return f32::INFINITY;
+    }
+    let c = f.dot(f) - r * r;
+    let root = sqrt(a * disc);
+    let q = if b >= 0.0 { b + root } else { b - root };
+    let (t0, t1) = if q == 0.0 { (0.0, 0.0) } else { (c / q, q / a) };
+    let (near, far) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
+    if near > 0.0 && near < t_max {
+        near
+    } else if far > 0.0 && far < t_max {
+        far
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// Entry distance of a ray into the box `[lo, hi]` within `[0, t_max]`, or `INFINITY`.
+/// Comparisons are ordered so that a NaN slab distance (origin on a slab plane of an
+/// axis the ray runs parallel to) leaves the interval unchanged.
+pub fn slab(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -> f32 {
+    let t0 = (lo - origin) * inv_dir;
+    let t1 = (hi - origin) * inv_dir;
+    let (near, far) = slab_axis(0.0, t_max, t0.x, t1.x);
+    let (near, far) = slab_axis(near, far, t0.y, t1.y);
+    let (near, far) = slab_axis(near, far, t0.z, t1.z);
+    if near <= far {
+        near
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// Narrows `[near, far]` by one axis's slab distances `a`, `b`; a NaN leaves it unchanged.
+fn slab_axis(near: f32, far: f32, a: f32, b: f32) -> (f32, f32) {
+    let (lo, hi) = if a > b { (b, a) } else { (a, b) };
+    let hi = hi * SLAB_WIDEN;
+    (if lo > near { lo } else { near }, if hi < far { hi } else { far })
+}
+
+/// Geometric normal (unnormalised: twice the area) of a triangle.
+pub fn triangle_normal(t: &Triangle) -> Vec3 {
+    (xyz(t.v1) - xyz(t.v0)).cross(xyz(t.v2) - xyz(t.v0))
+}
+
+/// The hit point `b0 v0 + b1 v1 + b2 v2`: more accurate than `origin + t dir`.
+pub fn triangle_point(t: &Triangle, b1: f32, b2: f32) -> Vec3 {
+    let b0 = 1.0 - b1 - b2;
+    xyz(t.v0) * b0 + xyz(t.v1) * b1 + xyz(t.v2) * b2
+}
+
+/// Origin for a ray leaving a surface at `p` on the side of `n` (unit normal, pointing where
+/// the ray goes): Wachter & Binder's offset, a few ulps in integer space far from the origin
+/// and a small float step near it.
+pub fn offset_origin(p: Vec3, n: Vec3) -> Vec3 {
+    Vec3::new(offset_axis(p.x, n.x), offset_axis(p.y, n.y), offset_axis(p.z, n.z))
+}
+
+fn offset_axis(p: f32, n: f32) -> f32 {
+    const ORIGIN: f32 = 1.0 / 32.0;
+    const FLOAT_SCALE: f32 = 1.0 / 65536.0;
+    const INT_SCALE: f32 = 256.0;
+    if p.abs() < ORIGIN {
+        return fma(FLOAT_SCALE, n, p);
+    }
+    let of = (INT_SCALE * n) as i32;
+    let of = if p < 0.0 { -of } else { of };
+    f32::from_bits((p.to_bits() as i32).wrapping_add(of) as u32)
+}

@@ -1,0 +1,77 @@
+//! Scattering of the four materials (Ray Tracing in One Weekend's set, with exact Fresnel):
+//! Lambertian diffuse (cosine sampling), metal (mirror direction blurred by a random point
+//! in a ball of radius `roughness`), dielectric (unpolarised Fresnel reflectance choosing
+//! between reflection and refraction, total internal reflection), and emissive (no scattering).
+use crate::math::sqrt;
+use crate::rng::Rng;
+use crate::sampling;
+use crate::types::{xyz, Material, MaterialKind};
+use spirv_std::glam::Vec3;
+
+/// The outcome of a scattering event: the new direction and the throughput factor
+/// `f cos / pdf`. `diffuse` marks a non-delta event whose direction had density `pdf`
+/// (the only kind next-event estimation and MIS apply to). `absorbed`: the path ends.
+#[derive(Copy, Clone, Debug)]
+pub struct Scatter {
+    pub dir: Vec3,
+    pub weight: Vec3,
+    pub pdf: f32,
+    pub diffuse: bool,
+    pub absorbed: bool,
+}
+
+pub fn reflect(d: Vec3, n: Vec3) -> Vec3 {
+    d - 2.0 * d.dot(n) * n
+}
+
+/// Unpolarised Fresnel reflectance of a smooth dielectric boundary for light arriving at
+/// `cos_i` (> 0) from the side of index 1 towards relative index `eta`; 1 beyond the
+/// critical angle (pbrt-v4 `FrDielectric`). Also returns the cosine of the refracted ray.
+pub fn fresnel(cos_i: f32, eta: f32) -> (f32, f32) {
+    let sin2_t = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
+    if sin2_t >= 1.0 {
+        return (1.0, 0.0);
+    }
+    let cos_t = sqrt(1.0 - sin2_t);
+    let r_parl = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let r_perp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    ((r_parl * r_parl + r_perp * r_perp) * 0.5, cos_t)
+}
+
+/// Scatters a ray of unit direction `d` hitting a surface with unit geometric normal `ng`.
+pub fn scatter(m: &Material, d: Vec3, ng: Vec3, rng: &mut Rng) -> Scatter {
+    let albedo = xyz(m.albedo);
+    // The normal on the side the ray came from.
+    let entering = d.dot(ng) < 0.0;
+    let n = if entering { ng } else { -ng };
+    let mut s = Scatter {
+        dir: d,
+        weight: albedo,
+        pdf: 0.0,
+        diffuse: false,
+        absorbed: false,
+    };
+    if m.kind == MaterialKind::Diffuse as u32 {
+        s.dir = sampling::cosine_hemisphere(n, rng.next_f32(), rng.next_f32());
+        s.pdf = sampling::cosine_pdf(s.dir.dot(n));
+        s.diffuse = true;
+        s.absorbed = s.pdf <= 0.0;
+    } else if m.kind == MaterialKind::Metal as u32 {
+        let fuzz = sampling::uniform_ball(rng.next_f32(), rng.next_f32(), rng.next_f32()) * m.roughness;
+        s.dir = (reflect(d, n) + fuzz).normalize();
+        s.absorbed = s.dir.dot(n) <= 0.0;
+    } else if m.kind == MaterialKind::Dielectric as u32 {
+        let eta = if entering { m.ior } else { 1.0 / m.ior };
+        let cos_i = (-d.dot(n)).clamp(0.0, 1.0);
+        let (r, cos_t) = fresnel(cos_i, eta);
+        s.dir = if rng.next_f32() < r {
+            reflect(d, n)
+        } else {
+            (d / eta + (cos_i / eta - cos_t) * n).normalize()
+        };
+        s.weight = Vec3::ONE;
+    } else {
+        s.absorbed = true;
+    }
+    s
+}

@@ -1,0 +1,62 @@
+//! The seam between kernels and floating-point functions: on SPIR-V the GLSL.std.450
+//! instructions, on the CPU the hardware `fma`/`sqrt` and libm for the rest. `fma` is the one
+//! way kernels fuse a multiply and an add, so both backends round the same expressions the
+//! same way wherever bit-exact agreement matters (transforms, edge functions).
+#[cfg(target_arch = "spirv")]
+use spirv_std::num_traits::Float;
+use spirv_std::glam::Vec3;
+
+/// `a * b + c` with one rounding.
+pub fn fma(a: f32, b: f32, c: f32) -> f32 {
+    #[cfg(target_arch = "spirv")]
+    {
+        a.mul_add(b, c)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        core::f32::math::mul_add(a, b, c)
+    }
+}
+
+pub fn sqrt(x: f32) -> f32 {
+    #[cfg(target_arch = "spirv")]
+    {
+        x.sqrt()
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        core::f32::math::sqrt(x)
+    }
+}
+
+pub fn sin_cos(x: f32) -> (f32, f32) {
+    spirv_std::num_traits::Float::sin_cos(x)
+}
+
+pub fn powf(x: f32, y: f32) -> f32 {
+    spirv_std::num_traits::Float::powf(x, y)
+}
+
+/// `a * b - c * d` with its sign exact: Kahan's difference of products (error at most
+/// 1.5 ulp, so zero exactly when the products are equal). Contraction-proof: every
+/// multiply-add is an explicit [`fma`].
+pub fn difference_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
+    let cd = c * d;
+    let err = fma(-c, d, cd);
+    let dop = fma(a, b, -cd);
+    dop + err
+}
+
+/// Largest component.
+pub fn max3(v: Vec3) -> f32 {
+    v.x.max(v.y).max(v.z)
+}
+
+/// `1 + 2 * gamma(3)`: widening of a slab test's far distance that covers the rounding of
+/// `(bound - origin) * inv_dir` (Ize 2013; pbrt-v4 `Bounds3::IntersectP`).
+pub const SLAB_WIDEN: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+
+/// Whether every component is finite.
+pub fn finite3(v: Vec3) -> bool {
+    v.x.is_finite() && v.y.is_finite() && v.z.is_finite()
+}

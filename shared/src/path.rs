@@ -1,0 +1,253 @@
+//! The path tracer (Kajiya's rendering equation by Monte Carlo, as the thesis's `rayColor`):
+//! camera rays jittered per sample through a thin lens, closest hits through the BVH or by
+//! brute force, material scattering, Russian roulette after three bounces, and next-event
+//! estimation toward emissive triangles and spheres weighted against BSDF sampling by
+//! multiple importance sampling (Veach 1997, power heuristic). One invocation per pixel adds
+//! its samples' radiance into the accumulation image.
+use crate::intersect::{self, offset_origin};
+use crate::material::{self, Scatter};
+use crate::math::{finite3, max3};
+use crate::rng::Rng;
+use crate::sampling;
+use crate::traverse::{self, Scene};
+use crate::types::{
+    xyz, Camera, Frame, Hit, Material, Object, Ray, RenderPush, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE,
+    INVALID,
+};
+use core::f32::consts::PI;
+use spirv_std::glam::Vec3;
+
+/// Bounces before Russian roulette may end a path.
+pub const ROULETTE_AFTER: u32 = 3;
+
+/// Everything a path needs to know about the scene.
+#[derive(Copy, Clone)]
+pub struct World<'a> {
+    pub scene: Scene<'a>,
+    pub objects: &'a [Object],
+    pub prim_object: &'a [u32],
+    pub materials: &'a [Material],
+    pub lights: &'a [u32],
+    pub frame: &'a Frame,
+}
+
+impl World<'_> {
+    pub fn material(&self, prim: u32) -> Material {
+        let object = self.objects[self.prim_object[prim as usize] as usize];
+        self.materials[object.material as usize]
+    }
+
+    fn bvh(&self) -> bool {
+        self.frame.flags & FLAG_BVH != 0
+    }
+
+    pub fn closest(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
+        if self.bvh() {
+            traverse::closest(&self.scene, origin, dir, t_max)
+        } else {
+            traverse::closest_brute(&self.scene, origin, dir, t_max)
+        }
+    }
+
+    pub fn any(&self, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+        if self.bvh() {
+            traverse::any(&self.scene, origin, dir, t_max)
+        } else {
+            traverse::any_brute(&self.scene, origin, dir, t_max)
+        }
+    }
+
+    /// Surface area of primitive `prim`.
+    pub fn area(&self, prim: u32) -> f32 {
+        let s = &self.scene;
+        if prim < s.n_tris {
+            0.5 * intersect::triangle_normal(&s.tris[prim as usize]).length()
+        } else {
+            let r = s.spheres[(prim - s.n_tris) as usize].center_radius[3];
+            4.0 * PI * r * r
+        }
+    }
+
+    /// A uniform point on primitive `prim`: (point, unit normal).
+    fn sample_point(&self, prim: u32, u1: f32, u2: f32) -> (Vec3, Vec3) {
+        let s = &self.scene;
+        if prim < s.n_tris {
+            let t = &s.tris[prim as usize];
+            let (b1, b2) = sampling::uniform_triangle(u1, u2);
+            (intersect::triangle_point(t, b1, b2), intersect::triangle_normal(t).normalize())
+        } else {
+            let sp = s.spheres[(prim - s.n_tris) as usize].center_radius;
+            let n = sampling::uniform_sphere(u1, u2);
+            (xyz(sp) + n * sp[3].abs(), n)
+        }
+    }
+
+    /// Solid-angle density with which next-event estimation picks the direction to a point
+    /// at distance `dist` on light `prim`, seen at `cos_light` from its normal.
+    fn light_pdf(&self, prim: u32, dist: f32, cos_light: f32) -> f32 {
+        dist * dist / (cos_light * self.area(prim) * self.frame.n_lights as f32)
+    }
+
+    /// Cosine between a light's normal and the direction `to_light` from a point toward it;
+    /// 0 where the light does not emit that way (triangles emit on both sides, spheres out).
+    fn light_cos(&self, prim: u32, normal: Vec3, to_light: Vec3) -> f32 {
+        let c = -normal.dot(to_light);
+        if prim < self.scene.n_tris {
+            c.abs()
+        } else {
+            c.max(0.0)
+        }
+    }
+}
+
+/// Camera ray through pixel `(x, y)` (row 0 at the top), jittered within the pixel and over
+/// the lens: (origin, unit direction).
+pub fn camera_ray(c: &Camera, width: u32, height: u32, x: u32, y: u32, rng: &mut Rng) -> (Vec3, Vec3) {
+    let s = (x as f32 + rng.next_f32()) / width as f32;
+    let t = 1.0 - (y as f32 + rng.next_f32()) / height as f32;
+    let (dx, dy) = sampling::uniform_disk(rng.next_f32(), rng.next_f32());
+    let lens = c.u[3];
+    let offset = xyz(c.u) * (dx * lens) + xyz(c.v) * (dy * lens);
+    let origin = xyz(c.origin) + offset;
+    let target = xyz(c.lower_left) + xyz(c.horizontal) * s + xyz(c.vertical) * t;
+    (origin, (target - origin).normalize())
+}
+
+/// Radiance of rays that leave the scene.
+fn sky(f: &Frame, d: Vec3) -> Vec3 {
+    let a = 0.5 * (d.y + 1.0);
+    xyz(f.sky_bottom) * (1.0 - a) + xyz(f.sky_top) * a
+}
+
+/// Next-event estimation from point `p` (unit normal `n` on the side the path is on) of a
+/// diffuse surface of albedo `albedo`: one light chosen uniformly, one point on it uniformly
+/// by area, one shadow ray. Returns the weighted contribution.
+fn direct_light(w: &World, p: Vec3, n: Vec3, albedo: Vec3, mis: bool, rng: &mut Rng) -> Vec3 {
+    let count = w.frame.n_lights;
+    let pick = ((rng.next_f32() * count as f32) as u32).min(count - 1);
+    let light = w.lights[pick as usize];
+    let (q, nl) = w.sample_point(light, rng.next_f32(), rng.next_f32());
+    let to = q - p;
+    let dist = to.length();
+    let wi = to / dist;
+    let cos_s = wi.dot(n);
+    let cos_l = w.light_cos(light, nl, wi);
+    if cos_s <= 0.0 || cos_l <= 0.0 || !(dist > 0.0) {
+        return Vec3::ZERO;
+    }
+    // Both ends offset off their surfaces; the shadow ray runs over t in (0, 1).
+    let from = offset_origin(p, n);
+    let to_side = if nl.dot(wi) < 0.0 { nl } else { -nl };
+    let target = offset_origin(q, to_side);
+    if w.any(from, target - from, 1.0) {
+        return Vec3::ZERO;
+    }
+    let pdf_light = w.light_pdf(light, dist, cos_l);
+    let weight = if mis {
+        sampling::power_heuristic(pdf_light, sampling::cosine_pdf(cos_s))
+    } else {
+        1.0
+    };
+    let le = xyz(w.material(light).emission);
+    albedo * (1.0 / PI) * le * (cos_s * weight / pdf_light)
+}
+
+/// Radiance arriving along the ray `origin + t dir` (unit `dir`), and the number of rays
+/// traced for it.
+pub fn radiance(w: &World, origin: Vec3, dir: Vec3, rng: &mut Rng) -> (Vec3, u32) {
+    let f = w.frame;
+    let nee = f.flags & FLAG_NEE != 0 && f.n_lights > 0;
+    let mis = nee && f.flags & FLAG_MIS != 0;
+    let roulette = f.flags & FLAG_RUSSIAN_ROULETTE != 0;
+    let mut l = Vec3::ZERO;
+    let mut beta = Vec3::ONE;
+    let mut rays = 0;
+    let (mut o, mut d) = (origin, dir);
+    let mut prev = Scatter {
+        dir,
+        weight: Vec3::ONE,
+        pdf: 0.0,
+        diffuse: false,
+        absorbed: false,
+    };
+    let mut depth = 0;
+    while depth < f.max_depth {
+        let hit = w.closest(o, d, f32::INFINITY);
+        rays += 1;
+        if hit.prim == INVALID {
+            l += beta * sky(f, d);
+            break;
+        }
+        let m = w.material(hit.prim);
+        let (p, ng) = traverse::surface(&w.scene, hit.prim, o, d, &hit);
+        let le = xyz(m.emission);
+        let cos_l = w.light_cos(hit.prim, ng, d);
+        if max3(le) > 0.0 && cos_l > 0.0 {
+            // Paths that next-event estimation also reaches count with their MIS weight.
+            let weight = if !(prev.diffuse && nee) {
+                1.0
+            } else if mis {
+                sampling::power_heuristic(prev.pdf, w.light_pdf(hit.prim, hit.t, cos_l))
+            } else {
+                0.0
+            };
+            l += beta * le * weight;
+        }
+        let s = material::scatter(&m, d, ng, rng);
+        if s.absorbed {
+            break;
+        }
+        let side = if d.dot(ng) < 0.0 { ng } else { -ng };
+        if s.diffuse && nee && depth + 1 < f.max_depth {
+            l += beta * direct_light(w, p, side, xyz(m.albedo), mis, rng);
+            rays += 1;
+        }
+        beta *= s.weight;
+        o = offset_origin(p, if s.dir.dot(ng) > 0.0 { ng } else { -ng });
+        d = s.dir;
+        prev = s;
+        depth += 1;
+        if roulette && depth >= ROULETTE_AFTER {
+            let survive = max3(beta).min(0.95);
+            if rng.next_f32() >= survive {
+                break;
+            }
+            beta /= survive;
+        }
+    }
+    (l, rays)
+}
+
+/// Adds `p.samples` samples of pixel `(x, y)` to `accum` (radiance sums in `xyz`, rays in
+/// `w`). Samples whose radiance is not finite are dropped.
+pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32; 4]]) {
+    let f = w.frame;
+    if x >= f.width || y >= f.height {
+        return;
+    }
+    let pixel = y * f.width + x;
+    let mut sum = Vec3::ZERO;
+    let mut rays = 0;
+    let mut s = 0;
+    while s < p.samples {
+        let mut rng = Rng::new(pixel, p.sample_base + s, f.seed);
+        let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, &mut rng);
+        let (l, r) = radiance(w, o, d, &mut rng);
+        if finite3(l) {
+            sum += l;
+        }
+        rays += r;
+        s += 1;
+    }
+    let a = &mut accum[pixel as usize];
+    *a = [a[0] + sum.x, a[1] + sum.y, a[2] + sum.z, a[3] + rays as f32];
+}
+
+/// Closest hit of ray `i` of `rays` (origin `w`: unused, direction `w`: largest distance).
+pub fn cast(i: u32, p: &RenderPush, w: &World, rays: &[Ray], hits: &mut [Hit]) {
+    if i >= p.count {
+        return;
+    }
+    let r = rays[i as usize];
+    hits[i as usize] = w.closest(xyz(r.origin), xyz(r.dir), r.dir[3]);
+}

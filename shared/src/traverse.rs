@@ -1,0 +1,165 @@
+//! Ray queries against the scene's primitives: closest hit and any hit, through the BVH with
+//! a fixed-size stack (nearest child first, far child pushed), or by testing every primitive
+//! (the thesis's brute force, kept for comparison). Rays with a non-finite origin or
+//! direction miss.
+use crate::intersect::{self, TriRay};
+use crate::math::finite3;
+use crate::types::{xyz, Hit, Node, Sphere, Triangle, INVALID};
+use spirv_std::glam::Vec3;
+
+/// Entries of the traversal stack. A Karras tree over `n` primitives with 30- or 63-bit
+/// codes is at most `bits + ceil(log2 n)` deep; deeper subtrees are skipped (never reached
+/// by the inputs the builder accepts).
+pub const STACK: usize = 96;
+
+/// The primitives of a scene and its BVH (`nodes` empty for brute force).
+#[derive(Copy, Clone)]
+pub struct Scene<'a> {
+    pub tris: &'a [Triangle],
+    pub spheres: &'a [Sphere],
+    pub nodes: &'a [Node],
+    pub n_tris: u32,
+    pub n_prims: u32,
+}
+
+/// Intersects primitive `prim`; returns `(t, b1, b2)` with `t = INFINITY` for a miss.
+pub fn primitive(s: &Scene, r: &TriRay, prim: u32, t_max: f32) -> (f32, f32, f32) {
+    if prim < s.n_tris {
+        intersect::triangle(r, &s.tris[prim as usize], t_max)
+    } else {
+        let t = intersect::sphere(r.origin, r.dir, &s.spheres[(prim - s.n_tris) as usize], t_max);
+        (t, 0.0, 0.0)
+    }
+}
+
+fn usable(origin: Vec3, dir: Vec3) -> bool {
+    finite3(origin) && finite3(dir) && dir != Vec3::ZERO
+}
+
+/// Closest hit in `(0, t_max)`, testing every primitive.
+pub fn closest_brute(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
+    let mut best = Hit::MISS;
+    if !usable(origin, dir) {
+        return best;
+    }
+    let r = TriRay::new(origin, dir);
+    let mut limit = t_max;
+    let mut prim = 0;
+    while prim < s.n_prims {
+        let (t, u, v) = primitive(s, &r, prim, limit);
+        if t < limit {
+            limit = t;
+            best = Hit { t, prim, u, v };
+        }
+        prim += 1;
+    }
+    best
+}
+
+/// Whether anything lies in `(0, t_max)`, testing every primitive.
+pub fn any_brute(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+    if !usable(origin, dir) {
+        return false;
+    }
+    let r = TriRay::new(origin, dir);
+    let mut prim = 0;
+    while prim < s.n_prims {
+        if primitive(s, &r, prim, t_max).0 < t_max {
+            return true;
+        }
+        prim += 1;
+    }
+    false
+}
+
+/// Closest hit in `(0, t_max)` through the BVH.
+pub fn closest(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
+    walk::<false>(s, origin, dir, t_max)
+}
+
+/// Whether anything lies in `(0, t_max)`, through the BVH; stops at the first hit.
+pub fn any(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+    walk::<true>(s, origin, dir, t_max).prim != INVALID
+}
+
+/// Stack traversal. Leaves are the nodes `n - 1..2n - 1`; their primitive is tested as soon
+/// as their box is hit, internal children are visited nearest first.
+fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
+    let mut best = Hit::MISS;
+    let n = s.n_prims;
+    if n == 0 || !usable(origin, dir) {
+        return best;
+    }
+    let r = TriRay::new(origin, dir);
+    let mut limit = t_max;
+    let root = s.nodes[0];
+    if intersect::slab(origin, r.inv_dir, Vec3::from(root.min), Vec3::from(root.max), limit) == f32::INFINITY {
+        return best;
+    }
+    if n == 1 {
+        let (t, u, v) = primitive(s, &r, root.a, limit);
+        if t < limit {
+            best = Hit { t, prim: root.a, u, v };
+        }
+        return best;
+    }
+    let first_leaf = n - 1;
+    let mut stack = [0u32; STACK];
+    let mut sp = 0usize;
+    let mut node = 0u32;
+    loop {
+        let inner = s.nodes[node as usize];
+        let mut next = [INVALID; 2];
+        let mut next_t = [f32::INFINITY; 2];
+        let mut k = 0;
+        while k < 2 {
+            let child = if k == 0 { inner.a } else { inner.b };
+            let c = s.nodes[child as usize];
+            let t_box = intersect::slab(origin, r.inv_dir, Vec3::from(c.min), Vec3::from(c.max), limit);
+            if t_box != f32::INFINITY {
+                if child >= first_leaf {
+                    let (t, u, v) = primitive(s, &r, c.a, limit);
+                    if t < limit {
+                        limit = t;
+                        best = Hit { t, prim: c.a, u, v };
+                        if ANY {
+                            return best;
+                        }
+                    }
+                } else {
+                    next[k] = child;
+                    next_t[k] = t_box;
+                }
+            }
+            k += 1;
+        }
+        let (near, far) = if next_t[1] < next_t[0] { (next[1], next[0]) } else { (next[0], next[1]) };
+        if near != INVALID {
+            if far != INVALID && sp < STACK {
+                stack[sp] = far;
+                sp += 1;
+            }
+            node = near;
+        } else if sp > 0 {
+            sp -= 1;
+            node = stack[sp];
+        } else {
+            return best;
+        }
+    }
+}
+
+/// Unit geometric normal of primitive `prim` at the hit `(t, b1, b2)` of `origin + t dir`,
+/// and the hit point.
+pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3) {
+    if prim < s.n_tris {
+        let t = &s.tris[prim as usize];
+        (intersect::triangle_point(t, h.u, h.v), intersect::triangle_normal(t).normalize())
+    } else {
+        let sp = s.spheres[(prim - s.n_tris) as usize].center_radius;
+        let c = xyz(sp);
+        let n = (origin + h.t * dir - c).normalize();
+        // Re-projected onto the surface: the hit point's error no longer grows with t.
+        (c + n * sp[3].abs(), n)
+    }
+}
