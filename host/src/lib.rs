@@ -5,5 +5,6 @@ pub mod bvh;
 pub mod cpu;
 pub mod inputs;
 pub mod lbvh;
+pub mod picture;
 pub mod validate;
 pub mod vk;
