@@ -377,3 +377,6 @@ fn to_settings(file: &str, r: &RenderFile) -> Result<Settings, SceneError> {
         seed: r.seed.unwrap_or(d.seed),
     })
 }
+
+#[cfg(test)]
+mod tests;
