@@ -1,10 +1,11 @@
 //! The raytrace host: Vulkan core, GPU LBVH builder, CPU executor of the same kernels,
-//! inputs, BVH validator and benchmarks.
+//! inputs, scenes, BVH validator and benchmarks.
 pub mod bench;
 pub mod bvh;
 pub mod cpu;
 pub mod inputs;
 pub mod lbvh;
 pub mod picture;
+pub mod scene;
 pub mod validate;
 pub mod vk;

@@ -1,0 +1,197 @@
+//! Scenes: objects (triangle meshes and spheres, each with a transform, a material and an
+//! animation), a camera and render settings. A scene comes from a TOML file (docs/scenes.md) or
+//! is built in ([`Scene::BUILTINS`]); [`Scene::gpu_data`] flattens it into the render buffers
+//! for one moment in time and [`Scene::frame`] gives the camera and settings.
+//!
+//! Meshes are stored once in model space and shared by the objects that use them; the GPU data
+//! copies them per object (instances duplicate triangles) and gives every object its matrix.
+mod builtin;
+mod error;
+mod format;
+mod gpu;
+pub mod material;
+pub mod shapes;
+mod transform;
+mod validate;
+
+pub use error::SceneError;
+pub use gpu::SceneGpu;
+pub use transform::{Animation, Bob, Orbit, Transform};
+
+use glam::Vec3;
+use shared::types::{Material, Triangle};
+use std::path::Path;
+use std::sync::Arc;
+
+/// A scene ready to render: materials and meshes, the objects that use them, camera, settings.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub name: String,
+    pub camera: CameraSpec,
+    pub settings: Settings,
+    /// Materials with their names; objects refer to them by index.
+    pub materials: Vec<(String, Material)>,
+    pub meshes: Vec<Mesh>,
+    pub objects: Vec<SceneObject>,
+}
+
+/// A triangle mesh in model space (`w` components 0), shared by every object that shows it.
+#[derive(Clone)]
+pub struct Mesh {
+    /// The path or `builtin:` name it was loaded from.
+    pub name: String,
+    pub tris: Arc<Vec<Triangle>>,
+}
+
+impl std::fmt::Debug for Mesh {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "Mesh {{ name: {:?}, tris: {} triangles }}",
+            self.name,
+            self.tris.len()
+        )
+    }
+}
+
+/// One object: a shape placed by a transform, made of a material, maybe animated.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneObject {
+    pub name: String,
+    pub shape: Shape,
+    pub transform: Transform,
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+    pub animation: Animation,
+}
+
+impl SceneObject {
+    /// The base transform with the animation applied at `time_s` seconds.
+    pub fn transform_at(&self, time_s: f32) -> Transform {
+        self.animation.apply(self.transform, time_s)
+    }
+}
+
+/// What an object is made of.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Shape {
+    /// The mesh at this index of [`Scene::meshes`].
+    Mesh(usize),
+    /// A sphere of `radius` around the model-space origin.
+    Sphere { radius: f32 },
+}
+
+/// Render settings of a scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Settings {
+    pub width: u32,
+    pub height: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// Bounces per path.
+    pub max_depth: u32,
+    /// Next-event estimation: sample a light at every bounce.
+    pub nee: bool,
+    /// Weight light and BSDF samples by multiple importance sampling.
+    pub mis: bool,
+    pub russian_roulette: bool,
+    /// Radiance is multiplied by this before display.
+    pub exposure: f32,
+    /// Display with gamma 1/2 (the thesis) instead of the sRGB curve.
+    pub gamma2: bool,
+    /// Radiance of rays leaving the scene straight up and straight down (blended between).
+    pub sky_top: Vec3,
+    pub sky_bottom: Vec3,
+    pub seed: u32,
+}
+
+impl Default for Settings {
+    fn default() -> Settings {
+        Settings {
+            width: 800,
+            height: 800,
+            spp: 32,
+            max_depth: 16,
+            nee: true,
+            mis: true,
+            russian_roulette: true,
+            exposure: 1.0,
+            gamma2: false,
+            sky_top: Vec3::ZERO,
+            sky_bottom: Vec3::ZERO,
+            seed: 0,
+        }
+    }
+}
+
+/// A thin-lens camera (a pinhole when `aperture` is 0).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraSpec {
+    pub position: Vec3,
+    pub look_at: Vec3,
+    pub up: Vec3,
+    /// Vertical field of view in degrees, in `(0, 180)`.
+    pub vfov_deg: f32,
+    /// Lens diameter.
+    pub aperture: f32,
+    /// Distance of the plane in focus; `None`: the distance to `look_at`.
+    pub focus_distance: Option<f32>,
+}
+
+impl Scene {
+    /// Names accepted by [`Scene::builtin`].
+    pub const BUILTINS: [&'static str; 5] = ["cornell", "suzanne", "bunny", "spheres", "instances"];
+
+    /// The built-in scene `name`; meshes come from [`crate::inputs::assets_dir`].
+    pub fn builtin(name: &str) -> Result<Scene, SceneError> {
+        builtin::build(name)
+    }
+
+    /// Reads a TOML scene file; mesh paths are relative to the file's folder.
+    pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|error| SceneError::Read {
+            file: file.clone(),
+            error,
+        })?;
+        let base_dir = path.parent().unwrap_or(Path::new(""));
+        Scene::from_toml_str(&text, &file, base_dir)
+    }
+
+    /// Parses TOML scene text; errors name `file_label`, mesh paths are relative to `base_dir`.
+    pub fn from_toml_str(text: &str, file_label: &str, base_dir: &Path) -> Result<Scene, SceneError> {
+        format::parse(text, file_label, base_dir)
+    }
+
+    /// A built-in scene if `name_or_path` is one of [`Scene::BUILTINS`], else a scene file.
+    pub fn open(name_or_path: &str) -> Result<Scene, SceneError> {
+        if Scene::BUILTINS.contains(&name_or_path) {
+            return Scene::builtin(name_or_path);
+        }
+        let path = Path::new(name_or_path);
+        if !path.exists() {
+            return Err(SceneError::NotFound {
+                name: name_or_path.to_string(),
+            });
+        }
+        Scene::load(path)
+    }
+
+    /// Number of triangles (every mesh object's, instances counted again) and of spheres.
+    pub fn counts(&self) -> (usize, usize) {
+        let mut tris = 0;
+        let mut spheres = 0;
+        for o in &self.objects {
+            match o.shape {
+                Shape::Mesh(m) => tris += self.meshes.get(m).map_or(0, |m| m.tris.len()),
+                Shape::Sphere { .. } => spheres += 1,
+            }
+        }
+        (tris, spheres)
+    }
+
+    /// Index of the material called `name`.
+    pub fn material_index(&self, name: &str) -> Option<u32> {
+        self.materials.iter().position(|(n, _)| n == name).map(|i| i as u32)
+    }
+}
