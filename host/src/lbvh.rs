@@ -134,26 +134,32 @@ impl GpuLbvh {
         }
     }
 
-    /// Uploads world-space primitives, growing the buffers only when they are too small.
-    pub fn upload(&mut self, tris: &[Triangle], spheres: &[Sphere]) -> Result<()> {
+    /// Sizes the build for `n_tris` triangles and `n_spheres` spheres, growing the buffers
+    /// only when they are too small. The primitives are then written by [`GpuLbvh::upload`]
+    /// or by a kernel (the renderer's transform stage) into set 0's bindings 0 and 1.
+    pub fn reserve(&mut self, n_tris: usize, n_spheres: usize) -> Result<()> {
         let fits = self.bufs.as_ref().is_some_and(|b| {
-            b.tri_capacity >= tris.len()
-                && b.sphere_capacity >= spheres.len()
-                && b.capacity >= tris.len() + spheres.len()
+            b.tri_capacity >= n_tris && b.sphere_capacity >= n_spheres && b.capacity >= n_tris + n_spheres
         });
         if !fits {
             self.bufs = None;
             let grow = |x: usize| x + x / 4;
-            self.bufs = Some(Buffers::new(
-                &self.gpu,
-                &self.kernels,
-                grow(tris.len()),
-                grow(spheres.len()),
-            )?);
+            self.bufs = Some(Buffers::new(&self.gpu, &self.kernels, grow(n_tris), grow(n_spheres))?);
         }
+        self.n_tris = n_tris as u32;
+        self.n = (n_tris + n_spheres) as u32;
+        Ok(())
+    }
+
+    /// Descriptor set 0 of the build (world primitives in bindings 0 and 1, the BVH in 8).
+    pub fn set(&self) -> Result<ash::vk::DescriptorSet> {
+        Ok(self.bufs.as_ref().context("no primitives reserved")?.sets.sets[0])
+    }
+
+    /// Uploads world-space primitives, growing the buffers only when they are too small.
+    pub fn upload(&mut self, tris: &[Triangle], spheres: &[Sphere]) -> Result<()> {
+        self.reserve(tris.len(), spheres.len())?;
         let b = self.bufs.as_mut().context("buffers missing")?;
-        self.n_tris = tris.len() as u32;
-        self.n = (tris.len() + spheres.len()) as u32;
         let tri_bytes = std::mem::size_of_val(tris) as u64;
         let mut data: Vec<u8> = bytemuck::cast_slice(tris).to_vec();
         data.extend_from_slice(bytemuck::cast_slice(spheres));
@@ -268,6 +274,12 @@ impl GpuLbvh {
         self.cmds.copy_range(which(b), 0, &readback, 0, bytes);
         self.cmds.submit_wait().context("reading back GPU results")?;
         readback.read(count)
+    }
+
+    /// The world-space primitives the last build ran on.
+    pub fn primitives(&mut self) -> Result<(Vec<Triangle>, Vec<Sphere>)> {
+        let (tris, spheres) = (self.n_tris as usize, (self.n - self.n_tris) as usize);
+        Ok((self.download(|b| &b.tris, tris)?, self.download(|b| &b.spheres, spheres)?))
     }
 
     /// Reads back every stage's output of the last build (run it with `capture` to get the

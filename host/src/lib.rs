@@ -2,10 +2,12 @@
 //! inputs, scenes, BVH validator and benchmarks.
 pub mod bench;
 pub mod bvh;
+pub mod cli;
 pub mod cpu;
 pub mod inputs;
 pub mod lbvh;
 pub mod picture;
+pub mod render;
 pub mod scene;
 pub mod validate;
 pub mod vk;

@@ -3,6 +3,8 @@ use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
 use raytrace::bench::{bench_build, slug, standard_inputs, write_report, BuildReport};
 use raytrace::bvh::MortonBits;
+use raytrace::cli::{compare_command, render_command, SceneArgs};
+use raytrace::render::Backend;
 use raytrace::vk::{Gpu, GpuOptions};
 use std::path::PathBuf;
 
@@ -20,11 +22,33 @@ struct Cli {
     #[arg(long, global = true)]
     validation: bool,
     #[command(subcommand)]
-    cmd: Command,
+    cmd: Option<Command>,
 }
 
 #[derive(Subcommand)]
 enum Command {
+    /// Render a scene to a PNG (sRGB) or EXR (linear) file.
+    Render {
+        #[command(flatten)]
+        scene: SceneArgs,
+        #[arg(long, value_enum, default_value = "gpu")]
+        backend: Backend,
+        /// Output file, .png or .exr (default: SCENE.png).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Render on the CPU and the GPU with the same random streams; write CPU | GPU |
+    /// difference and compare per-stage times and BVHs. Exits non-zero when they differ.
+    Compare {
+        #[command(flatten)]
+        scene: SceneArgs,
+        /// Output PNG.
+        #[arg(long, default_value = "compare.png")]
+        out: PathBuf,
+        /// Largest relative RMSE of the CPU image against the GPU's accepted as equal.
+        #[arg(long, default_value_t = 0.05)]
+        tolerance: f64,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -68,13 +92,27 @@ enum Bench {
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
-    let kernel_stats = matches!(cli.cmd, Command::Info { kernels: true });
+    let kernel_stats = matches!(cli.cmd, Some(Command::Info { kernels: true }));
     let opts = GpuOptions {
         validation: cli.validation,
         device: cli.device.clone(),
         kernel_stats,
     };
-    match cli.cmd {
+    let Some(cmd) = cli.cmd else {
+        // No arguments: the Cornell box to a PNG.
+        let args = SceneArgs::parse_from(["raytrace", "cornell"]);
+        let out = render_command(&args, Backend::Gpu, Some(PathBuf::from("cornell.png")), &opts)?;
+        println!(
+            "open {} to see it; `raytrace render --help` lists scenes and settings (the interactive viewer is not built yet)",
+            out.display()
+        );
+        return Ok(());
+    };
+    match cmd {
+        Command::Render { scene, backend, out } => {
+            render_command(&scene, backend, out, &opts)?;
+        }
+        Command::Compare { scene, out, tolerance } => compare_command(&scene, &out, tolerance, &opts)?,
         Command::Info { kernels } => {
             let gpu = Gpu::new(&opts)?;
             println!("{}", gpu.describe());

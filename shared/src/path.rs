@@ -89,14 +89,10 @@ impl World<'_> {
     }
 
     /// Cosine between a light's normal and the direction `to_light` from a point toward it;
-    /// 0 where the light does not emit that way (triangles emit on both sides, spheres out).
-    fn light_cos(&self, prim: u32, normal: Vec3, to_light: Vec3) -> f32 {
-        let c = -normal.dot(to_light);
-        if prim < self.scene.n_tris {
-            c.abs()
-        } else {
-            c.max(0.0)
-        }
+    /// 0 where the light does not emit that way. Emitters are one-sided: triangles emit on
+    /// their front (counter-clockwise) side, spheres outward.
+    fn light_cos(normal: Vec3, to_light: Vec3) -> f32 {
+        (-normal.dot(to_light)).max(0.0)
     }
 }
 
@@ -131,7 +127,7 @@ fn direct_light(w: &World, p: Vec3, n: Vec3, albedo: Vec3, mis: bool, rng: &mut 
     let dist = to.length();
     let wi = to / dist;
     let cos_s = wi.dot(n);
-    let cos_l = w.light_cos(light, nl, wi);
+    let cos_l = World::light_cos(nl, wi);
     if cos_s <= 0.0 || cos_l <= 0.0 || !(dist > 0.0) {
         return Vec3::ZERO;
     }
@@ -181,7 +177,7 @@ pub fn radiance(w: &World, origin: Vec3, dir: Vec3, rng: &mut Rng) -> (Vec3, u32
         let m = w.material(hit.prim);
         let (p, ng) = traverse::surface(&w.scene, hit.prim, o, d, &hit);
         let le = xyz(m.emission);
-        let cos_l = w.light_cos(hit.prim, ng, d);
+        let cos_l = World::light_cos(ng, d);
         if max3(le) > 0.0 && cos_l > 0.0 {
             // Paths that next-event estimation also reaches count with their MIS weight.
             let weight = if !(prev.diffuse && nee) {
@@ -218,13 +214,22 @@ pub fn radiance(w: &World, origin: Vec3, dir: Vec3, rng: &mut Rng) -> (Vec3, u32
     (l, rays)
 }
 
-/// Adds `p.samples` samples of pixel `(x, y)` to `accum` (radiance sums in `xyz`, rays in
-/// `w`). Samples whose radiance is not finite are dropped.
+/// Adds `p.samples` samples of pixel `(x, y)` to `accum`: see [`pixel_samples`].
 pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32; 4]]) {
     let f = w.frame;
     if x >= f.width || y >= f.height {
         return;
     }
+    let s = pixel_samples(x, y, p, w);
+    let a = &mut accum[(y * f.width + x) as usize];
+    *a = [a[0] + s[0], a[1] + s[1], a[2] + s[2], a[3] + s[3]];
+}
+
+/// Samples `p.sample_base..p.sample_base + p.samples` of pixel `(x, y)`: the sum of their
+/// radiance (`xyz`) and the number of rays traced (`w`). Samples whose radiance is not
+/// finite are dropped.
+pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
+    let f = w.frame;
     let pixel = y * f.width + x;
     let mut sum = Vec3::ZERO;
     let mut rays = 0;
@@ -239,8 +244,7 @@ pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32
         rays += r;
         s += 1;
     }
-    let a = &mut accum[pixel as usize];
-    *a = [a[0] + sum.x, a[1] + sum.y, a[2] + sum.z, a[3] + rays as f32];
+    [sum.x, sum.y, sum.z, rays as f32]
 }
 
 /// Closest hit of ray `i` of `rays` (origin `w`: unused, direction `w`: largest distance).

@@ -1,0 +1,357 @@
+//! The `render` and `compare` commands: scene options shared by both, progress and summary
+//! lines, and the side-by-side comparison of the CPU and GPU backends.
+use crate::bvh::MortonBits;
+use crate::picture::{self, Picture};
+use crate::render::{self, render_cpu, Backend, GpuRenderer};
+use crate::scene::{Scene, SceneGpu};
+use crate::vk::{Gpu, GpuOptions, Kernels};
+use anyhow::{bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use shared::types::Frame;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Scene and settings of a render; unset options keep the scene's own settings.
+#[derive(clap::Parser, Clone, Debug)]
+pub struct SceneArgs {
+    /// Built-in scene (cornell, suzanne, bunny, spheres, instances) or a TOML scene file.
+    #[arg(default_value = "cornell")]
+    pub scene: String,
+    /// Samples per pixel.
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Maximum number of bounces per path.
+    #[arg(long)]
+    pub depth: Option<u32>,
+    /// Image size, WIDTHxHEIGHT.
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(u32, u32)>,
+    /// Trace by testing every primitive (the thesis's brute force) instead of the BVH.
+    #[arg(long)]
+    pub no_bvh: bool,
+    /// Switch next-event estimation off.
+    #[arg(long)]
+    pub no_nee: bool,
+    /// Next-event estimation without multiple importance sampling.
+    #[arg(long)]
+    pub no_mis: bool,
+    /// Switch Russian roulette off.
+    #[arg(long)]
+    pub no_roulette: bool,
+    /// Display with the thesis's gamma 1/2 instead of sRGB.
+    #[arg(long)]
+    pub gamma2: bool,
+    #[arg(long)]
+    pub exposure: Option<f32>,
+    /// Seed of the random streams.
+    #[arg(long)]
+    pub seed: Option<u32>,
+    /// Animation time in seconds at which objects are placed.
+    #[arg(long, default_value_t = 0.0)]
+    pub time: f32,
+    /// Morton code width of the BVH.
+    #[arg(long, value_enum, default_value = "b30")]
+    pub bits: Bits,
+}
+
+#[derive(Copy, Clone, Debug, clap::ValueEnum)]
+pub enum Bits {
+    B30,
+    B63,
+}
+
+impl From<Bits> for MortonBits {
+    fn from(b: Bits) -> MortonBits {
+        match b {
+            Bits::B30 => MortonBits::B30,
+            Bits::B63 => MortonBits::B63,
+        }
+    }
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("size {s:?} is not WIDTHxHEIGHT"))?;
+    let parse = |v: &str| v.trim().parse::<u32>().map_err(|e| format!("size {s:?}: {v:?}: {e}"));
+    let (w, h) = (parse(w)?, parse(h)?);
+    if w == 0 || h == 0 || w > 16384 || h > 16384 {
+        return Err(format!("size {s:?}: each side must be 1..=16384"));
+    }
+    Ok((w, h))
+}
+
+/// A scene ready to render: its description, GPU data and frame.
+pub struct Prepared {
+    pub scene: Scene,
+    pub data: SceneGpu,
+    pub frame: Frame,
+    pub spp: u32,
+    pub bits: MortonBits,
+}
+
+impl SceneArgs {
+    /// Opens the scene and applies the command-line overrides.
+    pub fn prepare(&self) -> Result<Prepared> {
+        let mut scene = Scene::open(&self.scene)?;
+        let s = &mut scene.settings;
+        if let Some(spp) = self.spp {
+            if spp == 0 {
+                bail!("--spp must be at least 1");
+            }
+            s.spp = spp;
+        }
+        if let Some(d) = self.depth {
+            if d == 0 {
+                bail!("--depth must be at least 1");
+            }
+            s.max_depth = d;
+        }
+        if let Some((w, h)) = self.size {
+            (s.width, s.height) = (w, h);
+        }
+        s.nee &= !self.no_nee;
+        s.mis &= !self.no_mis;
+        s.russian_roulette &= !self.no_roulette;
+        s.gamma2 |= self.gamma2;
+        if let Some(e) = self.exposure {
+            if !(e.is_finite() && e > 0.0) {
+                bail!("--exposure must be a positive number, got {e}");
+            }
+            s.exposure = e;
+        }
+        if let Some(seed) = self.seed {
+            s.seed = seed;
+        }
+        let data = scene.gpu_data(self.time);
+        let frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
+        Ok(Prepared {
+            spp: scene.settings.spp,
+            scene,
+            data,
+            frame,
+            bits: self.bits.into(),
+        })
+    }
+}
+
+/// Opens the GPU, or says why not.
+pub fn open_gpu(opts: &GpuOptions) -> Result<(Arc<Gpu>, Arc<Kernels>)> {
+    let gpu = Gpu::new(opts)?;
+    let kernels = Arc::new(Kernels::new(&gpu)?);
+    Ok((gpu, kernels))
+}
+
+fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} {elapsed_precise} (eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_message(what.to_string());
+    bar
+}
+
+/// Result of one render on either backend.
+pub struct Rendered {
+    pub picture: Picture,
+    /// Stage seconds (GPU timestamps, or CPU wall clock).
+    pub timings: Vec<(&'static str, f64)>,
+    pub device: String,
+}
+
+/// Renders on the GPU in submissions of growing size, with a progress bar when it takes
+/// long.
+pub fn render_gpu(r: &mut GpuRenderer, p: &Prepared, quiet: bool) -> Result<Rendered> {
+    r.set_bits(p.bits);
+    r.load(&p.data, &p.frame)?;
+    let start = Instant::now();
+    let mut timings = r.render(1.min(p.spp), true)?;
+    let mut chunk = 1;
+    let bar = (!quiet).then(|| progress_bar(p.spp as u64, "samples"));
+    while r.samples() < p.spp {
+        let t = Instant::now();
+        let n = chunk.min(p.spp - r.samples());
+        timings.extend(r.render(n, false)?);
+        if let Some(b) = &bar {
+            b.set_position(r.samples() as u64);
+        }
+        // About a quarter of a second per submission.
+        if t.elapsed().as_secs_f64() < 0.25 {
+            chunk *= 2;
+        }
+    }
+    if let Some(b) = bar {
+        if start.elapsed().as_secs_f64() > 1.0 {
+            b.finish();
+        } else {
+            b.finish_and_clear();
+        }
+    }
+    Ok(Rendered {
+        picture: r.picture()?,
+        timings: render::stage_totals(&timings),
+        device: r.gpu().describe(),
+    })
+}
+
+/// Renders on the CPU executor with a progress bar over rows.
+pub fn render_on_cpu(p: &Prepared, quiet: bool) -> (Rendered, render::CpuRender) {
+    let bar = (!quiet).then(|| progress_bar(p.frame.height as u64, "rows"));
+    let out = render_cpu(&p.data, &p.frame, p.spp, p.bits, &|rows| {
+        if let Some(b) = &bar {
+            b.set_position(rows as u64);
+        }
+    });
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let rendered = Rendered {
+        picture: out.picture.clone(),
+        timings: render::stage_totals(&out.timings),
+        device: format!("CPU executor ({} threads)", rayon::current_num_threads()),
+    };
+    (rendered, out)
+}
+
+/// `raytrace render`.
+pub fn render_command(args: &SceneArgs, backend: Backend, out: Option<PathBuf>, opts: &GpuOptions) -> Result<PathBuf> {
+    let p = args.prepare()?;
+    let out = out.unwrap_or_else(|| PathBuf::from(format!("{}.png", p.scene.name)));
+    let wall = Instant::now();
+    let rendered = match backend {
+        Backend::Gpu => match open_gpu(opts) {
+            Ok((gpu, kernels)) => {
+                let mut r = GpuRenderer::new(&gpu, &kernels)?;
+                render_gpu(&mut r, &p, false)?
+            }
+            Err(e) => {
+                eprintln!("no usable Vulkan device ({e:#}); rendering on the CPU backend instead");
+                render_on_cpu(&p, false).0
+            }
+        },
+        Backend::Cpu => render_on_cpu(&p, false).0,
+    };
+    let wall = wall.elapsed().as_secs_f64();
+    rendered.picture.save(&out)?;
+    println!("{}", summary(&p, &rendered, wall));
+    println!("wrote {}", out.display());
+    Ok(out)
+}
+
+/// The summary line: scene, settings, device, time per stage, rays per second.
+pub fn summary(p: &Prepared, r: &Rendered, wall: f64) -> String {
+    let total: f64 = r.timings.iter().map(|t| t.1).sum();
+    let rays = render::rays_traced(&r.picture) as f64;
+    let trace = r.timings.iter().find(|t| t.0 == "trace").map_or(total, |t| t.1);
+    let stages: Vec<String> = r.timings.iter().map(|(s, t)| format!("{s} {}", ms(*t))).collect();
+    format!(
+        "{} {}x{}, {} spp, depth {}{}: {} on {} ({}); {:.1} M rays, {:.3} Grays/s while tracing; mean luminance {:.4}; wall clock {:.2} s",
+        p.scene.name,
+        p.frame.width,
+        p.frame.height,
+        p.spp,
+        p.frame.max_depth,
+        if p.frame.flags & shared::types::FLAG_BVH == 0 { ", brute force" } else { "" },
+        ms(total),
+        r.device,
+        stages.join(", "),
+        rays * 1e-6,
+        rays / trace.max(1e-12) * 1e-9,
+        r.picture.mean_luminance(),
+        wall
+    )
+}
+
+/// Seconds as a short string in ms or s.
+pub fn ms(t: f64) -> String {
+    if t >= 1.0 {
+        format!("{t:.2} s")
+    } else {
+        format!("{:.3} ms", t * 1e3)
+    }
+}
+
+/// Outcome of `raytrace compare`.
+pub struct Comparison {
+    pub stats: picture::DiffStats,
+    pub bvh_identical: bool,
+    pub world_identical: bool,
+    pub cpu: Rendered,
+    pub gpu: Rendered,
+}
+
+/// Renders on both backends with the same random streams and compares them.
+pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool) -> Result<Comparison> {
+    let mut r = GpuRenderer::new(gpu, kernels)?;
+    // One submission: every sample sees the BVH built in it.
+    r.set_bits(p.bits);
+    r.load(&p.data, &p.frame)?;
+    let timings = r.render(p.spp, true)?;
+    let g = Rendered {
+        picture: r.picture()?,
+        timings: render::stage_totals(&timings),
+        device: gpu.describe(),
+    };
+    let gpu_bvh = r.bvh()?;
+    let (gpu_tris, gpu_spheres) = r.world()?;
+    let (c, cpu_out) = render_on_cpu(p, quiet);
+    let bvh_identical = gpu_bvh.nodes == cpu_out.bvh.nodes
+        && gpu_bvh.parents == cpu_out.bvh.parents
+        && gpu_bvh.sorted_prims == cpu_out.bvh.sorted_prims;
+    let world_identical = gpu_tris == cpu_out.tris && gpu_spheres == cpu_out.spheres;
+    let stats = picture::diff_stats(&c.picture, &g.picture)?;
+    Ok(Comparison {
+        stats,
+        bvh_identical,
+        world_identical,
+        cpu: c,
+        gpu: g,
+    })
+}
+
+/// `raytrace compare`: writes CPU | GPU | difference, prints the stage table; an error when
+/// the images differ by more than `tolerance` (relative RMSE) or the BVHs differ.
+pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuOptions) -> Result<()> {
+    let p = args.prepare()?;
+    let (gpu, kernels) = open_gpu(opts).context("compare needs a Vulkan device")?;
+    let c = compare(&p, &gpu, &kernels, false)?;
+    let mean = c.cpu.picture.mean_luminance().max(1e-6) as f32;
+    picture::write_comparison(&c.cpu.picture, &c.gpu.picture, 0.5 * mean, out)?;
+    println!("{} {}x{}, {} spp, depth {}", p.scene.name, p.frame.width, p.frame.height, p.spp, p.frame.max_depth);
+    println!("| stage | CPU ({}) | GPU ({}) |", c.cpu.device, c.gpu.device);
+    println!("|---|---|---|");
+    let mut stages: Vec<&str> = c.cpu.timings.iter().map(|t| t.0).collect();
+    for (s, _) in &c.gpu.timings {
+        if !stages.contains(s) {
+            stages.push(s);
+        }
+    }
+    let find = |r: &Rendered, s: &str| r.timings.iter().find(|t| t.0 == s).map_or("-".into(), |t| ms(t.1));
+    for s in stages {
+        println!("| {s} | {} | {} |", find(&c.cpu, s), find(&c.gpu, s));
+    }
+    println!(
+        "world primitives identical: {}; BVHs identical: {}",
+        c.world_identical, c.bvh_identical
+    );
+    println!(
+        "image difference: relative RMSE {:.4} (tolerance {tolerance}), max {:.3}, {:.2}% of pixels differ by > 5% of the mean",
+        c.stats.relative_rmse,
+        c.stats.max_abs,
+        c.stats.differing_pixels * 100.0
+    );
+    println!("wrote {} (CPU | GPU | |difference|, full scale = half the mean luminance)", out.display());
+    if !c.bvh_identical || !c.world_identical {
+        bail!("the CPU and GPU built different BVHs");
+    }
+    if c.stats.relative_rmse > tolerance {
+        bail!(
+            "the images differ: relative RMSE {:.4} > tolerance {tolerance}",
+            c.stats.relative_rmse
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,107 @@
+//! The CPU renderer: the transform, BVH build, path tracing and display kernels of `shared`
+//! run by the CPU executor (pixels in parallel with rayon: each writes only its own sum).
+use crate::bvh::{BuildResult, MortonBits};
+use crate::picture::Picture;
+use crate::scene::SceneGpu;
+use rayon::prelude::*;
+use shared::path::{self, World};
+use shared::traverse::Scene;
+use shared::types::{BuildParams, Frame, RenderPush, Sphere, Triangle};
+use std::time::Instant;
+
+/// A CPU render: the picture, stage times in seconds, and the BVH it traced through.
+pub struct CpuRender {
+    pub picture: Picture,
+    pub timings: Vec<(&'static str, f64)>,
+    pub bvh: BuildResult,
+    pub tris: Vec<Triangle>,
+    pub spheres: Vec<Sphere>,
+}
+
+/// Renders `samples` samples per pixel of `scene` with `frame`; `progress` is called with
+/// the number of rows finished.
+pub fn render_cpu(
+    scene: &SceneGpu,
+    frame: &Frame,
+    samples: u32,
+    bits: MortonBits,
+    progress: &(dyn Fn(u32) + Sync),
+) -> CpuRender {
+    let mut timings = Vec::new();
+    let t = Instant::now();
+    let (n_tris, n_spheres) = (scene.model_tris.len(), scene.model_spheres.len());
+    let p = BuildParams {
+        n_tris: n_tris as u32,
+        n: (n_tris + n_spheres) as u32,
+        shift: 0,
+        tiles: 0,
+    };
+    let mut tris = vec![Triangle::default(); n_tris];
+    let mut spheres = vec![Sphere::default(); n_spheres];
+    for i in 0..p.n {
+        shared::transform::transform(
+            i,
+            &p,
+            &scene.objects,
+            &scene.prim_object,
+            &scene.model_tris,
+            &scene.model_spheres,
+            &mut tris,
+            &mut spheres,
+        );
+    }
+    timings.push(("transform", t.elapsed().as_secs_f64()));
+    let (bvh, build_times) = crate::cpu::build(&tris, &spheres, bits);
+    timings.extend(build_times);
+
+    let t = Instant::now();
+    let world = World {
+        scene: Scene {
+            tris: &tris,
+            spheres: &spheres,
+            nodes: &bvh.nodes,
+            n_tris: frame.n_tris,
+            n_prims: frame.n_prims,
+        },
+        objects: &scene.objects,
+        prim_object: &scene.prim_object,
+        materials: &scene.materials,
+        lights: &scene.lights,
+        frame,
+    };
+    let push = RenderPush {
+        sample_base: 0,
+        samples,
+        ..Default::default()
+    };
+    let (w, h) = (frame.width, frame.height);
+    let done = std::sync::atomic::AtomicU32::new(0);
+    let mut accum = vec![[0.0f32; 4]; (w * h) as usize];
+    accum.par_chunks_mut(w as usize).enumerate().for_each(|(y, row)| {
+        for (x, a) in row.iter_mut().enumerate() {
+            *a = path::pixel_samples(x as u32, y as u32, &push, &world);
+        }
+        progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
+    });
+    timings.push(("trace", t.elapsed().as_secs_f64()));
+
+    let t = Instant::now();
+    let mut display = vec![0u32; (w * h) as usize];
+    for i in 0..w * h {
+        shared::display::display(i, &push, frame, &accum, &mut display);
+    }
+    timings.push(("display", t.elapsed().as_secs_f64()));
+    CpuRender {
+        picture: Picture {
+            width: w,
+            height: h,
+            accum,
+            samples,
+            display,
+        },
+        timings,
+        bvh,
+        tris,
+        spheres,
+    }
+}

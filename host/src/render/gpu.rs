@@ -1,0 +1,331 @@
+//! The GPU renderer. One command buffer per frame: transform every primitive to world space,
+//! rebuild the BVH (the LBVH of `crate::lbvh`), trace samples into the float accumulation
+//! image, and run the display pass; a timestamp after each stage.
+use crate::bvh::{BuildResult, MortonBits};
+use crate::lbvh::GpuLbvh;
+use crate::picture::Picture;
+use crate::scene::SceneGpu;
+use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels};
+use anyhow::{bail, Context, Result};
+use bytemuck::Pod;
+use gpu_allocator::MemoryLocation;
+use shared::types::{
+    grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, TILE_SIDE, WORKGROUP,
+};
+use std::sync::Arc;
+
+/// Samples per pixel one path-tracing dispatch adds at most.
+const SAMPLES_PER_DISPATCH: u32 = 8;
+
+/// Device buffers of the scene and the images (descriptor set 1).
+struct SceneBuffers {
+    /// Host-visible: rewritten when objects move.
+    objects: Buffer,
+    model_tris: Buffer,
+    model_spheres: Buffer,
+    prim_object: Buffer,
+    materials: Buffer,
+    lights: Buffer,
+    /// Host-visible: rewritten when the camera or settings change.
+    frame: Buffer,
+    accum: Buffer,
+    image: Buffer,
+    rays: Buffer,
+    hits: Buffer,
+    set: BindingSets,
+    n_objects: usize,
+}
+
+/// Renders scenes on the GPU.
+pub struct GpuRenderer {
+    gpu: Arc<Gpu>,
+    kernels: Arc<Kernels>,
+    lbvh: GpuLbvh,
+    cmds: Commands,
+    bufs: Option<SceneBuffers>,
+    frame: Frame,
+    /// Samples per pixel accumulated so far.
+    samples: u32,
+    bits: MortonBits,
+}
+
+impl GpuRenderer {
+    pub fn new(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>) -> Result<GpuRenderer> {
+        Ok(GpuRenderer {
+            gpu: gpu.clone(),
+            kernels: kernels.clone(),
+            lbvh: GpuLbvh::new(gpu, kernels)?,
+            cmds: Commands::new(gpu)?,
+            bufs: None,
+            frame: Frame::default(),
+            samples: 0,
+            bits: MortonBits::B30,
+        })
+    }
+
+    pub fn gpu(&self) -> &Arc<Gpu> {
+        &self.gpu
+    }
+
+    /// Samples per pixel accumulated since the last change.
+    pub fn samples(&self) -> u32 {
+        self.samples
+    }
+
+    /// Morton code width of the BVH builds.
+    pub fn set_bits(&mut self, bits: MortonBits) {
+        self.bits = bits;
+    }
+
+    /// Uploads a scene and its frame; accumulation starts again.
+    pub fn load(&mut self, scene: &SceneGpu, frame: &Frame) -> Result<()> {
+        self.bufs = None;
+        let gpu = &self.gpu.clone();
+        let dev = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::GpuOnly);
+        let host = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::CpuToGpu);
+        let pixels = (frame.width * frame.height) as usize;
+        let mut objects = host("objects", size_of_val(scene.objects.as_slice()))?;
+        objects.write(&scene.objects)?;
+        let model_tris = dev("model triangles", size_of_val(scene.model_tris.as_slice()))?;
+        let model_spheres = dev("model spheres", size_of_val(scene.model_spheres.as_slice()))?;
+        let prim_object = dev("object of each primitive", size_of_val(scene.prim_object.as_slice()))?;
+        let materials = dev("materials", size_of_val(scene.materials.as_slice()))?;
+        let lights = dev("lights", size_of_val(scene.lights.as_slice()))?;
+        let frame_buf = host("frame", size_of::<Frame>())?;
+        let accum = dev("accumulation image", pixels * 16)?;
+        let image = dev("display image", pixels * 4)?;
+        let rays = dev("rays", size_of::<Ray>())?;
+        let hits = dev("hits", size_of::<Hit>())?;
+        self.upload(&model_tris, &scene.model_tris)?;
+        self.upload(&model_spheres, &scene.model_spheres)?;
+        self.upload(&prim_object, &scene.prim_object)?;
+        self.upload(&materials, &scene.materials)?;
+        self.upload(&lights, &scene.lights)?;
+        let set = Self::binding_set(
+            gpu,
+            &self.kernels,
+            [
+                &objects, &model_tris, &model_spheres, &prim_object, &materials, &lights, &frame_buf, &accum, &image,
+                &rays, &hits,
+            ],
+        )?;
+        self.bufs = Some(SceneBuffers {
+            objects,
+            model_tris,
+            model_spheres,
+            prim_object,
+            materials,
+            lights,
+            frame: frame_buf,
+            accum,
+            image,
+            rays,
+            hits,
+            set,
+            n_objects: scene.objects.len(),
+        });
+        self.lbvh.reserve(scene.model_tris.len(), scene.model_spheres.len())?;
+        self.set_frame(frame)
+    }
+
+    fn binding_set(gpu: &Arc<Gpu>, kernels: &Kernels, buffers: [&Buffer; 11]) -> Result<BindingSets> {
+        BindingSets::new(gpu, kernels, 1, &[&buffers])
+    }
+
+    /// Copies `data` into the device-local `dst` through a staging buffer.
+    fn upload<T: Pod>(&mut self, dst: &Buffer, data: &[T]) -> Result<()> {
+        if data.is_empty() {
+            return Ok(());
+        }
+        let bytes = size_of_val(data) as u64;
+        let mut staging = Buffer::new(&self.gpu, "staging", bytes, MemoryLocation::CpuToGpu)?;
+        staging.write(data)?;
+        self.cmds.begin()?;
+        self.cmds.copy_range(&staging, 0, dst, 0, bytes);
+        self.cmds.submit_wait().context("uploading scene data")
+    }
+
+    fn download<T: Pod>(&mut self, src: &Buffer, count: usize) -> Result<Vec<T>> {
+        let bytes = (count * size_of::<T>()) as u64;
+        if bytes == 0 {
+            return Ok(Vec::new());
+        }
+        let readback = Buffer::new(&self.gpu, "readback", bytes, MemoryLocation::GpuToCpu)?;
+        self.cmds.begin()?;
+        self.cmds.copy_range(src, 0, &readback, 0, bytes);
+        self.cmds.submit_wait().context("reading back GPU results")?;
+        readback.read(count)
+    }
+
+    /// New camera and settings (same image size and scene); accumulation starts again.
+    pub fn set_frame(&mut self, frame: &Frame) -> Result<()> {
+        let b = self.bufs.as_mut().context("no scene loaded")?;
+        let pixels = (frame.width * frame.height) as u64;
+        if b.accum.size < pixels * 16 || frame.n_prims != self.lbvh.len() {
+            bail!("the frame does not fit the loaded scene (size or primitive count changed): load it again");
+        }
+        b.frame.write(std::slice::from_ref(frame))?;
+        self.frame = *frame;
+        self.samples = 0;
+        Ok(())
+    }
+
+    /// New object transforms (same objects); accumulation starts again.
+    pub fn set_objects(&mut self, objects: &[Object]) -> Result<()> {
+        let b = self.bufs.as_mut().context("no scene loaded")?;
+        if objects.len() != b.n_objects {
+            bail!("{} objects given, {} loaded", objects.len(), b.n_objects);
+        }
+        b.objects.write(objects)?;
+        self.samples = 0;
+        Ok(())
+    }
+
+    /// Records transform and BVH build (when `rebuild`), `samples` more samples per pixel,
+    /// and the display pass into one command buffer, runs it, and returns each stage's GPU
+    /// seconds (build stages as labelled by the LBVH, then `trace` and `display`).
+    pub fn render(&mut self, samples: u32, rebuild: bool) -> Result<Vec<(&'static str, f64)>> {
+        let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
+        let r = self.record_and_run(&mut cmds, samples, rebuild);
+        self.cmds = cmds;
+        r
+    }
+
+    fn record_and_run(
+        &mut self,
+        cmds: &mut Commands,
+        samples: u32,
+        rebuild: bool,
+    ) -> Result<Vec<(&'static str, f64)>> {
+        let b = self.bufs.as_ref().context("no scene loaded")?;
+        let k = &self.kernels;
+        let f = self.frame;
+        let sets = [self.lbvh.set()?, b.set.sets[0]];
+        cmds.begin()?;
+        cmds.timestamp("begin");
+        if self.samples == 0 {
+            cmds.fill_range(&b.accum, 0, b.accum.size, 0);
+            cmds.barrier();
+        }
+        if rebuild || self.samples == 0 {
+            let p = BuildParams {
+                n_tris: f.n_tris,
+                n: f.n_prims,
+                shift: 0,
+                tiles: 0,
+            };
+            let (x, y) = grid(f.n_prims.div_ceil(WORKGROUP));
+            cmds.dispatch_sets(k, &sets, Kernel::Transform, bytemuck::bytes_of(&p), x, y);
+            cmds.barrier();
+            cmds.timestamp("transform");
+            self.lbvh.record(cmds, self.bits, false)?;
+        }
+        let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));
+        let mut done = 0;
+        while done < samples {
+            let n = (samples - done).min(SAMPLES_PER_DISPATCH);
+            let push = RenderPush {
+                sample_base: self.samples + done,
+                samples: n,
+                ..Default::default()
+            };
+            cmds.dispatch_sets(k, &sets, Kernel::PathTrace, bytemuck::bytes_of(&push), gx, gy);
+            cmds.barrier();
+            done += n;
+        }
+        cmds.timestamp("trace");
+        let push = RenderPush {
+            samples: self.samples + samples,
+            ..Default::default()
+        };
+        let (x, y) = grid((f.width * f.height).div_ceil(WORKGROUP));
+        cmds.dispatch_sets(k, &sets, Kernel::DisplayImage, bytemuck::bytes_of(&push), x, y);
+        cmds.barrier();
+        cmds.timestamp("display");
+        cmds.submit_wait().context("rendering")?;
+        self.samples += samples;
+        Ok(cmds
+            .timings()?
+            .into_iter()
+            .filter(|(l, _)| *l != "start")
+            .map(|(l, ns)| (l, ns * 1e-9))
+            .collect())
+    }
+
+    /// The accumulated and displayed images.
+    pub fn picture(&mut self) -> Result<Picture> {
+        let pixels = (self.frame.width * self.frame.height) as usize;
+        let b = self.bufs.take().context("no scene loaded")?;
+        let r = (|| -> Result<Picture> {
+            Ok(Picture {
+                width: self.frame.width,
+                height: self.frame.height,
+                accum: self.download(&b.accum, pixels)?,
+                samples: self.samples,
+                display: self.download(&b.image, pixels)?,
+            })
+        })();
+        self.bufs = Some(b);
+        r
+    }
+
+    /// The BVH of the last build, every stage's output.
+    pub fn bvh(&mut self) -> Result<BuildResult> {
+        self.lbvh.result(self.bits)
+    }
+
+    /// World-space primitives of the last transform stage.
+    pub fn world(&mut self) -> Result<(Vec<Triangle>, Vec<Sphere>)> {
+        self.lbvh.primitives()
+    }
+
+    /// Closest hits of `rays` through the current BVH (or brute force, by the frame's flag).
+    pub fn cast(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
+        let mut b = self.bufs.take().context("no scene loaded")?;
+        let r = self.cast_with(&mut b, rays);
+        self.bufs = Some(b);
+        r
+    }
+
+    fn cast_with(&mut self, b: &mut SceneBuffers, rays: &[Ray]) -> Result<Vec<Hit>> {
+        if (b.rays.size as usize) < size_of_val(rays) {
+            b.rays = Buffer::new(&self.gpu, "rays", size_of_val(rays) as u64, MemoryLocation::GpuOnly)?;
+            b.hits = Buffer::new(
+                &self.gpu,
+                "hits",
+                (rays.len() * size_of::<Hit>()) as u64,
+                MemoryLocation::GpuOnly,
+            )?;
+            b.set = Self::binding_set(
+                &self.gpu,
+                &self.kernels,
+                [
+                    &b.objects,
+                    &b.model_tris,
+                    &b.model_spheres,
+                    &b.prim_object,
+                    &b.materials,
+                    &b.lights,
+                    &b.frame,
+                    &b.accum,
+                    &b.image,
+                    &b.rays,
+                    &b.hits,
+                ],
+            )?;
+        }
+        self.upload(&b.rays, rays)?;
+        let push = RenderPush {
+            count: rays.len() as u32,
+            ..Default::default()
+        };
+        let sets = [self.lbvh.set()?, b.set.sets[0]];
+        let (x, y) = grid((rays.len() as u32).div_ceil(WORKGROUP));
+        self.cmds.begin()?;
+        self.cmds
+            .dispatch_sets(&self.kernels, &sets, Kernel::CastRays, bytemuck::bytes_of(&push), x, y);
+        self.cmds.barrier();
+        self.cmds.submit_wait().context("casting rays")?;
+        self.download(&b.hits, rays.len())
+    }
+}

@@ -1,0 +1,46 @@
+//! Rendering a scene on either backend: the GPU renderer records transform, BVH build, path
+//! tracing and display into one command buffer; the CPU renderer runs the very same kernels
+//! of `shared` through the CPU executor. Both produce a [`Picture`] and per-stage times.
+mod cpu;
+mod gpu;
+
+pub use cpu::{render_cpu, CpuRender};
+pub use gpu::GpuRenderer;
+
+use crate::picture::Picture;
+use shared::types::{Frame, FLAG_BVH};
+
+/// Where kernels run.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+pub enum Backend {
+    Gpu,
+    Cpu,
+}
+
+/// Stage times (seconds) summed by stage: labels like `sort.scatter` count under `sort`.
+pub fn stage_totals(timings: &[(&'static str, f64)]) -> Vec<(&'static str, f64)> {
+    let mut out: Vec<(&'static str, f64)> = Vec::new();
+    for &(label, t) in timings {
+        let stage = label.split('.').next().unwrap_or(label);
+        match out.iter_mut().find(|(s, _)| *s == stage) {
+            Some(e) => e.1 += t,
+            None => out.push((stage, t)),
+        }
+    }
+    out
+}
+
+/// Rays traced for a picture (each pixel's accumulated count).
+pub fn rays_traced(p: &Picture) -> u64 {
+    p.accum.iter().map(|a| a[3] as u64).sum()
+}
+
+/// `frame` with tracing through the BVH switched on or off.
+pub fn with_bvh(mut frame: Frame, bvh: bool) -> Frame {
+    if bvh {
+        frame.flags |= FLAG_BVH;
+    } else {
+        frame.flags &= !FLAG_BVH;
+    }
+    frame
+}
