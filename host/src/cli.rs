@@ -277,8 +277,13 @@ pub fn ms(t: f64) -> String {
 /// Outcome of `raytrace compare`.
 pub struct Comparison {
     pub stats: picture::DiffStats,
+    /// Same tree: child links, parents and primitive order.
+    pub topology_identical: bool,
+    /// Same tree and bit-identical boxes.
     pub bvh_identical: bool,
-    pub world_identical: bool,
+    /// Largest difference between the backends' world-space coordinates, relative to the
+    /// largest coordinate magnitude of the scene.
+    pub world_max_error: f32,
     pub cpu: Rendered,
     pub gpu: Rendered,
 }
@@ -298,15 +303,29 @@ pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool
     let gpu_bvh = r.bvh()?;
     let (gpu_tris, gpu_spheres) = r.world()?;
     let (c, cpu_out) = render_on_cpu(p, quiet);
-    let bvh_identical = gpu_bvh.nodes == cpu_out.bvh.nodes
+    let links = |b: &crate::bvh::BuildResult| b.nodes.iter().map(|n| (n.a, n.b)).collect::<Vec<_>>();
+    let topology_identical = links(&gpu_bvh) == links(&cpu_out.bvh)
         && gpu_bvh.parents == cpu_out.bvh.parents
         && gpu_bvh.sorted_prims == cpu_out.bvh.sorted_prims;
-    let world_identical = gpu_tris == cpu_out.tris && gpu_spheres == cpu_out.spheres;
+    let bvh_identical = topology_identical && gpu_bvh.nodes == cpu_out.bvh.nodes;
+    let floats = |t: &[shared::types::Triangle], s: &[shared::types::Sphere]| -> Vec<f32> {
+        let mut v: Vec<f32> = bytemuck::cast_slice(t).to_vec();
+        v.extend_from_slice(bytemuck::cast_slice(s));
+        v
+    };
+    let (on_gpu, on_cpu) = (floats(&gpu_tris, &gpu_spheres), floats(&cpu_out.tris, &cpu_out.spheres));
+    let scale = on_cpu.iter().fold(f32::MIN_POSITIVE, |m, x| m.max(x.abs()));
+    let world_max_error = on_gpu
+        .iter()
+        .zip(&on_cpu)
+        .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()))
+        / scale;
     let stats = picture::diff_stats(&c.picture, &g.picture)?;
     Ok(Comparison {
         stats,
+        topology_identical,
         bvh_identical,
-        world_identical,
+        world_max_error,
         cpu: c,
         gpu: g,
     })
@@ -320,7 +339,10 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
     let c = compare(&p, &gpu, &kernels, false)?;
     let mean = c.cpu.picture.mean_luminance().max(1e-6) as f32;
     picture::write_comparison(&c.cpu.picture, &c.gpu.picture, 0.5 * mean, out)?;
-    println!("{} {}x{}, {} spp, depth {}", p.scene.name, p.frame.width, p.frame.height, p.spp, p.frame.max_depth);
+    println!(
+        "{} {}x{}, {} spp, depth {}",
+        p.scene.name, p.frame.width, p.frame.height, p.spp, p.frame.max_depth
+    );
     println!("| stage | CPU ({}) | GPU ({}) |", c.cpu.device, c.gpu.device);
     println!("|---|---|---|");
     let mut stages: Vec<&str> = c.cpu.timings.iter().map(|t| t.0).collect();
@@ -334,8 +356,8 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
         println!("| {s} | {} | {} |", find(&c.cpu, s), find(&c.gpu, s));
     }
     println!(
-        "world primitives identical: {}; BVHs identical: {}",
-        c.world_identical, c.bvh_identical
+        "world-space primitives: largest relative difference {:.2e}; BVH topology identical: {}; BVH boxes bit-identical: {}",
+        c.world_max_error, c.topology_identical, c.bvh_identical
     );
     println!(
         "image difference: relative RMSE {:.4} (tolerance {tolerance}), max {:.3}, {:.2}% of pixels differ by > 5% of the mean",
@@ -343,9 +365,12 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
         c.stats.max_abs,
         c.stats.differing_pixels * 100.0
     );
-    println!("wrote {} (CPU | GPU | |difference|, full scale = half the mean luminance)", out.display());
-    if !c.bvh_identical || !c.world_identical {
-        bail!("the CPU and GPU built different BVHs");
+    println!(
+        "wrote {} (CPU | GPU | |difference|, full scale = half the mean luminance)",
+        out.display()
+    );
+    if !c.topology_identical {
+        bail!("the CPU and GPU built BVHs of different topology");
     }
     if c.stats.relative_rmse > tolerance {
         bail!(

@@ -279,7 +279,10 @@ impl GpuLbvh {
     /// The world-space primitives the last build ran on.
     pub fn primitives(&mut self) -> Result<(Vec<Triangle>, Vec<Sphere>)> {
         let (tris, spheres) = (self.n_tris as usize, (self.n - self.n_tris) as usize);
-        Ok((self.download(|b| &b.tris, tris)?, self.download(|b| &b.spheres, spheres)?))
+        Ok((
+            self.download(|b| &b.tris, tris)?,
+            self.download(|b| &b.spheres, spheres)?,
+        ))
     }
 
     /// Reads back every stage's output of the last build (run it with `capture` to get the

@@ -4,9 +4,9 @@
 #![cfg_attr(target_arch = "spirv", no_std)]
 
 use shared::bounds::{self, BoundsState};
+use shared::path::{self, World};
 use shared::radix_sort::{self as sort, HistogramState, ScatterState};
 use shared::scan;
-use shared::path::{self, World};
 use shared::traverse::Scene;
 use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,

@@ -2,9 +2,9 @@
 //! instructions, on the CPU the hardware `fma`/`sqrt` and libm for the rest. `fma` is the one
 //! way kernels fuse a multiply and an add, so both backends round the same expressions the
 //! same way wherever bit-exact agreement matters (transforms, edge functions).
+use spirv_std::glam::Vec3;
 #[cfg(target_arch = "spirv")]
 use spirv_std::num_traits::Float;
-use spirv_std::glam::Vec3;
 
 /// `a * b + c` with one rounding.
 pub fn fma(a: f32, b: f32, c: f32) -> f32 {

@@ -74,7 +74,10 @@ impl World<'_> {
         if prim < s.n_tris {
             let t = &s.tris[prim as usize];
             let (b1, b2) = sampling::uniform_triangle(u1, u2);
-            (intersect::triangle_point(t, b1, b2), intersect::triangle_normal(t).normalize())
+            (
+                intersect::triangle_point(t, b1, b2),
+                intersect::triangle_normal(t).normalize(),
+            )
         } else {
             let sp = s.spheres[(prim - s.n_tris) as usize].center_radius;
             let n = sampling::uniform_sphere(u1, u2);

@@ -36,7 +36,9 @@ fn usable(origin: Vec3, dir: Vec3) -> bool {
     finite3(origin) && finite3(dir) && dir != Vec3::ZERO
 }
 
-/// Closest hit in `(0, t_max)`, testing every primitive.
+/// Closest hit in `(0, t_max)`, testing every primitive. (llvmpipe, and so lavapipe, ends
+/// any loop after 65535 iterations: there the brute-force queries see only that many
+/// primitives.)
 pub fn closest_brute(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
     let mut best = Hit::MISS;
     if !usable(origin, dir) {
@@ -133,7 +135,11 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
             }
             k += 1;
         }
-        let (near, far) = if next_t[1] < next_t[0] { (next[1], next[0]) } else { (next[0], next[1]) };
+        let (near, far) = if next_t[1] < next_t[0] {
+            (next[1], next[0])
+        } else {
+            (next[0], next[1])
+        };
         if near != INVALID {
             if far != INVALID && sp < STACK {
                 stack[sp] = far;
@@ -154,7 +160,10 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
 pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3) {
     if prim < s.n_tris {
         let t = &s.tris[prim as usize];
-        (intersect::triangle_point(t, h.u, h.v), intersect::triangle_normal(t).normalize())
+        (
+            intersect::triangle_point(t, h.u, h.v),
+            intersect::triangle_normal(t).normalize(),
+        )
     } else {
         let sp = s.spheres[(prim - s.n_tris) as usize].center_radius;
         let c = xyz(sp);

@@ -9,9 +9,7 @@ use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels};
 use anyhow::{bail, Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
-use shared::types::{
-    grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, TILE_SIDE, WORKGROUP,
-};
+use shared::types::{grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, TILE_SIDE, WORKGROUP};
 use std::sync::Arc;
 
 /// Samples per pixel one path-tracing dispatch adds at most.
@@ -105,8 +103,17 @@ impl GpuRenderer {
             gpu,
             &self.kernels,
             [
-                &objects, &model_tris, &model_spheres, &prim_object, &materials, &lights, &frame_buf, &accum, &image,
-                &rays, &hits,
+                &objects,
+                &model_tris,
+                &model_spheres,
+                &prim_object,
+                &materials,
+                &lights,
+                &frame_buf,
+                &accum,
+                &image,
+                &rays,
+                &hits,
             ],
         )?;
         self.bufs = Some(SceneBuffers {
@@ -191,12 +198,7 @@ impl GpuRenderer {
         r
     }
 
-    fn record_and_run(
-        &mut self,
-        cmds: &mut Commands,
-        samples: u32,
-        rebuild: bool,
-    ) -> Result<Vec<(&'static str, f64)>> {
+    fn record_and_run(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<Vec<(&'static str, f64)>> {
         let b = self.bufs.as_ref().context("no scene loaded")?;
         let k = &self.kernels;
         let f = self.frame;

@@ -1,0 +1,370 @@
+//! The path tracer on both backends: closest hits through the BVH equal brute force, CPU
+//! and GPU images agree, a furnace converges to its analytic radiance, and the error falls
+//! like 1/sqrt(spp).
+use glam::Vec3;
+use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu};
+use raytrace::bvh::MortonBits;
+use raytrace::cli::{compare, Prepared, SceneArgs};
+use raytrace::picture::{diff_stats, Picture};
+use raytrace::render::{render_cpu, with_bvh, GpuRenderer};
+use raytrace::scene::{CameraSpec, Mesh, Scene, SceneObject, Settings, Shape, Transform};
+use raytrace::vk::Kernels;
+use shared::path::World;
+use shared::rng::Rng;
+use shared::traverse::Scene as Prims;
+use shared::types::{Hit, Material, MaterialKind, Ray, Triangle};
+use std::sync::Arc;
+
+fn prepared(scene: &str, size: u32, spp: u32, extra: &[&str]) -> Prepared {
+    let size = format!("{size}x{size}");
+    let spp = spp.to_string();
+    let mut args = vec!["raytrace", scene, "--size", &size, "--spp", &spp];
+    args.extend_from_slice(extra);
+    <SceneArgs as clap::Parser>::parse_from(args).prepare().expect("scene")
+}
+
+/// Random rays from random points inside the bunny's box, and rays aimed at the bunny.
+fn rays(n: usize) -> Vec<Ray> {
+    let mut rng = Rng::new(1, 2, 3);
+    let mut r = || rng.next_f32();
+    (0..n)
+        .map(|i| {
+            let o = Vec3::new(20.0 + 515.0 * r(), 20.0 + 515.0 * r(), 20.0 + 515.0 * r());
+            let d = if i % 2 == 0 {
+                Vec3::new(r() - 0.5, r() - 0.5, r() - 0.5)
+            } else {
+                Vec3::new(278.0 + 150.0 * (r() - 0.5), 150.0 * r(), 278.0 + 150.0 * (r() - 0.5)) - o
+            };
+            Ray {
+                origin: [o.x, o.y, o.z, 0.0],
+                dir: [d.x, d.y, d.z, f32::INFINITY],
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn closest_hit_through_the_bvh_equals_brute_force() {
+    let p = prepared("bunny", 4, 1, &[]);
+    let cpu = render_cpu(&p.data, &p.frame, 1, MortonBits::B30, &|_| {});
+    let rays = rays(4000);
+    let world = |frame| World {
+        scene: Prims {
+            tris: &cpu.tris,
+            spheres: &cpu.spheres,
+            nodes: &cpu.bvh.nodes,
+            n_tris: p.frame.n_tris,
+            n_prims: p.frame.n_prims,
+        },
+        objects: &p.data.objects,
+        prim_object: &p.data.prim_object,
+        materials: &p.data.materials,
+        lights: &p.data.lights,
+        frame,
+    };
+    let (bvh_frame, brute_frame) = (with_bvh(p.frame, true), with_bvh(p.frame, false));
+    let cast = |frame| -> Vec<Hit> {
+        let w = world(frame);
+        rays.iter()
+            .map(|r| {
+                w.closest(
+                    Vec3::from_slice(&r.origin[..3]),
+                    Vec3::from_slice(&r.dir[..3]),
+                    r.dir[3],
+                )
+            })
+            .collect()
+    };
+    let (bvh, brute) = (cast(&bvh_frame), cast(&brute_frame));
+    let bunny_hits = brute.iter().filter(|h| h.prim < p.frame.n_tris - 12).count();
+    assert!(bunny_hits > 500, "only {bunny_hits} rays hit the bunny");
+    assert_eq!(bvh, brute, "CPU: BVH and brute force disagree");
+
+    let Some(gpu) = gpu("closest_hit_through_the_bvh_equals_brute_force") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    r.load(&p.data, &bvh_frame).expect("load");
+    r.render(0, true).expect("build");
+    check_gpu_hits("bunny, GPU BVH", &r.cast(&rays).expect("cast"), &brute);
+    // Brute force on the GPU over a smaller mesh: llvmpipe ends loops after 65535 iterations.
+    let q = prepared("suzanne", 4, 1, &["--no-bvh"]);
+    let cpu = render_cpu(&q.data, &q.frame, 1, MortonBits::B30, &|_| {});
+    let w = World {
+        scene: Prims {
+            tris: &cpu.tris,
+            spheres: &cpu.spheres,
+            nodes: &cpu.bvh.nodes,
+            n_tris: q.frame.n_tris,
+            n_prims: q.frame.n_prims,
+        },
+        objects: &q.data.objects,
+        prim_object: &q.data.prim_object,
+        materials: &q.data.materials,
+        lights: &q.data.lights,
+        frame: &q.frame,
+    };
+    let brute: Vec<Hit> = rays
+        .iter()
+        .map(|r| {
+            w.closest(
+                Vec3::from_slice(&r.origin[..3]),
+                Vec3::from_slice(&r.dir[..3]),
+                r.dir[3],
+            )
+        })
+        .collect();
+    r.load(&q.data, &q.frame).expect("load");
+    r.render(0, true).expect("build");
+    check_gpu_hits("suzanne, GPU brute force", &r.cast(&rays).expect("cast"), &brute);
+    assert_no_validation_errors(&gpu);
+}
+
+/// GPU hits equal the CPU's: same primitive, distance within 1e-4 relative (the GPU may
+/// divide and fuse less exactly).
+fn check_gpu_hits(what: &str, hits: &[Hit], cpu: &[Hit]) {
+    let bad: Vec<usize> = (0..hits.len())
+        .filter(|&i| hits[i].prim != cpu[i].prim || (hits[i].t - cpu[i].t).abs() > 1e-4 * cpu[i].t)
+        .collect();
+    if !bad.is_empty() {
+        let path = dump_mismatch(what, "GPU", &hits, "CPU", &cpu);
+        panic!(
+            "{what}: {} of {} hits differ, first ray {}: {}",
+            bad.len(),
+            hits.len(),
+            bad[0],
+            path.display()
+        );
+    }
+}
+
+#[test]
+fn cpu_and_gpu_images_of_the_cornell_box_agree() {
+    let Some(gpu) = gpu("cpu_and_gpu_images_of_the_cornell_box_agree") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    for extra in [&[][..], &["--no-nee"][..], &["--bits", "b63"][..]] {
+        let p = prepared("cornell", 48, 8, extra);
+        let c = compare(&p, &gpu, &kernels, true).expect("compare");
+        eprintln!(
+            "{extra:?}: world max error {}, topology identical {}, boxes identical {}, relative RMSE {}",
+            c.world_max_error, c.topology_identical, c.bvh_identical, c.stats.relative_rmse
+        );
+        // The GPU may evaluate `fma` unfused (Vulkan allows it), so world coordinates can
+        // differ in the last bits; the tree's shape must not.
+        assert!(
+            c.world_max_error <= 1e-6,
+            "{extra:?}: world-space primitives differ by {}",
+            c.world_max_error
+        );
+        assert!(c.topology_identical, "{extra:?}: BVH topologies differ");
+        // Same random streams: only floating-point differences in sin/cos/pow/division
+        // separate the backends, and they flip few paths.
+        assert!(
+            c.stats.relative_rmse < 0.02,
+            "{extra:?}: relative RMSE {} (means CPU {:?} GPU {:?})",
+            c.stats.relative_rmse,
+            c.stats.mean_a,
+            c.stats.mean_b
+        );
+    }
+    assert_no_validation_errors(&gpu);
+}
+
+/// A closed cube seen from inside: every wall diffuse with albedo `a` and emitting `e`.
+fn furnace(a: f32, e: f32, depth: u32, extra: &[(&str, bool)]) -> Scene {
+    let v = |x: f32, y: f32, z: f32| [x, y, z, 0.0];
+    let corners: Vec<[f32; 4]> = (0..8)
+        .map(|i| {
+            v(
+                (i & 1) as f32 * 2.0 - 1.0,
+                (i >> 1 & 1) as f32 * 2.0 - 1.0,
+                (i >> 2 & 1) as f32 * 2.0 - 1.0,
+            )
+        })
+        .collect();
+    // Faces wound so that their normals point into the cube.
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    let mut tris = Vec::new();
+    for q in quads {
+        let c = |k: usize| corners[q[k]];
+        tris.push(Triangle {
+            v0: c(0),
+            v1: c(2),
+            v2: c(1),
+        });
+        tris.push(Triangle {
+            v0: c(0),
+            v1: c(3),
+            v2: c(2),
+        });
+    }
+    let mut settings = Settings {
+        width: 24,
+        height: 24,
+        max_depth: depth,
+        ..Default::default()
+    };
+    for &(k, on) in extra {
+        match k {
+            "nee" => settings.nee = on,
+            "mis" => settings.mis = on,
+            _ => settings.russian_roulette = on,
+        }
+    }
+    Scene {
+        name: "furnace".into(),
+        camera: CameraSpec {
+            position: Vec3::new(0.1, -0.2, 0.3),
+            look_at: Vec3::new(1.0, 0.5, -0.2),
+            up: Vec3::Y,
+            vfov_deg: 90.0,
+            aperture: 0.0,
+            focus_distance: None,
+        },
+        settings,
+        materials: vec![(
+            "wall".into(),
+            Material {
+                albedo: [a, a, a, 0.0],
+                emission: [e, e, e, 0.0],
+                kind: MaterialKind::Diffuse as u32,
+                ..Default::default()
+            },
+        )],
+        meshes: vec![Mesh {
+            name: "inward cube".into(),
+            tris: Arc::new(tris),
+        }],
+        objects: vec![SceneObject {
+            name: "box".into(),
+            shape: Shape::Mesh(0),
+            transform: Transform::IDENTITY,
+            material: 0,
+            animation: Default::default(),
+        }],
+    }
+}
+
+fn mean_radiance(p: &Picture) -> f64 {
+    let lin = p.linear();
+    lin.iter().map(|c| c[0] as f64).sum::<f64>() / lin.len() as f64
+}
+
+#[test]
+fn furnace_converges_to_its_analytic_radiance() {
+    let (a, e, depth) = (0.5f32, 1.0f32, 6u32);
+    // Paths of at most `depth` segments: L = e (1 - a^depth) / (1 - a).
+    let expected = e as f64 * (1.0 - (a as f64).powi(depth as i32)) / (1.0 - a as f64);
+    // (Next-event estimation without MIS is left out: in a cube its estimator has unbounded
+    // variance along the edges, where light points come arbitrarily close.)
+    let modes: [&[(&str, bool)]; 3] = [&[("nee", false), ("rr", false)], &[("nee", false)], &[]];
+    let gpu = gpu("furnace_converges_to_its_analytic_radiance");
+    let kernels = gpu.as_ref().map(|g| Arc::new(Kernels::new(g).expect("kernels")));
+    for mode in modes {
+        let scene = furnace(a, e, depth, mode);
+        let data = scene.gpu_data(0.0);
+        let frame = scene.frame(&data);
+        let cpu = render_cpu(&data, &frame, 64, MortonBits::B30, &|_| {});
+        let got = mean_radiance(&cpu.picture);
+        assert!(
+            (got - expected).abs() < 0.01 * expected,
+            "CPU {mode:?}: {got} != {expected}"
+        );
+        if let (Some(g), Some(k)) = (&gpu, &kernels) {
+            let mut r = GpuRenderer::new(g, k).expect("renderer");
+            r.load(&data, &frame).expect("load");
+            r.render(64, true).expect("render");
+            let got = mean_radiance(&r.picture().expect("picture"));
+            assert!(
+                (got - expected).abs() < 0.01 * expected,
+                "GPU {mode:?}: {got} != {expected}"
+            );
+        }
+    }
+    if let Some(g) = &gpu {
+        assert_no_validation_errors(g);
+    }
+}
+
+#[test]
+fn error_falls_like_one_over_the_square_root_of_samples() {
+    let Some(gpu) = gpu("error_falls_like_one_over_the_square_root_of_samples") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    let render = |r: &mut GpuRenderer, spp: u32, seed: &str| {
+        let p = prepared("cornell", 24, spp, &["--seed", seed]);
+        r.load(&p.data, &p.frame).expect("load");
+        r.render(spp, true).expect("render");
+        r.picture().expect("picture")
+    };
+    let reference = render(&mut r, 2048, "7");
+    let errors: Vec<(f64, f64)> = [4u32, 16, 64, 256]
+        .iter()
+        .map(|&spp| {
+            (
+                spp as f64,
+                diff_stats(&reference, &render(&mut r, spp, "1")).expect("stats").rmse,
+            )
+        })
+        .collect();
+    // Least-squares slope of log(error) against log(spp): -1/2 for an unbiased estimator.
+    let n = errors.len() as f64;
+    let (xs, ys): (Vec<f64>, Vec<f64>) = errors.iter().map(|&(s, e)| (s.ln(), e.ln())).unzip();
+    let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
+    let slope = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum::<f64>()
+        / xs.iter().map(|x| (x - mx) * (x - mx)).sum::<f64>();
+    eprintln!("slope {slope}, errors {errors:?}");
+    assert!((-0.62..=-0.38).contains(&slope), "slope {slope}, errors {errors:?}");
+    assert_no_validation_errors(&gpu);
+}
+
+#[test]
+fn bad_scene_input_names_the_file_and_the_problem() {
+    let dir = std::env::temp_dir().join(format!("raytrace-bad-scenes-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let cases = [
+        ("missing.toml", None, "missing.toml"),
+        ("syntax.toml", Some("[camera\nposition = [0, 0, 0]"), "line"),
+        ("field.toml", Some("[camera]\npositon = [0, 1, 0]\n"), "positon"),
+        ("empty.toml", Some("[camera]\nposition = [0, 1, 5]\nlook_at = [0, 0, 0]\n"), "no objects"),
+        (
+            "material.toml",
+            Some("[camera]\nposition = [0, 1, 5]\nlook_at = [0, 0, 0]\n[[objects]]\nsphere = 1.0\nmaterial = \"gold\"\n"),
+            "gold",
+        ),
+        (
+            "nan.toml",
+            Some("[camera]\nposition = [0, 1, 5]\nlook_at = [0, 0, 0]\n[materials.w]\nkind = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n[[objects]]\nmesh = \"nan.obj\"\nmaterial = \"w\"\n"),
+            "nan.obj",
+        ),
+    ];
+    std::fs::write(dir.join("nan.obj"), "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n").expect("write");
+    for (name, text, needle) in cases {
+        let path = dir.join(name);
+        if let Some(t) = text {
+            std::fs::write(&path, t).expect("write");
+        }
+        let args = <SceneArgs as clap::Parser>::parse_from(["raytrace", path.to_str().expect("utf-8 path")]);
+        let err = match args.prepare() {
+            Ok(_) => panic!("{name}: accepted"),
+            Err(e) => format!("{e:#}"),
+        };
+        assert!(err.contains(name), "{name}: error does not name the file: {err}");
+        assert!(
+            err.to_lowercase().contains(needle),
+            "{name}: error does not say {needle:?}: {err}"
+        );
+    }
+}
