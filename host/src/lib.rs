@@ -9,5 +9,6 @@ pub mod lbvh;
 pub mod picture;
 pub mod render;
 pub mod scene;
+pub mod table2;
 pub mod validate;
 pub mod vk;

@@ -71,6 +71,21 @@ enum Bits {
 
 #[derive(Subcommand)]
 enum Bench {
+    /// The thesis's Tables 2 and 3 and Figure 3: Cornell, Suzanne and bunny at 800x800, 32 rays
+    /// per pixel, depth 16, on the CPU, the GPU by brute force and the GPU with the BVH.
+    Table2 {
+        /// Timed frames per configuration (after warm-up).
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+        /// Samples per pixel actually rendered by brute force (scaled to 32).
+        #[arg(long, default_value_t = 1)]
+        brute_spp: u32,
+        /// Samples per pixel actually rendered by the CPU executor (scaled to 32).
+        #[arg(long, default_value_t = 4)]
+        cpu_spp: u32,
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
     /// BVH build: per-stage GPU time, throughput, memory, CPU executor time.
     Build {
         /// Timed runs per input (after warm-up).
@@ -126,6 +141,21 @@ fn main() -> Result<()> {
                     println!("{entry}: {}", lines.join(", "));
                 }
             }
+        }
+        Command::Bench {
+            what:
+                Bench::Table2 {
+                    runs,
+                    brute_spp,
+                    cpu_spp,
+                    out,
+                },
+        } => {
+            let gpu = Gpu::new(&opts)?;
+            let report = raytrace::table2::run(&gpu, runs, brute_spp.max(1), cpu_spp.max(1))?;
+            let md = raytrace::table2::write(&report, &out, &format!("table2-{}-{}", report.date, slug(&gpu.name)))?;
+            println!("{}", raytrace::table2::markdown(&report));
+            println!("wrote {}", md.display());
         }
         Command::Bench {
             what:

@@ -131,7 +131,7 @@ fn direct_light(w: &World, p: Vec3, n: Vec3, albedo: Vec3, mis: bool, rng: &mut 
     let wi = to / dist;
     let cos_s = wi.dot(n);
     let cos_l = World::light_cos(nl, wi);
-    if cos_s <= 0.0 || cos_l <= 0.0 || !(dist > 0.0) {
+    if cos_s <= 0.0 || cos_l <= 0.0 || dist.is_nan() || dist <= 0.0 {
         return Vec3::ZERO;
     }
     // Both ends offset off their surfaces; the shadow ray runs over t in (0, 1).

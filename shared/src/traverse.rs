@@ -111,35 +111,15 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
     let mut node = 0u32;
     loop {
         let inner = s.nodes[node as usize];
-        let mut next = [INVALID; 2];
-        let mut next_t = [f32::INFINITY; 2];
-        let mut k = 0;
-        while k < 2 {
-            let child = if k == 0 { inner.a } else { inner.b };
-            let c = s.nodes[child as usize];
-            let t_box = intersect::slab(origin, r.inv_dir, Vec3::from(c.min), Vec3::from(c.max), limit);
-            if t_box != f32::INFINITY {
-                if child >= first_leaf {
-                    let (t, u, v) = primitive(s, &r, c.a, limit);
-                    if t < limit {
-                        limit = t;
-                        best = Hit { t, prim: c.a, u, v };
-                        if ANY {
-                            return best;
-                        }
-                    }
-                } else {
-                    next[k] = child;
-                    next_t[k] = t_box;
-                }
-            }
-            k += 1;
+        let (a, ta) = visit(s, &r, inner.a, first_leaf, &mut limit, &mut best);
+        if ANY && best.prim != INVALID {
+            return best;
         }
-        let (near, far) = if next_t[1] < next_t[0] {
-            (next[1], next[0])
-        } else {
-            (next[0], next[1])
-        };
+        let (b, tb) = visit(s, &r, inner.b, first_leaf, &mut limit, &mut best);
+        if ANY && best.prim != INVALID {
+            return best;
+        }
+        let (near, far) = if tb < ta { (b, a) } else { (a, b) };
         if near != INVALID {
             if far != INVALID && sp < STACK {
                 stack[sp] = far;
@@ -153,6 +133,33 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
             return best;
         }
     }
+}
+
+/// Tests child `child`'s box; a hit leaf's primitive is intersected at once (updating
+/// `limit` and `best`), a hit internal node is returned with its entry distance for the
+/// caller to descend into. Returns `(INVALID, INFINITY)` otherwise.
+fn visit(
+    s: &Scene,
+    r: &TriRay,
+    child: u32,
+    first_leaf: u32,
+    limit: &mut f32,
+    best: &mut Hit,
+) -> (u32, f32) {
+    let c = s.nodes[child as usize];
+    let t_box = intersect::slab(r.origin, r.inv_dir, Vec3::from(c.min), Vec3::from(c.max), *limit);
+    if t_box == f32::INFINITY {
+        return (INVALID, f32::INFINITY);
+    }
+    if child < first_leaf {
+        return (child, t_box);
+    }
+    let (t, u, v) = primitive(s, r, c.a, *limit);
+    if t < *limit {
+        *limit = t;
+        *best = Hit { t, prim: c.a, u, v };
+    }
+    (INVALID, f32::INFINITY)
 }
 
 /// Unit geometric normal of primitive `prim` at the hit `(t, b1, b2)` of `origin + t dir`,
