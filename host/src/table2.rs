@@ -75,7 +75,12 @@ fn gpu_frame(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, f64
             rays = crate::render::rays_traced(&r.picture()?);
         }
         totals.push(t.iter().map(|x| x.1).sum::<f64>());
-        builds.push(t.iter().filter(|x| !matches!(x.0, "trace" | "display")).map(|x| x.1).sum::<f64>());
+        builds.push(
+            t.iter()
+                .filter(|x| !matches!(x.0, "trace" | "display"))
+                .map(|x| x.1)
+                .sum::<f64>(),
+        );
         i += 1;
     }
     let keep = totals.len() - runs.min(totals.len());
@@ -165,15 +170,26 @@ pub fn markdown(r: &Report) -> String {
             row.gpu_brute_ms,
             row.brute_spp,
             row.gpu_bvh_ms,
-            if bunny { format!("{THESIS_BUNNY_FRAME_MS:.0}") } else { "-".into() },
+            if bunny {
+                format!("{THESIS_BUNNY_FRAME_MS:.0}")
+            } else {
+                "-".into()
+            },
             row.gpu_bvh_nee_ms,
             row.build_ms,
-            if bunny { format!("{THESIS_BUNNY_BUILD_MS}") } else { "-".into() },
+            if bunny {
+                format!("{THESIS_BUNNY_BUILD_MS}")
+            } else {
+                "-".into()
+            },
             row.rays as f64 * 1e-6,
             row.rays as f64 / (row.gpu_bvh_ms * 1e-3) * 1e-9,
         );
     }
-    let _ = writeln!(s, "\n## GPU speed-up over the CPU, Cornell box (the thesis's Figure 3)\n");
+    let _ = writeln!(
+        s,
+        "\n## GPU speed-up over the CPU, Cornell box (the thesis's Figure 3)\n"
+    );
     let _ = writeln!(s, "| rays per pixel | CPU ms | GPU ms | speed-up |\n|---|---|---|---|");
     for (spp, c, g) in &r.speedup {
         let _ = writeln!(s, "| {spp} | {c:.1} | {g:.3} | {:.0}x |", c / g);

@@ -138,14 +138,7 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
 /// Tests child `child`'s box; a hit leaf's primitive is intersected at once (updating
 /// `limit` and `best`), a hit internal node is returned with its entry distance for the
 /// caller to descend into. Returns `(INVALID, INFINITY)` otherwise.
-fn visit(
-    s: &Scene,
-    r: &TriRay,
-    child: u32,
-    first_leaf: u32,
-    limit: &mut f32,
-    best: &mut Hit,
-) -> (u32, f32) {
+fn visit(s: &Scene, r: &TriRay, child: u32, first_leaf: u32, limit: &mut f32, best: &mut Hit) -> (u32, f32) {
     let c = s.nodes[child as usize];
     let t_box = intersect::slab(r.origin, r.inv_dir, Vec3::from(c.min), Vec3::from(c.max), *limit);
     if t_box == f32::INFINITY {
