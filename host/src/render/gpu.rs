@@ -30,8 +30,34 @@ struct SceneBuffers {
     image: Buffer,
     rays: Buffer,
     hits: Buffer,
-    set: BindingSets,
+    /// Set 1 naming the buffers above; made again whenever one of them is replaced.
+    set: Option<BindingSets>,
     n_objects: usize,
+}
+
+impl SceneBuffers {
+    fn bind(&mut self, gpu: &Arc<Gpu>, kernels: &Kernels) -> Result<()> {
+        self.set = None;
+        let buffers = [
+            &self.objects,
+            &self.model_tris,
+            &self.model_spheres,
+            &self.prim_object,
+            &self.materials,
+            &self.lights,
+            &self.frame,
+            &self.accum,
+            &self.image,
+            &self.rays,
+            &self.hits,
+        ];
+        self.set = Some(BindingSets::new(gpu, kernels, 1, &[&buffers])?);
+        Ok(())
+    }
+
+    fn set(&self) -> Result<ash::vk::DescriptorSet> {
+        Ok(self.set.as_ref().context("scene buffers not bound")?.sets[0])
+    }
 }
 
 /// Renders scenes on the GPU.
@@ -99,23 +125,6 @@ impl GpuRenderer {
         self.upload(&prim_object, &scene.prim_object)?;
         self.upload(&materials, &scene.materials)?;
         self.upload(&lights, &scene.lights)?;
-        let set = Self::binding_set(
-            gpu,
-            &self.kernels,
-            [
-                &objects,
-                &model_tris,
-                &model_spheres,
-                &prim_object,
-                &materials,
-                &lights,
-                &frame_buf,
-                &accum,
-                &image,
-                &rays,
-                &hits,
-            ],
-        )?;
         self.bufs = Some(SceneBuffers {
             objects,
             model_tris,
@@ -128,15 +137,14 @@ impl GpuRenderer {
             image,
             rays,
             hits,
-            set,
+            set: None,
             n_objects: scene.objects.len(),
         });
+        if let Some(b) = self.bufs.as_mut() {
+            b.bind(gpu, &self.kernels)?;
+        }
         self.lbvh.reserve(scene.model_tris.len(), scene.model_spheres.len())?;
         self.set_frame(frame)
-    }
-
-    fn binding_set(gpu: &Arc<Gpu>, kernels: &Kernels, buffers: [&Buffer; 11]) -> Result<BindingSets> {
-        BindingSets::new(gpu, kernels, 1, &[&buffers])
     }
 
     /// Copies `data` into the device-local `dst` through a staging buffer.
@@ -202,7 +210,7 @@ impl GpuRenderer {
         let b = self.bufs.as_ref().context("no scene loaded")?;
         let k = &self.kernels;
         let f = self.frame;
-        let sets = [self.lbvh.set()?, b.set.sets[0]];
+        let sets = [self.lbvh.set()?, b.set()?];
         cmds.begin()?;
         cmds.timestamp("begin");
         if self.samples == 0 {
@@ -298,30 +306,14 @@ impl GpuRenderer {
                 (rays.len() * size_of::<Hit>()) as u64,
                 MemoryLocation::GpuOnly,
             )?;
-            b.set = Self::binding_set(
-                &self.gpu,
-                &self.kernels,
-                [
-                    &b.objects,
-                    &b.model_tris,
-                    &b.model_spheres,
-                    &b.prim_object,
-                    &b.materials,
-                    &b.lights,
-                    &b.frame,
-                    &b.accum,
-                    &b.image,
-                    &b.rays,
-                    &b.hits,
-                ],
-            )?;
+            b.bind(&self.gpu, &self.kernels)?;
         }
         self.upload(&b.rays, rays)?;
         let push = RenderPush {
             count: rays.len() as u32,
             ..Default::default()
         };
-        let sets = [self.lbvh.set()?, b.set.sets[0]];
+        let sets = [self.lbvh.set()?, b.set()?];
         let (x, y) = grid((rays.len() as u32).div_ceil(WORKGROUP));
         self.cmds.begin()?;
         self.cmds
