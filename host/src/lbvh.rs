@@ -264,16 +264,8 @@ impl GpuLbvh {
     }
 
     fn download<T: Pod>(&mut self, which: fn(&Buffers) -> &Buffer, count: usize) -> Result<Vec<T>> {
-        let bytes = (count * size_of::<T>()) as u64;
-        if bytes == 0 {
-            return Ok(Vec::new());
-        }
-        let readback = Buffer::new(&self.gpu, "readback", bytes, MemoryLocation::GpuToCpu)?;
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
-        self.cmds.begin()?;
-        self.cmds.copy_range(which(b), 0, &readback, 0, bytes);
-        self.cmds.submit_wait().context("reading back GPU results")?;
-        readback.read(count)
+        self.cmds.read_back(which(b), count)
     }
 
     /// The world-space primitives the last build ran on.

@@ -160,18 +160,6 @@ impl GpuRenderer {
         self.cmds.submit_wait().context("uploading scene data")
     }
 
-    fn download<T: Pod>(&mut self, src: &Buffer, count: usize) -> Result<Vec<T>> {
-        let bytes = (count * size_of::<T>()) as u64;
-        if bytes == 0 {
-            return Ok(Vec::new());
-        }
-        let readback = Buffer::new(&self.gpu, "readback", bytes, MemoryLocation::GpuToCpu)?;
-        self.cmds.begin()?;
-        self.cmds.copy_range(src, 0, &readback, 0, bytes);
-        self.cmds.submit_wait().context("reading back GPU results")?;
-        readback.read(count)
-    }
-
     /// New camera and settings (same image size and scene); accumulation starts again.
     pub fn set_frame(&mut self, frame: &Frame) -> Result<()> {
         let b = self.bufs.as_mut().context("no scene loaded")?;
@@ -265,18 +253,14 @@ impl GpuRenderer {
     /// The accumulated and displayed images.
     pub fn picture(&mut self) -> Result<Picture> {
         let pixels = (self.frame.width * self.frame.height) as usize;
-        let b = self.bufs.take().context("no scene loaded")?;
-        let r = (|| -> Result<Picture> {
-            Ok(Picture {
-                width: self.frame.width,
-                height: self.frame.height,
-                accum: self.download(&b.accum, pixels)?,
-                samples: self.samples,
-                display: self.download(&b.image, pixels)?,
-            })
-        })();
-        self.bufs = Some(b);
-        r
+        let b = self.bufs.as_ref().context("no scene loaded")?;
+        Ok(Picture {
+            width: self.frame.width,
+            height: self.frame.height,
+            accum: self.cmds.read_back(&b.accum, pixels)?,
+            samples: self.samples,
+            display: self.cmds.read_back(&b.image, pixels)?,
+        })
     }
 
     /// The BVH of the last build, every stage's output.
@@ -320,6 +304,6 @@ impl GpuRenderer {
             .dispatch_sets(&self.kernels, &sets, Kernel::CastRays, bytemuck::bytes_of(&push), x, y);
         self.cmds.barrier();
         self.cmds.submit_wait().context("casting rays")?;
-        self.download(&b.hits, rays.len())
+        self.cmds.read_back(&b.hits, rays.len())
     }
 }

@@ -171,6 +171,20 @@ impl Commands {
         unsafe { self.gpu.device.cmd_copy_buffer(self.cb, src.raw, dst.raw, &r) };
     }
 
+    /// Copies `count` values of type `T` from the start of `src` back to the host (records,
+    /// submits and waits: the command buffer must not be recording).
+    pub fn read_back<T: bytemuck::Pod>(&mut self, src: &Buffer, count: usize) -> Result<Vec<T>> {
+        let bytes = (count * size_of::<T>()) as u64;
+        if bytes == 0 {
+            return Ok(Vec::new());
+        }
+        let readback = Buffer::new(&self.gpu, "readback", bytes, gpu_allocator::MemoryLocation::GpuToCpu)?;
+        self.begin()?;
+        self.copy_range(src, 0, &readback, 0, bytes);
+        self.submit_wait().context("reading back GPU results")?;
+        readback.read(count)
+    }
+
     /// Ends recording, submits, and waits for the GPU to finish.
     pub fn submit_wait(&mut self) -> Result<()> {
         let d = &self.gpu.device;
