@@ -167,6 +167,17 @@ fn cornell_holding(label: &str, file: &str, yaw_deg: f32) -> Result<Scene, Scene
     Ok(b.scene)
 }
 
+/// Settings of the outdoor scenes: 1200 x 800 under a blue-to-white sky.
+fn outdoor() -> Settings {
+    Settings {
+        width: 1200,
+        height: 800,
+        sky_top: Vec3::new(0.5, 0.7, 1.0),
+        sky_bottom: Vec3::ONE,
+        ..Settings::default()
+    }
+}
+
 /// Ray Tracing in One Weekend's final scene, plus a light for next-event estimation.
 fn spheres() -> Scene {
     let camera = CameraSpec {
@@ -177,13 +188,7 @@ fn spheres() -> Scene {
         aperture: 0.1,
         focus_distance: Some(10.0),
     };
-    let settings = Settings {
-        width: 1200,
-        height: 800,
-        sky_top: Vec3::new(0.5, 0.7, 1.0),
-        sky_bottom: Vec3::ONE,
-        ..Settings::default()
-    };
+    let settings = outdoor();
     let mut b = Builder::new("spheres", camera, settings);
     let sphere = |b: &mut Builder, name: &str, at: Vec3, radius: f32, m: u32| {
         b.object(name, Shape::Sphere { radius }, Transform::at(at), m);
@@ -233,13 +238,7 @@ fn instances(label: &str) -> Result<Scene, SceneError> {
         aperture: 0.0,
         focus_distance: None,
     };
-    let settings = Settings {
-        width: 1200,
-        height: 800,
-        sky_top: Vec3::new(0.5, 0.7, 1.0),
-        sky_bottom: Vec3::ONE,
-        ..Settings::default()
-    };
+    let settings = outdoor();
     let mut b = Builder::new("instances", camera, settings);
     let looks = [
         b.material("red", material::diffuse([0.8, 0.2, 0.2])),
