@@ -6,13 +6,13 @@ use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu};
 use raytrace::bvh::MortonBits;
 use raytrace::cli::{compare, Prepared, SceneArgs};
 use raytrace::picture::{diff_stats, Picture};
-use raytrace::render::{render_cpu, with_bvh, GpuRenderer};
+use raytrace::render::{render_cpu, with_bvh, CpuRender, GpuRenderer};
 use raytrace::scene::{CameraSpec, Mesh, Scene, SceneObject, Settings, Shape, Transform};
 use raytrace::vk::Kernels;
 use shared::path::World;
 use shared::rng::Rng;
 use shared::traverse::Scene as Prims;
-use shared::types::{Hit, Material, MaterialKind, Ray, Triangle};
+use shared::types::{Frame, Hit, Material, MaterialKind, Ray, Triangle};
 use std::sync::Arc;
 
 fn prepared(scene: &str, size: u32, spp: u32, extra: &[&str]) -> Prepared {
@@ -48,34 +48,11 @@ fn closest_hit_through_the_bvh_equals_brute_force() {
     let p = prepared("bunny", 4, 1, &[]);
     let cpu = render_cpu(&p.data, &p.frame, 1, MortonBits::B30, &|_| {});
     let rays = rays(4000);
-    let world = |frame| World {
-        scene: Prims {
-            tris: &cpu.tris,
-            spheres: &cpu.spheres,
-            nodes: &cpu.bvh.nodes,
-            n_tris: p.frame.n_tris,
-            n_prims: p.frame.n_prims,
-        },
-        objects: &p.data.objects,
-        prim_object: &p.data.prim_object,
-        materials: &p.data.materials,
-        lights: &p.data.lights,
-        frame,
-    };
     let (bvh_frame, brute_frame) = (with_bvh(p.frame, true), with_bvh(p.frame, false));
-    let cast = |frame| -> Vec<Hit> {
-        let w = world(frame);
-        rays.iter()
-            .map(|r| {
-                w.closest(
-                    Vec3::from_slice(&r.origin[..3]),
-                    Vec3::from_slice(&r.dir[..3]),
-                    r.dir[3],
-                )
-            })
-            .collect()
-    };
-    let (bvh, brute) = (cast(&bvh_frame), cast(&brute_frame));
+    let (bvh, brute) = (
+        cpu_hits(&p, &cpu, &bvh_frame, &rays),
+        cpu_hits(&p, &cpu, &brute_frame, &rays),
+    );
     let bunny_hits = brute.iter().filter(|h| h.prim < p.frame.n_tris - 12).count();
     assert!(bunny_hits > 500, "only {bunny_hits} rays hit the bunny");
     assert_eq!(bvh, brute, "CPU: BVH and brute force disagree");
@@ -91,22 +68,30 @@ fn closest_hit_through_the_bvh_equals_brute_force() {
     // Brute force on the GPU over a smaller mesh: llvmpipe ends loops after 65535 iterations.
     let q = prepared("suzanne", 4, 1, &["--no-bvh"]);
     let cpu = render_cpu(&q.data, &q.frame, 1, MortonBits::B30, &|_| {});
+    let brute = cpu_hits(&q, &cpu, &q.frame, &rays);
+    r.load(&q.data, &q.frame).expect("load");
+    r.render(0, true).expect("build");
+    check_gpu_hits("suzanne, GPU brute force", &r.cast(&rays).expect("cast"), &brute);
+    assert_no_validation_errors(&gpu);
+}
+
+/// Closest hits of `rays` on the CPU, through the BVH or by brute force as `frame` says.
+fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<Hit> {
     let w = World {
         scene: Prims {
             tris: &cpu.tris,
             spheres: &cpu.spheres,
             nodes: &cpu.bvh.nodes,
-            n_tris: q.frame.n_tris,
-            n_prims: q.frame.n_prims,
+            n_tris: p.frame.n_tris,
+            n_prims: p.frame.n_prims,
         },
-        objects: &q.data.objects,
-        prim_object: &q.data.prim_object,
-        materials: &q.data.materials,
-        lights: &q.data.lights,
-        frame: &q.frame,
+        objects: &p.data.objects,
+        prim_object: &p.data.prim_object,
+        materials: &p.data.materials,
+        lights: &p.data.lights,
+        frame,
     };
-    let brute: Vec<Hit> = rays
-        .iter()
+    rays.iter()
         .map(|r| {
             w.closest(
                 Vec3::from_slice(&r.origin[..3]),
@@ -114,11 +99,7 @@ fn closest_hit_through_the_bvh_equals_brute_force() {
                 r.dir[3],
             )
         })
-        .collect();
-    r.load(&q.data, &q.frame).expect("load");
-    r.render(0, true).expect("build");
-    check_gpu_hits("suzanne, GPU brute force", &r.cast(&rays).expect("cast"), &brute);
-    assert_no_validation_errors(&gpu);
+        .collect()
 }
 
 /// GPU hits equal the CPU's: same primitive, distance within 1e-4 relative (the GPU may
