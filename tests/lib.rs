@@ -10,8 +10,7 @@ use std::sync::Arc;
 pub fn gpu(test: &str) -> Option<Arc<Gpu>> {
     match Gpu::new(&GpuOptions {
         validation: true,
-        device: None,
-        kernel_stats: false,
+        ..Default::default()
     }) {
         Ok(g) => Some(g),
         Err(e) => {

@@ -74,7 +74,8 @@ fn bvh_bytes_for(n: usize) -> usize {
     (2 * n).saturating_sub(1) * size_of::<shared::types::Node>()
 }
 
-fn percentile(sorted: &[f64], q: f64) -> f64 {
+/// The `q` quantile (0..=1, nearest rank) of ascending `sorted` values; NaN when empty.
+pub fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
     }

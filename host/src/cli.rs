@@ -70,7 +70,8 @@ impl From<Bits> for MortonBits {
     }
 }
 
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
+/// Parses `WIDTHxHEIGHT` (each side 1..=16384).
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .ok_or_else(|| format!("size {s:?} is not WIDTHxHEIGHT"))?;

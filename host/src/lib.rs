@@ -1,14 +1,17 @@
 //! The raytrace host: Vulkan core, GPU LBVH builder, CPU executor of the same kernels,
-//! inputs, scenes, BVH validator and benchmarks.
+//! inputs, scenes (live and editable), the windowed viewer, BVH validator and benchmarks.
 pub mod bench;
 pub mod bvh;
 pub mod cli;
 pub mod cpu;
 pub mod inputs;
 pub mod lbvh;
+pub mod live;
 pub mod picture;
+pub mod realtime;
 pub mod render;
 pub mod scene;
 pub mod table2;
 pub mod validate;
+pub mod view;
 pub mod vk;

@@ -5,6 +5,7 @@ use raytrace::bench::{bench_build, slug, standard_inputs, write_report, BuildRep
 use raytrace::bvh::MortonBits;
 use raytrace::cli::{compare_command, render_command, SceneArgs};
 use raytrace::render::Backend;
+use raytrace::view::ViewArgs;
 use raytrace::vk::{Gpu, GpuOptions};
 use std::path::PathBuf;
 
@@ -49,6 +50,9 @@ enum Command {
         #[arg(long, default_value_t = 0.05)]
         tolerance: f64,
     },
+    /// Open a window on a scene and render it live: fly around, edit objects, switch
+    /// features (keys below).
+    View(ViewArgs),
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -86,6 +90,29 @@ enum Bench {
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
+    /// The viewer's per-frame GPU work without a window: frame-time percentiles.
+    Realtime {
+        /// Scenes (built-in names or files).
+        #[arg(long, value_delimiter = ',', default_value = "instances,bunny")]
+        scenes: Vec<String>,
+        #[arg(long, default_value = "1920x1080", value_parser = raytrace::cli::parse_size)]
+        size: (u32, u32),
+        /// Samples per pixel per frame.
+        #[arg(long, default_value_t = 1)]
+        spf: u32,
+        #[arg(long, default_value_t = 4)]
+        depth: u32,
+        /// Timed frames per scene (after warm-up).
+        #[arg(long, default_value_t = 300)]
+        frames: usize,
+        #[arg(long, default_value_t = 30)]
+        warmup: usize,
+        /// Also run every scene with next-event estimation on.
+        #[arg(long)]
+        nee: bool,
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
     /// BVH build: per-stage GPU time, throughput, memory, CPU executor time.
     Build {
         /// Timed runs per input (after warm-up).
@@ -112,13 +139,22 @@ fn main() -> Result<()> {
         validation: cli.validation,
         device: cli.device.clone(),
         kernel_stats,
+        ..Default::default()
     };
     let Some(cmd) = cli.cmd else {
-        // No arguments: the Cornell box to a PNG.
+        // No arguments: the viewer on the Cornell box where a display exists, else a PNG.
+        let has_display = std::env::var_os("DISPLAY").is_some() || std::env::var_os("WAYLAND_DISPLAY").is_some();
+        if has_display {
+            let args = ViewArgs::parse_from(["view", "cornell"]);
+            match raytrace::view::run(&args, &opts) {
+                Ok(()) => return Ok(()),
+                Err(e) => eprintln!("could not open the viewer ({e:#}); rendering to a file instead"),
+            }
+        }
         let args = SceneArgs::parse_from(["raytrace", "cornell"]);
         let out = render_command(&args, Backend::Gpu, Some(PathBuf::from("cornell.png")), &opts)?;
         println!(
-            "open {} to see it; `raytrace render --help` lists scenes and settings (the interactive viewer is not built yet)",
+            "open {} to see it; `raytrace view` opens the interactive viewer where a display exists",
             out.display()
         );
         return Ok(());
@@ -128,6 +164,36 @@ fn main() -> Result<()> {
             render_command(&scene, backend, out, &opts)?;
         }
         Command::Compare { scene, out, tolerance } => compare_command(&scene, &out, tolerance, &opts)?,
+        Command::View(args) => raytrace::view::run(&args, &opts)?,
+        Command::Bench {
+            what:
+                Bench::Realtime {
+                    scenes,
+                    size,
+                    spf,
+                    depth,
+                    frames,
+                    warmup,
+                    nee,
+                    out,
+                },
+        } => {
+            let gpu = Gpu::new(&opts)?;
+            let o = raytrace::realtime::Options {
+                scenes,
+                size,
+                spf,
+                depth,
+                frames,
+                warmup,
+                both_nee: nee,
+            };
+            let report = raytrace::realtime::run(&gpu, &o)?;
+            let md =
+                raytrace::realtime::write(&report, &out, &format!("realtime-{}-{}", report.date, slug(&gpu.name)))?;
+            println!("{}", raytrace::realtime::markdown(&report));
+            println!("wrote {}", md.display());
+        }
         Command::Info { kernels } => {
             let gpu = Gpu::new(&opts)?;
             println!("{}", gpu.describe());

@@ -125,6 +125,11 @@ impl Picture {
     }
 }
 
+/// A packed pixel with its first and third bytes exchanged: BGRA to RGBA and back.
+pub fn swap_red_blue(p: u32) -> u32 {
+    (p & 0xff00_ff00) | ((p & 0xff) << 16) | ((p >> 16) & 0xff)
+}
+
 /// How two renders of the same image differ, on linear radiance.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DiffStats {
@@ -559,6 +564,12 @@ fn create_parent(path: &Path) -> Result<()> {
 mod tests {
     use super::*;
     use std::path::PathBuf;
+
+    #[test]
+    fn red_and_blue_swap_and_swap_back() {
+        assert_eq!(swap_red_blue(0xff11_2233), 0xff33_2211);
+        assert_eq!(swap_red_blue(swap_red_blue(0x1234_5678)), 0x1234_5678);
+    }
 
     fn temp(name: &str) -> PathBuf {
         std::env::temp_dir()

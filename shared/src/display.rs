@@ -1,8 +1,8 @@
 //! The display pass: average the accumulated samples, apply exposure, clamp to `[0, 1]` and
 //! encode as 8-bit sRGB (or the thesis's gamma 1/2), packed RGBA8 (`r | g << 8 | b << 16 |
-//! a << 24`).
+//! a << 24`), or BGRA8 for swapchain images that want it.
 use crate::math::{powf, sqrt};
-use crate::types::{Frame, RenderPush, FLAG_GAMMA2};
+use crate::types::{Frame, RenderPush, DISPLAY_BGRA, FLAG_GAMMA2};
 
 /// The sRGB transfer function (IEC 61966-2-1) of a linear value in `[0, 1]`.
 pub fn srgb_encode(x: f32) -> f32 {
@@ -33,5 +33,6 @@ pub fn display(i: u32, p: &RenderPush, f: &Frame, accum: &[[f32; 4]], image: &mu
     let r = encode(a[0] * scale, f.exposure, gamma2);
     let g = encode(a[1] * scale, f.exposure, gamma2);
     let b = encode(a[2] * scale, f.exposure, gamma2);
-    image[i as usize] = r | (g << 8) | (b << 16) | (255 << 24);
+    let (lo, hi) = if p.flags & DISPLAY_BGRA != 0 { (b, r) } else { (r, b) };
+    image[i as usize] = lo | (g << 8) | (hi << 16) | (255 << 24);
 }

@@ -324,8 +324,12 @@ pub struct RenderPush {
     pub samples: u32,
     /// Number of rays (ray casts).
     pub count: u32,
-    pub _pad: u32,
+    /// `DISPLAY_*` flags (display pass).
+    pub flags: u32,
 }
+
+/// Display pass: pack pixels as B, G, R, A bytes (for BGRA swapchain images).
+pub const DISPLAY_BGRA: u32 = 1;
 
 /// A ray: origin `xyz` (`w`: smallest distance), direction `xyz` (`w`: largest distance).
 #[repr(C)]

@@ -3,13 +3,15 @@
 //! image, and run the display pass; a timestamp after each stage.
 use crate::bvh::{BuildResult, MortonBits};
 use crate::lbvh::GpuLbvh;
-use crate::picture::Picture;
+use crate::picture::{swap_red_blue, Picture};
 use crate::scene::SceneGpu;
 use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels};
 use anyhow::{bail, Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
-use shared::types::{grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, TILE_SIDE, WORKGROUP};
+use shared::types::{
+    grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, DISPLAY_BGRA, TILE_SIDE, WORKGROUP,
+};
 use std::sync::Arc;
 
 /// Samples per pixel one path-tracing dispatch adds at most.
@@ -60,6 +62,16 @@ impl SceneBuffers {
     }
 }
 
+/// Seconds of every stage of the last submission recorded by [`GpuRenderer::record`].
+pub fn frame_timings(cmds: &Commands) -> Result<Vec<(&'static str, f64)>> {
+    Ok(cmds
+        .timings()?
+        .into_iter()
+        .filter(|(l, _)| *l != "start")
+        .map(|(l, ns)| (l, ns * 1e-9))
+        .collect())
+}
+
 /// Renders scenes on the GPU.
 pub struct GpuRenderer {
     gpu: Arc<Gpu>,
@@ -71,6 +83,8 @@ pub struct GpuRenderer {
     /// Samples per pixel accumulated so far.
     samples: u32,
     bits: MortonBits,
+    /// `DISPLAY_*` flags of the display pass.
+    display_flags: u32,
 }
 
 impl GpuRenderer {
@@ -84,6 +98,7 @@ impl GpuRenderer {
             frame: Frame::default(),
             samples: 0,
             bits: MortonBits::B30,
+            display_flags: 0,
         })
     }
 
@@ -94,6 +109,21 @@ impl GpuRenderer {
     /// Samples per pixel accumulated since the last change.
     pub fn samples(&self) -> u32 {
         self.samples
+    }
+
+    /// Packs the display image as B, G, R, A bytes (for BGRA swapchain images).
+    pub fn set_bgra(&mut self, bgra: bool) {
+        self.display_flags = if bgra { DISPLAY_BGRA } else { 0 };
+    }
+
+    /// The frame (camera, size, settings) being rendered.
+    pub fn frame(&self) -> &Frame {
+        &self.frame
+    }
+
+    /// The display pass's packed 8-bit image (`frame().width * frame().height` pixels).
+    pub fn display_buffer(&self) -> Result<&Buffer> {
+        Ok(&self.bufs.as_ref().context("no scene loaded")?.image)
     }
 
     /// Morton code width of the BVH builds.
@@ -160,12 +190,18 @@ impl GpuRenderer {
         self.cmds.submit_wait().context("uploading scene data")
     }
 
-    /// New camera and settings (same image size and scene); accumulation starts again.
+    /// New camera, settings or image size (same scene); accumulation starts again.
     pub fn set_frame(&mut self, frame: &Frame) -> Result<()> {
         let b = self.bufs.as_mut().context("no scene loaded")?;
+        if frame.n_prims != self.lbvh.len() {
+            bail!("the frame does not fit the loaded scene (primitive count changed): load it again");
+        }
         let pixels = (frame.width * frame.height) as u64;
-        if b.accum.size < pixels * 16 || frame.n_prims != self.lbvh.len() {
-            bail!("the frame does not fit the loaded scene (size or primitive count changed): load it again");
+        if b.accum.size < pixels * 16 || b.image.size < pixels * 4 {
+            b.set = None;
+            b.accum = Buffer::new(&self.gpu, "accumulation image", pixels * 16, MemoryLocation::GpuOnly)?;
+            b.image = Buffer::new(&self.gpu, "display image", pixels * 4, MemoryLocation::GpuOnly)?;
+            b.bind(&self.gpu, &self.kernels)?;
         }
         b.frame.write(std::slice::from_ref(frame))?;
         self.frame = *frame;
@@ -189,17 +225,23 @@ impl GpuRenderer {
     /// seconds (build stages as labelled by the LBVH, then `trace` and `display`).
     pub fn render(&mut self, samples: u32, rebuild: bool) -> Result<Vec<(&'static str, f64)>> {
         let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
-        let r = self.record_and_run(&mut cmds, samples, rebuild);
+        let r = cmds
+            .begin()
+            .and_then(|()| self.record(&mut cmds, samples, rebuild))
+            .and_then(|()| cmds.submit_wait().context("rendering"))
+            .and_then(|()| frame_timings(&cmds));
         self.cmds = cmds;
         r
     }
 
-    fn record_and_run(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<Vec<(&'static str, f64)>> {
+    /// Records (into `cmds`, which is recording) what [`GpuRenderer::render`] runs: a
+    /// timestamp `begin`, then transform and build, `trace`, `display`. The samples count
+    /// as accumulated from here on.
+    pub fn record(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<()> {
         let b = self.bufs.as_ref().context("no scene loaded")?;
         let k = &self.kernels;
         let f = self.frame;
         let sets = [self.lbvh.set()?, b.set()?];
-        cmds.begin()?;
         cmds.timestamp("begin");
         if self.samples == 0 {
             cmds.fill_range(&b.accum, 0, b.accum.size, 0);
@@ -234,32 +276,32 @@ impl GpuRenderer {
         cmds.timestamp("trace");
         let push = RenderPush {
             samples: self.samples + samples,
+            flags: self.display_flags,
             ..Default::default()
         };
         let (x, y) = grid((f.width * f.height).div_ceil(WORKGROUP));
         cmds.dispatch_sets(k, &sets, Kernel::DisplayImage, bytemuck::bytes_of(&push), x, y);
         cmds.barrier();
         cmds.timestamp("display");
-        cmds.submit_wait().context("rendering")?;
         self.samples += samples;
-        Ok(cmds
-            .timings()?
-            .into_iter()
-            .filter(|(l, _)| *l != "start")
-            .map(|(l, ns)| (l, ns * 1e-9))
-            .collect())
+        Ok(())
     }
 
     /// The accumulated and displayed images.
     pub fn picture(&mut self) -> Result<Picture> {
         let pixels = (self.frame.width * self.frame.height) as usize;
         let b = self.bufs.as_ref().context("no scene loaded")?;
+        let mut display: Vec<u32> = self.cmds.read_back(&b.image, pixels)?;
+        if self.display_flags & DISPLAY_BGRA != 0 {
+            // Back to RGBA: a picture is the same whatever window it was shown in.
+            display.iter_mut().for_each(|p| *p = swap_red_blue(*p));
+        }
         Ok(Picture {
             width: self.frame.width,
             height: self.frame.height,
             accum: self.cmds.read_back(&b.accum, pixels)?,
             samples: self.samples,
-            display: self.cmds.read_back(&b.image, pixels)?,
+            display,
         })
     }
 

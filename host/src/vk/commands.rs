@@ -187,14 +187,35 @@ impl Commands {
 
     /// Ends recording, submits, and waits for the GPU to finish.
     pub fn submit_wait(&mut self) -> Result<()> {
+        self.submit(&[], &[])?;
+        self.wait()
+    }
+
+    /// Ends recording and submits; the work waits (at the transfer stage) for the semaphores
+    /// `wait` and signals `signal` when done. Call [`Commands::wait`] before recording again.
+    pub fn submit(&mut self, wait: &[vk::Semaphore], signal: &[vk::Semaphore]) -> Result<()> {
         let d = &self.gpu.device;
+        let stages = vec![vk::PipelineStageFlags::TRANSFER; wait.len()];
         // SAFETY: the command buffer is in the recording state and the fence is unsignalled.
         unsafe {
             d.end_command_buffer(self.cb).context("ending the command buffer")?;
             let cbs = [self.cb];
-            let submit = [vk::SubmitInfo::default().command_buffers(&cbs)];
+            let submit = [vk::SubmitInfo::default()
+                .command_buffers(&cbs)
+                .wait_semaphores(wait)
+                .wait_dst_stage_mask(&stages)
+                .signal_semaphores(signal)];
             d.queue_submit(self.gpu.queue, &submit, self.fence)
                 .context("submitting GPU work")?;
+        }
+        Ok(())
+    }
+
+    /// Waits for the last submission to finish.
+    pub fn wait(&mut self) -> Result<()> {
+        let d = &self.gpu.device;
+        // SAFETY: the fence belongs to this device and was given to the last submission.
+        unsafe {
             d.wait_for_fences(&[self.fence], true, u64::MAX)
                 .context("waiting for the GPU")?;
             d.reset_fences(&[self.fence]).context("resetting a fence")?;

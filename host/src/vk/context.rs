@@ -20,6 +20,9 @@ pub struct GpuOptions {
     /// Ask the driver for per-pipeline statistics (registers, spills...) where it offers
     /// VK_KHR_pipeline_executable_properties.
     pub kernel_stats: bool,
+    /// Instance extensions a window surface needs (from `ash_window`); when not empty the
+    /// device is also opened with VK_KHR_swapchain.
+    pub window_extensions: Vec<&'static CStr>,
 }
 
 /// Messages the validation layer reported as errors.
@@ -44,6 +47,8 @@ pub struct Gpu {
     pub driver_id: vk::DriverId,
     /// Pipelines capture driver statistics (see `Kernels::statistics`).
     pub kernel_stats: bool,
+    /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
+    pub swapchain: bool,
     pub allocator: Mutex<Option<Allocator>>,
     debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     log: Arc<ValidationLog>,
@@ -96,11 +101,10 @@ impl Gpu {
         } else {
             vec![]
         };
-        let ext_ptrs = if validation {
-            vec![ash::ext::debug_utils::NAME.as_ptr()]
-        } else {
-            vec![]
-        };
+        let mut ext_ptrs: Vec<_> = opts.window_extensions.iter().map(|e| e.as_ptr()).collect();
+        if validation {
+            ext_ptrs.push(ash::ext::debug_utils::NAME.as_ptr());
+        }
         let info = vk::InstanceCreateInfo::default()
             .application_info(&app)
             .enabled_layer_names(&layer_ptrs)
@@ -154,6 +158,7 @@ impl Gpu {
                     validation_enabled: validation,
                     driver_id,
                     kernel_stats,
+                    swapchain: !opts.window_extensions.is_empty(),
                     allocator: Mutex::new(Some(allocator)),
                     debug,
                     log,
@@ -275,7 +280,14 @@ impl Gpu {
             && exts
                 .iter()
                 .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == stats_ext));
-        let ext_ptrs = if stats { vec![stats_ext.as_ptr()] } else { vec![] };
+        let mut ext_ptrs = if stats { vec![stats_ext.as_ptr()] } else { vec![] };
+        if !opts.window_extensions.is_empty() {
+            let sc = ash::khr::swapchain::NAME;
+            if !exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == sc)) {
+                bail!("Vulkan device {name} cannot present to windows (no VK_KHR_swapchain)");
+            }
+            ext_ptrs.push(sc.as_ptr());
+        }
         let mut want_stats =
             vk::PhysicalDevicePipelineExecutablePropertiesFeaturesKHR::default().pipeline_executable_info(true);
         let prio = [1.0f32];

@@ -1,15 +1,18 @@
 //! The Vulkan host core: context (instance, device, allocator, validation), buffers,
-//! compute pipelines from the embedded SPIR-V, and command recording with timestamps.
+//! compute pipelines from the embedded SPIR-V, command recording with timestamps, and the
+//! window swapchain of the viewer.
 //! Every Vulkan object is owned by a type that frees it on `Drop`.
 mod buffer;
 mod commands;
 mod context;
 mod kernels;
+mod swapchain;
 
 pub use buffer::Buffer;
 pub use commands::Commands;
 pub use context::{Gpu, GpuOptions};
 pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
+pub use swapchain::Swapchain;
 
 /// The SPIR-V module of `shader-crate`, compiled by `host/build.rs`.
 pub const SHADER_SPV: &[u8] = include_bytes!(env!("shader_crate.spv"));

@@ -1,0 +1,215 @@
+//! `raytrace bench realtime`: the viewer's per-frame GPU work without a window. Each frame
+//! the animation advances 1/60 s, the objects' transforms are uploaded, and one submission
+//! transforms every primitive, rebuilds the whole BVH, traces the frame's samples into a
+//! fresh accumulation image (the scene moved) and runs the display pass. Reports frame-time
+//! percentiles from GPU timestamps and from the host's clock.
+use crate::bench::percentile;
+use crate::cli::SceneArgs;
+use crate::live::LiveScene;
+use crate::render::{frame_timings, rays_traced, GpuRenderer};
+use crate::vk::{Commands, Gpu, Kernels};
+use anyhow::{bail, Context, Result};
+use std::fmt::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Percentiles of one series of frame times, milliseconds.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Percentiles {
+    pub p50: f64,
+    pub p90: f64,
+    pub p99: f64,
+    pub max: f64,
+}
+
+impl Percentiles {
+    fn of(mut v: Vec<f64>) -> Percentiles {
+        v.sort_by(f64::total_cmp);
+        Percentiles {
+            p50: percentile(&v, 0.5),
+            p90: percentile(&v, 0.9),
+            p99: percentile(&v, 0.99),
+            max: v.last().copied().unwrap_or(f64::NAN),
+        }
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Row {
+    pub scene: String,
+    pub triangles: usize,
+    pub spheres: usize,
+    pub animated: bool,
+    pub nee: bool,
+    /// GPU time of a whole frame (timestamps, first to last), ms.
+    pub gpu_ms: Percentiles,
+    /// Transform + BVH rebuild, ms.
+    pub build_ms: Percentiles,
+    /// Path tracing, ms.
+    pub trace_ms: Percentiles,
+    /// Host clock from the objects' upload to the frame's fence, ms.
+    pub wall_ms: Percentiles,
+    /// Frames per second at the median GPU frame time.
+    pub fps: f64,
+    /// Rays traced per frame (primary, bounce and shadow rays).
+    pub rays_per_frame: f64,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Report {
+    pub date: String,
+    pub device: String,
+    pub command: String,
+    pub width: u32,
+    pub height: u32,
+    pub spf: u32,
+    pub depth: u32,
+    pub frames: usize,
+    pub rows: Vec<Row>,
+}
+
+/// Settings of a run.
+pub struct Options {
+    pub scenes: Vec<String>,
+    pub size: (u32, u32),
+    pub spf: u32,
+    pub depth: u32,
+    pub frames: usize,
+    pub warmup: usize,
+    /// Run every scene with next-event estimation off and on (else off only).
+    pub both_nee: bool,
+}
+
+/// Runs every scene of `o` and returns the report.
+pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
+    if o.frames == 0 || o.spf == 0 {
+        bail!("frames and samples per frame must be at least 1");
+    }
+    let kernels = Arc::new(Kernels::new(gpu)?);
+    let mut rows = Vec::new();
+    for scene in &o.scenes {
+        for nee in if o.both_nee { vec![false, true] } else { vec![false] } {
+            let size = format!("{}x{}", o.size.0, o.size.1);
+            let depth = o.depth.to_string();
+            let mut args = vec!["raytrace", scene, "--size", &size, "--depth", &depth];
+            if !nee {
+                args.push("--no-nee");
+            }
+            let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
+            let mut r = GpuRenderer::new(gpu, &kernels)?;
+            r.set_bits(p.bits);
+            let mut live = LiveScene::new(p.scene);
+            rows.push(run_scene(gpu, &mut r, &mut live, o, nee).with_context(|| format!("scene {scene}"))?);
+            eprintln!("{}", row_line(rows.last().context("no row")?));
+        }
+    }
+    Ok(Report {
+        date: chrono::Local::now().format("%Y-%m-%d").to_string(),
+        device: gpu.describe(),
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        width: o.size.0,
+        height: o.size.1,
+        spf: o.spf,
+        depth: o.depth,
+        frames: o.frames,
+        rows,
+    })
+}
+
+fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options, nee: bool) -> Result<Row> {
+    let mut cmds = Commands::new(gpu)?;
+    let (mut total, mut build, mut trace, mut wall) = (vec![], vec![], vec![], vec![]);
+    let mut rays = 0.0;
+    for i in 0..o.warmup + o.frames {
+        let start = Instant::now();
+        live.time = i as f32 / 60.0;
+        live.sync(r)?;
+        cmds.begin()?;
+        r.record(&mut cmds, o.spf, true)?;
+        cmds.submit_wait().context("rendering a frame")?;
+        let elapsed = start.elapsed().as_secs_f64();
+        let t = frame_timings(&cmds)?;
+        if i < o.warmup {
+            continue;
+        }
+        let sum = |f: &dyn Fn(&str) -> bool| t.iter().filter(|(l, _)| f(l)).map(|(_, s)| s * 1e3).sum::<f64>();
+        total.push(sum(&|_| true));
+        trace.push(sum(&|l| l == "trace"));
+        build.push(sum(&|l| l != "trace" && l != "display"));
+        wall.push(elapsed * 1e3);
+        if i + 1 == o.warmup + o.frames {
+            let p = r.picture()?;
+            rays = rays_traced(&p) as f64 / p.samples.max(1) as f64 * o.spf as f64;
+        }
+    }
+    let (tris, spheres) = live.scene.counts();
+    let gpu_ms = Percentiles::of(total);
+    Ok(Row {
+        scene: live.scene.name.clone(),
+        triangles: tris,
+        spheres,
+        animated: live.animated(),
+        nee,
+        fps: 1e3 / gpu_ms.p50,
+        gpu_ms,
+        build_ms: Percentiles::of(build),
+        trace_ms: Percentiles::of(trace),
+        wall_ms: Percentiles::of(wall),
+        rays_per_frame: rays,
+    })
+}
+
+fn row_line(r: &Row) -> String {
+    format!(
+        "| {} | {} | {} | {} | {:.3} / {:.3} / {:.3} | {:.1} | {:.3} | {:.3} | {:.3} / {:.3} | {:.2} |",
+        r.scene,
+        r.triangles + r.spheres,
+        if r.animated { "yes" } else { "no" },
+        if r.nee { "on" } else { "off" },
+        r.gpu_ms.p50,
+        r.gpu_ms.p90,
+        r.gpu_ms.p99,
+        r.fps,
+        r.build_ms.p50,
+        r.trace_ms.p50,
+        r.wall_ms.p50,
+        r.wall_ms.p99,
+        r.rays_per_frame / (r.trace_ms.p50 * 1e-3) * 1e-9,
+    )
+}
+
+pub fn markdown(r: &Report) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# Real-time frames (offscreen)\n\n- date: {}\n- device: {}\n- command: `{}`\n- {}x{}, {} sample(s) per pixel per frame, depth {}, {} frames after warm-up\n",
+        r.date, r.device, r.command, r.width, r.height, r.spf, r.depth, r.frames
+    );
+    let _ = writeln!(
+        s,
+        "Every frame: objects' transforms uploaded (animation advancing 1/60 s), transform of every \
+         primitive, full BVH rebuild, path tracing into a fresh accumulation image, display pass; one \
+         submission, waited for. GPU times from timestamp queries; wall time is the host's clock around \
+         upload, submission and wait.\n"
+    );
+    let _ = writeln!(
+        s,
+        "| scene | primitives | animated | NEE | GPU frame p50 / p90 / p99 ms | fps (p50) | rebuild p50 ms | trace p50 ms | wall p50 / p99 ms | Grays/s (trace) |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+    for row in &r.rows {
+        let _ = writeln!(s, "{}", row_line(row));
+    }
+    s
+}
+
+/// Writes `stem.md` and `stem.json` into `dir`.
+pub fn write(r: &Report, dir: &Path, stem: &str) -> Result<PathBuf> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let md = dir.join(format!("{stem}.md"));
+    std::fs::write(&md, markdown(r)).with_context(|| format!("writing {}", md.display()))?;
+    let json = dir.join(format!("{stem}.json"));
+    std::fs::write(&json, serde_json::to_string_pretty(r)?).with_context(|| format!("writing {}", json.display()))?;
+    Ok(md)
+}
