@@ -53,6 +53,8 @@ Keys and mouse:
 #[derive(clap::Parser, Clone, Debug)]
 #[command(after_help = KEYS)]
 pub struct ViewArgs {
+    /// Scene and settings; here `--spp` stops accumulating at that many samples per pixel
+    /// (default: never) and `--time` is where the animation starts.
     #[command(flatten)]
     pub scene: SceneArgs,
     /// Samples per pixel traced each frame.
@@ -154,6 +156,7 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
     renderer.set_bits(prepared.bits);
     let mut live = LiveScene::new(prepared.scene);
     live.bvh = !args.scene.no_bvh;
+    live.time = args.scene.time;
     let camera = FlyCamera::new(live.scene.camera);
     let mut app = App {
         args: args.clone(),
@@ -176,6 +179,7 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
         stats: Stats::default(),
         last_timings: Vec::new(),
         shots: 0,
+        traced: 0,
         error: None,
     };
     event_loop.set_control_flow(ControlFlow::Poll);
@@ -225,6 +229,8 @@ struct App {
     stats: Stats,
     last_timings: Vec<(&'static str, f64)>,
     shots: u32,
+    /// Samples per pixel traced in the last frame.
+    traced: u32,
     error: Option<anyhow::Error>,
 }
 
@@ -443,8 +449,14 @@ impl App {
         } else {
             None
         };
+        // With --spp, accumulation stops there; the BVH is still rebuilt every frame.
+        let samples = match self.args.scene.spp {
+            Some(cap) => self.spf.min(cap.saturating_sub(self.renderer.samples())),
+            None => self.spf,
+        };
         self.cmds.begin()?;
-        self.renderer.record(&mut self.cmds, self.spf, true)?;
+        self.renderer.record(&mut self.cmds, samples, true)?;
+        self.traced = samples;
         sc.record_copy(&self.cmds, self.renderer.display_buffer()?, index, readback.as_ref());
         self.cmds.submit(&[acquired], &[sc.presentable(index)])?;
         let presented = sc.present(index);
@@ -499,7 +511,11 @@ impl App {
             / n;
         let stage = |name: &str| st.stages.iter().find(|(l, _)| *l == name).map_or(0.0, |(_, t)| t / n);
         let f = self.renderer.frame();
-        let paths = (f.width * f.height * self.spf) as f64 / stage("trace").max(1e-9);
+        let paths = if self.traced == 0 {
+            0.0
+        } else {
+            (f.width * f.height * self.traced) as f64 / stage("trace").max(1e-9)
+        };
         let title = format!(
             "raytrace · {} · {:.1} fps · GPU {:.2} ms (transform+build {:.2}, trace {:.2}, display {:.2}) · {:.0} Mpaths/s · {} spp/frame, {} spp · depth {} · NEE {} · BVH {}{}",
             self.live.scene.name,
