@@ -244,11 +244,18 @@ pub fn markdown(r: &BuildReport) -> String {
 
 /// Writes `<stem>.md` and `<stem>.json` into `dir`; returns the Markdown path.
 pub fn write_report(r: &BuildReport, dir: &Path, stem: &str) -> Result<PathBuf> {
+    write_files(dir, stem, &markdown(r), r)
+}
+
+/// Writes a report as `dir/stem.md` (`markdown`) and `dir/stem.json` (`value`); returns the
+/// Markdown file's path.
+pub fn write_files(dir: &Path, stem: &str, markdown: &str, value: &impl serde::Serialize) -> Result<PathBuf> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let md = dir.join(format!("{stem}.md"));
-    std::fs::write(&md, markdown(r)).with_context(|| format!("writing {}", md.display()))?;
+    std::fs::write(&md, markdown).with_context(|| format!("writing {}", md.display()))?;
     let json = dir.join(format!("{stem}.json"));
-    std::fs::write(&json, serde_json::to_string_pretty(r)?).with_context(|| format!("writing {}", json.display()))?;
+    std::fs::write(&json, serde_json::to_string_pretty(value)?)
+        .with_context(|| format!("writing {}", json.display()))?;
     Ok(md)
 }
 

@@ -1,6 +1,7 @@
 //! The `render` and `compare` commands: scene options shared by both, progress and summary
 //! lines, and the side-by-side comparison of the CPU and GPU backends.
 use crate::bvh::MortonBits;
+use crate::features::{self, Features, Forced};
 use crate::picture::{self, Picture};
 use crate::render::{self, render_cpu, Backend, GpuRenderer};
 use crate::scene::{Scene, SceneGpu};
@@ -53,6 +54,13 @@ pub struct SceneArgs {
     /// Morton code width of the BVH.
     #[arg(long, value_enum, default_value = "b30")]
     pub bits: Bits,
+    /// Kernel features beyond what the scene needs: `all`, or +NAME / -NAME for triangles,
+    /// spheres, nee, metal, dielectric, thin-lens (comma-separated).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub features: Vec<String>,
+    /// Print which kernel features run and why.
+    #[arg(long)]
+    pub explain: bool,
 }
 
 #[derive(Copy, Clone, Debug, clap::ValueEnum)]
@@ -90,6 +98,8 @@ pub struct Prepared {
     pub frame: Frame,
     pub spp: u32,
     pub bits: MortonBits,
+    /// The kernel features the frame runs with, and why.
+    pub features: Features,
 }
 
 impl SceneArgs {
@@ -127,7 +137,10 @@ impl SceneArgs {
         }
         let data = scene.gpu_data(self.time);
         let frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
+        let features = features::derive(&data, &frame, &Forced::parse(&self.features)?)?;
+        let frame = features.apply(&frame);
         Ok(Prepared {
+            features,
             spp: scene.settings.spp,
             scene,
             data,
@@ -220,6 +233,9 @@ pub fn render_on_cpu(p: &Prepared, quiet: bool) -> (Rendered, render::CpuRender)
 /// `raytrace render`.
 pub fn render_command(args: &SceneArgs, backend: Backend, out: Option<PathBuf>, opts: &GpuOptions) -> Result<PathBuf> {
     let p = args.prepare()?;
+    if args.explain {
+        println!("kernel features for {}:\n{}", p.scene.name, p.features.explain());
+    }
     let out = out.unwrap_or_else(|| PathBuf::from(format!("{}.png", p.scene.name)));
     let wall = Instant::now();
     let rendered = match backend {

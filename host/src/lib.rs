@@ -4,6 +4,8 @@ pub mod bench;
 pub mod bvh;
 pub mod cli;
 pub mod cpu;
+pub mod feature_bench;
+pub mod features;
 pub mod inputs;
 pub mod lbvh;
 pub mod live;

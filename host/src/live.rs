@@ -2,6 +2,7 @@
 //! added, moved, rotated and removed between frames, and [`LiveScene::sync`] brings the GPU
 //! renderer up to date (new transforms only, or the whole scene when objects came or went).
 //! The BVH is rebuilt from the current scene every frame by the renderer.
+use crate::features::{self, Features, Forced};
 use crate::render::{with_bvh, GpuRenderer};
 use crate::scene::{material, Animation, Scene, SceneGpu, SceneObject, Shape, Transform};
 use anyhow::{bail, Result};
@@ -19,6 +20,8 @@ pub struct LiveScene {
     pub bvh: bool,
     /// The object picked last (index into `scene.objects`).
     pub selected: Option<usize>,
+    /// Kernel features forced beyond the scene's needs (see [`crate::features`]).
+    pub forced: Forced,
     data: SceneGpu,
     /// Objects were added or removed since the renderer last saw the scene.
     reload: bool,
@@ -35,6 +38,7 @@ impl LiveScene {
             time: 0.0,
             bvh: true,
             selected: None,
+            forced: Forced::default(),
             data,
             reload: true,
             added: 0,
@@ -46,9 +50,17 @@ impl LiveScene {
         &self.data
     }
 
-    /// Camera and settings for the current scene.
+    /// Camera, settings and kernel features for the current scene.
     pub fn frame(&self) -> Frame {
-        with_bvh(self.scene.frame(&self.data), self.bvh)
+        let frame = with_bvh(self.scene.frame(&self.data), self.bvh);
+        self.features().map_or(frame, |f| f.apply(&frame))
+    }
+
+    /// The kernel features the current scene needs, and why; an error where the forced
+    /// features contradict the scene (then [`LiveScene::frame`] runs every feature).
+    pub fn features(&self) -> Result<Features> {
+        let frame = with_bvh(self.scene.frame(&self.data), self.bvh);
+        features::derive(&self.data, &frame, &self.forced)
     }
 
     /// Brings `r` up to date: the whole scene after additions and removals, else the

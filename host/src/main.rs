@@ -113,6 +113,26 @@ enum Bench {
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
+    /// Per built-in scene: the path tracer with every feature against the kernel specialised
+    /// to the scene (same image, checked).
+    Features {
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "cornell,suzanne,bunny,spheres,instances"
+        )]
+        scenes: Vec<String>,
+        #[arg(long, default_value = "800x800", value_parser = raytrace::cli::parse_size)]
+        size: (u32, u32),
+        /// Samples per pixel per frame.
+        #[arg(long, default_value_t = 8)]
+        spp: u32,
+        /// Timed frames per kernel (after one warm-up).
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
     /// BVH build: per-stage GPU time, throughput, memory, CPU executor time.
     Build {
         /// Timed runs per input (after warm-up).
@@ -165,6 +185,23 @@ fn main() -> Result<()> {
         }
         Command::Compare { scene, out, tolerance } => compare_command(&scene, &out, tolerance, &opts)?,
         Command::View(args) => raytrace::view::run(&args, &opts)?,
+        Command::Bench {
+            what:
+                Bench::Features {
+                    scenes,
+                    size,
+                    spp,
+                    runs,
+                    out,
+                },
+        } => {
+            let gpu = Gpu::new(&opts)?;
+            let report = raytrace::feature_bench::run(&gpu, &scenes, size, spp.max(1), runs)?;
+            let stem = format!("features-{}-{}", report.date, slug(&gpu.name));
+            let md = raytrace::feature_bench::write(&report, &out, &stem)?;
+            println!("{}", raytrace::feature_bench::markdown(&report));
+            println!("wrote {}", md.display());
+        }
         Command::Bench {
             what:
                 Bench::Realtime {

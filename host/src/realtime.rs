@@ -206,10 +206,5 @@ pub fn markdown(r: &Report) -> String {
 
 /// Writes `stem.md` and `stem.json` into `dir`.
 pub fn write(r: &Report, dir: &Path, stem: &str) -> Result<PathBuf> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let md = dir.join(format!("{stem}.md"));
-    std::fs::write(&md, markdown(r)).with_context(|| format!("writing {}", md.display()))?;
-    let json = dir.join(format!("{stem}.json"));
-    std::fs::write(&json, serde_json::to_string_pretty(r)?).with_context(|| format!("writing {}", json.display()))?;
-    Ok(md)
+    crate::bench::write_files(dir, stem, &markdown(r), r)
 }

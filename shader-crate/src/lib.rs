@@ -10,8 +10,11 @@ use shared::scan;
 use shared::traverse::Scene;
 use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,
-    Triangle,
+    Triangle, FEATURES_ALL,
 };
+
+// The default of `path_trace`'s specialisation constant: every feature.
+const _: () = assert!(FEATURES_ALL == 63);
 use shared::{display, karras, morton, refit, transform as xform};
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
 use spirv_std::glam::UVec3;
@@ -175,7 +178,7 @@ pub fn transform(
 
 /// The scene as the render kernels see it (set 0: world primitives and BVH; set 1: the rest).
 macro_rules! world {
-    ($tris:ident, $spheres:ident, $nodes:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident) => {
+    ($tris:ident, $spheres:ident, $nodes:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $features:expr) => {
         World {
             scene: Scene {
                 tris: $tris,
@@ -183,6 +186,7 @@ macro_rules! world {
                 nodes: $nodes,
                 n_tris: $frame.n_tris,
                 n_prims: $frame.n_prims,
+                features: $features,
             },
             objects: $objects,
             prim_object: $prim_object,
@@ -207,8 +211,19 @@ pub fn path_trace(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
     #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
+    #[spirv(spec_constant(id = 0, default = 63))] features: u32,
 ) {
-    let w = world!(tris, spheres, nodes, objects, prim_object, materials, lights, frame);
+    let w = world!(
+        tris,
+        spheres,
+        nodes,
+        objects,
+        prim_object,
+        materials,
+        lights,
+        frame,
+        features
+    );
     path::render_pixel(id.x, id.y, p, &w, accum);
 }
 
@@ -240,6 +255,16 @@ pub fn cast_rays(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] rays: &[Ray],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit],
 ) {
-    let w = world!(tris, spheres, nodes, objects, prim_object, materials, lights, frame);
+    let w = world!(
+        tris,
+        spheres,
+        nodes,
+        objects,
+        prim_object,
+        materials,
+        lights,
+        frame,
+        FEATURES_ALL
+    );
     path::cast(flat_index(id.x, id.y), p, &w, rays, hits);
 }

@@ -5,7 +5,7 @@
 use crate::math::sqrt;
 use crate::rng::Rng;
 use crate::sampling;
-use crate::types::{xyz, Material, MaterialKind};
+use crate::types::{xyz, Material, MaterialKind, FEATURE_DIELECTRIC, FEATURE_METAL};
 use spirv_std::glam::Vec3;
 
 /// The outcome of a scattering event: the new direction and the throughput factor
@@ -39,7 +39,8 @@ pub fn fresnel(cos_i: f32, eta: f32) -> (f32, f32) {
 }
 
 /// Scatters a ray of unit direction `d` hitting a surface with unit geometric normal `ng`.
-pub fn scatter(m: &Material, d: Vec3, ng: Vec3, rng: &mut Rng) -> Scatter {
+/// Kinds whose `FEATURE_*` bit is missing from `features` absorb.
+pub fn scatter(m: &Material, d: Vec3, ng: Vec3, features: u32, rng: &mut Rng) -> Scatter {
     let albedo = xyz(m.albedo);
     // The normal on the side the ray came from.
     let entering = d.dot(ng) < 0.0;
@@ -56,11 +57,11 @@ pub fn scatter(m: &Material, d: Vec3, ng: Vec3, rng: &mut Rng) -> Scatter {
         s.pdf = sampling::cosine_pdf(s.dir.dot(n));
         s.diffuse = true;
         s.absorbed = s.pdf <= 0.0;
-    } else if m.kind == MaterialKind::Metal as u32 {
+    } else if features & FEATURE_METAL != 0 && m.kind == MaterialKind::Metal as u32 {
         let fuzz = sampling::uniform_ball(rng.next_f32(), rng.next_f32(), rng.next_f32()) * m.roughness;
         s.dir = (reflect(d, n) + fuzz).normalize();
         s.absorbed = s.dir.dot(n) <= 0.0;
-    } else if m.kind == MaterialKind::Dielectric as u32 {
+    } else if features & FEATURE_DIELECTRIC != 0 && m.kind == MaterialKind::Dielectric as u32 {
         let eta = if entering { m.ior } else { 1.0 / m.ior };
         let cos_i = (-d.dot(n)).clamp(0.0, 1.0);
         let (r, cos_t) = fresnel(cos_i, eta);

@@ -11,8 +11,8 @@ use crate::rng::Rng;
 use crate::sampling;
 use crate::traverse::{self, Scene};
 use crate::types::{
-    xyz, Camera, Frame, Hit, Material, Object, Ray, RenderPush, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE,
-    INVALID,
+    xyz, Camera, Frame, Hit, Material, Object, Ray, RenderPush, FEATURE_NEE, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS,
+    FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -60,7 +60,7 @@ impl World<'_> {
     /// Surface area of primitive `prim`.
     pub fn area(&self, prim: u32) -> f32 {
         let s = &self.scene;
-        if prim < s.n_tris {
+        if s.is_triangle(prim) {
             0.5 * intersect::triangle_normal(&s.tris[prim as usize]).length()
         } else {
             let r = s.spheres[(prim - s.n_tris) as usize].center_radius[3];
@@ -71,7 +71,7 @@ impl World<'_> {
     /// A uniform point on primitive `prim`: (point, unit normal).
     fn sample_point(&self, prim: u32, u1: f32, u2: f32) -> (Vec3, Vec3) {
         let s = &self.scene;
-        if prim < s.n_tris {
+        if s.is_triangle(prim) {
             let t = &s.tris[prim as usize];
             let (b1, b2) = sampling::uniform_triangle(u1, u2);
             (
@@ -101,13 +101,17 @@ impl World<'_> {
 
 /// Camera ray through pixel `(x, y)` (row 0 at the top), jittered within the pixel and over
 /// the lens: (origin, unit direction).
-pub fn camera_ray(c: &Camera, width: u32, height: u32, x: u32, y: u32, rng: &mut Rng) -> (Vec3, Vec3) {
+pub fn camera_ray(c: &Camera, width: u32, height: u32, x: u32, y: u32, features: u32, rng: &mut Rng) -> (Vec3, Vec3) {
     let s = (x as f32 + rng.next_f32()) / width as f32;
     let t = 1.0 - (y as f32 + rng.next_f32()) / height as f32;
-    let (dx, dy) = sampling::uniform_disk(rng.next_f32(), rng.next_f32());
-    let lens = c.u[3];
-    let offset = xyz(c.u) * (dx * lens) + xyz(c.v) * (dy * lens);
-    let origin = xyz(c.origin) + offset;
+    // The lens numbers are drawn either way: a pinhole kernel follows the same streams.
+    let (u1, u2) = (rng.next_f32(), rng.next_f32());
+    let mut origin = xyz(c.origin);
+    if features & FEATURE_THIN_LENS != 0 {
+        let (dx, dy) = sampling::uniform_disk(u1, u2);
+        let lens = c.u[3];
+        origin += xyz(c.u) * (dx * lens) + xyz(c.v) * (dy * lens);
+    }
     let target = xyz(c.lower_left) + xyz(c.horizontal) * s + xyz(c.vertical) * t;
     (origin, (target - origin).normalize())
 }
@@ -155,7 +159,7 @@ fn direct_light(w: &World, p: Vec3, n: Vec3, albedo: Vec3, mis: bool, rng: &mut 
 /// traced for it.
 pub fn radiance(w: &World, origin: Vec3, dir: Vec3, rng: &mut Rng) -> (Vec3, u32) {
     let f = w.frame;
-    let nee = f.flags & FLAG_NEE != 0 && f.n_lights > 0;
+    let nee = w.scene.features & FEATURE_NEE != 0 && f.flags & FLAG_NEE != 0 && f.n_lights > 0;
     let mis = nee && f.flags & FLAG_MIS != 0;
     let roulette = f.flags & FLAG_RUSSIAN_ROULETTE != 0;
     let mut l = Vec3::ZERO;
@@ -192,7 +196,7 @@ pub fn radiance(w: &World, origin: Vec3, dir: Vec3, rng: &mut Rng) -> (Vec3, u32
             };
             l += beta * le * weight;
         }
-        let s = material::scatter(&m, d, ng, rng);
+        let s = material::scatter(&m, d, ng, w.scene.features, rng);
         if s.absorbed {
             break;
         }
@@ -239,7 +243,7 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
     let mut s = 0;
     while s < p.samples {
         let mut rng = Rng::new(pixel, p.sample_base + s, f.seed);
-        let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, &mut rng);
+        let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
         let (l, r) = radiance(w, o, d, &mut rng);
         if finite3(l) {
             sum += l;

@@ -4,7 +4,7 @@
 //! direction miss.
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
-use crate::types::{xyz, Hit, Node, Sphere, Triangle, INVALID};
+use crate::types::{xyz, Hit, Node, Sphere, Triangle, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID};
 use spirv_std::glam::Vec3;
 
 /// Entries of the traversal stack. A Karras tree over `n` primitives with 30- or 63-bit
@@ -20,12 +20,34 @@ pub struct Scene<'a> {
     pub nodes: &'a [Node],
     pub n_tris: u32,
     pub n_prims: u32,
+    /// `FEATURE_*` bits: primitive kinds left out are never intersected (a specialisation
+    /// constant on the GPU, so their code is gone). Must include every kind present.
+    pub features: u32,
+}
+
+impl Scene<'_> {
+    /// Whether primitive `prim` is a triangle; with one kind of primitive enabled the
+    /// answer is a constant.
+    pub fn is_triangle(&self, prim: u32) -> bool {
+        if self.features & FEATURE_SPHERES == 0 {
+            true
+        } else if self.features & FEATURE_TRIANGLES == 0 {
+            false
+        } else {
+            prim < self.n_tris
+        }
+    }
 }
 
 /// Intersects primitive `prim`; returns `(t, b1, b2)` with `t = INFINITY` for a miss.
 pub fn primitive(s: &Scene, r: &TriRay, prim: u32, t_max: f32) -> (f32, f32, f32) {
     if prim < s.n_tris {
+        if s.features & FEATURE_TRIANGLES == 0 {
+            return (f32::INFINITY, 0.0, 0.0);
+        }
         intersect::triangle(r, &s.tris[prim as usize], t_max)
+    } else if s.features & FEATURE_SPHERES == 0 {
+        (f32::INFINITY, 0.0, 0.0)
     } else {
         let t = intersect::sphere(r.origin, r.dir, &s.spheres[(prim - s.n_tris) as usize], t_max);
         (t, 0.0, 0.0)
@@ -158,7 +180,7 @@ fn visit(s: &Scene, r: &TriRay, child: u32, first_leaf: u32, limit: &mut f32, be
 /// Unit geometric normal of primitive `prim` at the hit `(t, b1, b2)` of `origin + t dir`,
 /// and the hit point.
 pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3) {
-    if prim < s.n_tris {
+    if s.is_triangle(prim) {
         let t = &s.tris[prim as usize];
         (
             intersect::triangle_point(t, h.u, h.v),

@@ -311,7 +311,10 @@ pub struct Frame {
     pub n_lights: u32,
     pub seed: u32,
     pub exposure: f32,
-    pub _pad: [u32; 3],
+    /// `FEATURE_*` bits the path tracer needs for this scene. The CPU executor tests them at
+    /// run time; the GPU runs `path_trace` specialised to them (specialisation constant 0).
+    pub features: u32,
+    pub _pad: [u32; 2],
 }
 
 /// Push constants of the render kernels.
@@ -327,6 +330,25 @@ pub struct RenderPush {
     /// `DISPLAY_*` flags (display pass).
     pub flags: u32,
 }
+
+// Features a path-tracing kernel can leave out: the bits of its specialisation constant 0
+// (and of the CPU executor's `Scene::features`). A scene needs only some; the host derives
+// which (`host/src/features.rs`) and the driver folds the branches of the others away.
+
+/// Triangles are intersected.
+pub const FEATURE_TRIANGLES: u32 = 1;
+/// Spheres are intersected.
+pub const FEATURE_SPHERES: u32 = 1 << 1;
+/// Next-event estimation (with MIS when the frame asks) toward emissive primitives.
+pub const FEATURE_NEE: u32 = 1 << 2;
+/// Metal surfaces scatter (else they absorb).
+pub const FEATURE_METAL: u32 = 1 << 3;
+/// Dielectric surfaces scatter (else they absorb).
+pub const FEATURE_DIELECTRIC: u32 = 1 << 4;
+/// Camera rays start on a lens disk (else at the pinhole).
+pub const FEATURE_THIN_LENS: u32 = 1 << 5;
+/// Every feature: the kernel that runs any scene.
+pub const FEATURES_ALL: u32 = (1 << 6) - 1;
 
 /// Display pass: pack pixels as B, G, R, A bytes (for BGRA swapchain images).
 pub const DISPLAY_BGRA: u32 = 1;

@@ -84,6 +84,7 @@ fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<H
             nodes: &cpu.bvh.nodes,
             n_tris: p.frame.n_tris,
             n_prims: p.frame.n_prims,
+            features: frame.features,
         },
         objects: &p.data.objects,
         prim_object: &p.data.prim_object,

@@ -62,6 +62,7 @@ pub fn render_cpu(
             nodes: &bvh.nodes,
             n_tris: frame.n_tris,
             n_prims: frame.n_prims,
+            features: frame.features,
         },
         objects: &scene.objects,
         prim_object: &scene.prim_object,

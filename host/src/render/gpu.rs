@@ -261,6 +261,7 @@ impl GpuRenderer {
             self.lbvh.record(cmds, self.bits, false)?;
         }
         let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));
+        let trace = k.specialised(Kernel::PathTrace, f.features)?;
         let mut done = 0;
         while done < samples {
             let n = (samples - done).min(SAMPLES_PER_DISPATCH);
@@ -269,7 +270,7 @@ impl GpuRenderer {
                 samples: n,
                 ..Default::default()
             };
-            cmds.dispatch_sets(k, &sets, Kernel::PathTrace, bytemuck::bytes_of(&push), gx, gy);
+            cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(&push), gx, gy);
             cmds.barrier();
             done += n;
         }

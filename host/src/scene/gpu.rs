@@ -6,7 +6,8 @@
 use super::{material, Scene, Shape};
 use glam::Vec3;
 use shared::types::{
-    Camera, Frame, Material, Object, Sphere, Triangle, FLAG_BVH, FLAG_GAMMA2, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE,
+    Camera, Frame, Material, Object, Sphere, Triangle, FEATURES_ALL, FLAG_BVH, FLAG_GAMMA2, FLAG_MIS, FLAG_NEE,
+    FLAG_RUSSIAN_ROULETTE,
 };
 
 /// The render buffers of a scene at one moment.
@@ -92,7 +93,8 @@ impl Scene {
     }
 
     /// Camera (thin lens, as in Ray Tracing in One Weekend) and settings for rendering `gpu`
-    /// at the size in [`Scene::settings`].
+    /// at the size in [`Scene::settings`], with every kernel feature on (see
+    /// [`crate::features`] for the ones the scene needs).
     pub fn frame(&self, gpu: &SceneGpu) -> Frame {
         let c = &self.camera;
         let s = &self.settings;
@@ -131,7 +133,8 @@ impl Scene {
             n_lights: gpu.lights.len() as u32,
             seed: s.seed,
             exposure: s.exposure,
-            _pad: [0; 3],
+            features: FEATURES_ALL,
+            _pad: [0; 2],
         }
     }
 }

@@ -157,6 +157,14 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
     let mut live = LiveScene::new(prepared.scene);
     live.bvh = !args.scene.no_bvh;
     live.time = args.scene.time;
+    live.forced = crate::features::Forced::parse(&args.scene.features)?;
+    if args.scene.explain {
+        println!(
+            "kernel features for {}:\n{}",
+            live.scene.name,
+            prepared.features.explain()
+        );
+    }
     let camera = FlyCamera::new(live.scene.camera);
     let mut app = App {
         args: args.clone(),

@@ -117,13 +117,27 @@ impl Commands {
         x: u32,
         y: u32,
     ) {
+        self.dispatch_pipeline(kernels, kernels.pipeline(kernel), sets, push, x, y);
+    }
+
+    /// Dispatches like [`Commands::dispatch_sets`] with `pipeline`, one of `kernels`' (such
+    /// as a specialised one).
+    pub fn dispatch_pipeline(
+        &self,
+        kernels: &Kernels,
+        pipeline: vk::Pipeline,
+        sets: &[vk::DescriptorSet],
+        push: &[u8],
+        x: u32,
+        y: u32,
+    ) {
         if x == 0 || y == 0 {
             return;
         }
         let d = &self.gpu.device;
         // SAFETY: recording state; pipeline, layout and sets belong to this device.
         unsafe {
-            d.cmd_bind_pipeline(self.cb, vk::PipelineBindPoint::COMPUTE, kernels.pipeline(kernel));
+            d.cmd_bind_pipeline(self.cb, vk::PipelineBindPoint::COMPUTE, pipeline);
             d.cmd_bind_descriptor_sets(self.cb, vk::PipelineBindPoint::COMPUTE, kernels.layout, 0, sets, &[]);
             d.cmd_push_constants(self.cb, kernels.layout, vk::ShaderStageFlags::COMPUTE, 0, push);
             d.cmd_dispatch(self.cb, x, y, 1);

@@ -5,7 +5,8 @@ use super::{Buffer, Gpu, SHADER_SPV};
 use anyhow::{Context, Result};
 use ash::vk;
 use shared::types::{BuildParams, RenderPush, RENDER_BINDINGS};
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 
 /// Storage-buffer bindings of set 0 (see `shared::types`).
 pub const BINDINGS: usize = 12;
@@ -13,7 +14,7 @@ pub const BINDINGS: usize = 12;
 const _: () = assert!(size_of::<BuildParams>() == size_of::<RenderPush>());
 
 /// Entry points of `shader-crate`.
-#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
 pub enum Kernel {
     BoundsReduce,
     Morton30,
@@ -81,6 +82,8 @@ pub struct Kernels {
     pub set_layouts: [vk::DescriptorSetLayout; 2],
     pub layout: vk::PipelineLayout,
     pipelines: Vec<vk::Pipeline>,
+    /// Pipelines made with a value of specialisation constant 0, made when first asked for.
+    specialised: Mutex<HashMap<(Kernel, u32), vk::Pipeline>>,
 }
 
 impl Kernels {
@@ -94,6 +97,7 @@ impl Kernels {
             set_layouts: [vk::DescriptorSetLayout::null(); 2],
             layout: vk::PipelineLayout::null(),
             pipelines: Vec::new(),
+            specialised: Mutex::new(HashMap::new()),
         };
         // SAFETY (all calls below): valid create infos on a live device; objects are owned by
         // `k` as soon as they exist, so an early return frees them.
@@ -128,26 +132,58 @@ impl Kernels {
         }
         .context("creating the pipeline layout")?;
         for kernel in Kernel::ALL {
-            let name = std::ffi::CString::new(kernel.entry())?;
-            let stage = vk::PipelineShaderStageCreateInfo::default()
-                .stage(vk::ShaderStageFlags::COMPUTE)
-                .module(k.module)
-                .name(&name);
-            let flags = if gpu.kernel_stats {
-                vk::PipelineCreateFlags::CAPTURE_STATISTICS_KHR
-            } else {
-                vk::PipelineCreateFlags::empty()
-            };
-            let info = [vk::ComputePipelineCreateInfo::default()
-                .stage(stage)
-                .layout(k.layout)
-                .flags(flags)];
-            let p = unsafe { d.create_compute_pipelines(vk::PipelineCache::null(), &info, None) }
-                .map_err(|(_, e)| e)
-                .with_context(|| format!("creating the compute pipeline of entry point {}", kernel.entry()))?;
-            k.pipelines.push(p[0]);
+            let p = k.create_pipeline(kernel, None)?;
+            k.pipelines.push(p);
         }
         Ok(k)
+    }
+
+    /// A pipeline of `kernel`, with specialisation constant 0 set to `constant` if given.
+    fn create_pipeline(&self, kernel: Kernel, constant: Option<u32>) -> Result<vk::Pipeline> {
+        let name = std::ffi::CString::new(kernel.entry())?;
+        let entries = [vk::SpecializationMapEntry::default().constant_id(0).offset(0).size(4)];
+        let data = constant.unwrap_or(0).to_ne_bytes();
+        let spec = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
+        let mut stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(self.module)
+            .name(&name);
+        if constant.is_some() {
+            stage = stage.specialization_info(&spec);
+        }
+        let flags = if self.gpu.kernel_stats {
+            vk::PipelineCreateFlags::CAPTURE_STATISTICS_KHR
+        } else {
+            vk::PipelineCreateFlags::empty()
+        };
+        let info = [vk::ComputePipelineCreateInfo::default()
+            .stage(stage)
+            .layout(self.layout)
+            .flags(flags)];
+        // SAFETY: valid create info on a live device; the caller owns the pipeline.
+        let p = unsafe {
+            self.gpu
+                .device
+                .create_compute_pipelines(vk::PipelineCache::null(), &info, None)
+        }
+        .map_err(|(_, e)| e)
+        .with_context(|| format!("creating the compute pipeline of entry point {}", kernel.entry()))?;
+        Ok(p[0])
+    }
+
+    /// `kernel` specialised to `constant` (its specialisation constant 0: the path tracer's
+    /// `FEATURE_*` bits), made on first use and kept.
+    pub fn specialised(&self, kernel: Kernel, constant: u32) -> Result<vk::Pipeline> {
+        let mut cache = self
+            .specialised
+            .lock()
+            .map_err(|_| anyhow::anyhow!("pipeline cache lock poisoned"))?;
+        if let Some(&p) = cache.get(&(kernel, constant)) {
+            return Ok(p);
+        }
+        let p = self.create_pipeline(kernel, Some(constant))?;
+        cache.insert((kernel, constant), p);
+        Ok(p)
     }
 
     /// The driver's statistics of every pipeline, as "name: value" strings (empty unless the
@@ -202,6 +238,11 @@ impl Drop for Kernels {
         unsafe {
             for &p in &self.pipelines {
                 d.destroy_pipeline(p, None);
+            }
+            if let Ok(cache) = self.specialised.lock() {
+                for &p in cache.values() {
+                    d.destroy_pipeline(p, None);
+                }
             }
             d.destroy_pipeline_layout(self.layout, None);
             for &l in &self.set_layouts {

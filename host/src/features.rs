@@ -1,0 +1,327 @@
+//! Simulate only what the scene calls for. From a scene's content this derives which path
+//! tracer features it needs (primitive kinds, next-event estimation, metal, glass, thin
+//! lens) and the depth a path can actually reach; the frame carries the decision
+//! (`Frame::features`, `Frame::max_depth`), the GPU runs `path_trace` specialised to it and
+//! the CPU executor tests the same bits. A user can force features on or off; every decision
+//! keeps its reason for `raytrace render --explain`.
+use crate::scene::SceneGpu;
+use anyhow::{bail, Result};
+use shared::types::{
+    Frame, MaterialKind, FEATURES_ALL, FEATURE_DIELECTRIC, FEATURE_METAL, FEATURE_NEE, FEATURE_SPHERES,
+    FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_NEE,
+};
+use std::fmt::Write;
+
+/// Feature names as `--features` takes them, with their bits.
+pub const NAMES: [(&str, u32); 6] = [
+    ("triangles", FEATURE_TRIANGLES),
+    ("spheres", FEATURE_SPHERES),
+    ("nee", FEATURE_NEE),
+    ("metal", FEATURE_METAL),
+    ("dielectric", FEATURE_DIELECTRIC),
+    ("thin-lens", FEATURE_THIN_LENS),
+];
+
+/// What the user asked for beyond the scene's own needs.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Forced {
+    /// Run the all-features kernel at the scene's depth (no specialisation at all).
+    pub all: bool,
+    pub on: u32,
+    pub off: u32,
+}
+
+impl Forced {
+    /// Parses `all` or a list of `+name` / `-name` (names of [`NAMES`]).
+    pub fn parse(items: &[String]) -> Result<Forced> {
+        let mut f = Forced::default();
+        for item in items {
+            let item = item.trim();
+            if item == "all" {
+                f.all = true;
+                continue;
+            }
+            let (on, name) = match item.split_at_checked(1) {
+                Some(("+", n)) => (true, n),
+                Some(("-", n)) => (false, n),
+                _ => bail!("feature {item:?}: write +NAME or -NAME (or all)"),
+            };
+            let Some(&(_, bit)) = NAMES.iter().find(|(n, _)| *n == name) else {
+                let names: Vec<_> = NAMES.iter().map(|(n, _)| *n).collect();
+                bail!("unknown feature {name:?}; features are {}", names.join(", "));
+            };
+            if on {
+                f.on |= bit;
+            } else {
+                f.off |= bit;
+            }
+        }
+        if f.on & f.off != 0 {
+            bail!("a feature is forced both on and off");
+        }
+        Ok(f)
+    }
+}
+
+/// One decision and its reason.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Decision {
+    pub feature: String,
+    /// "on", "off", or the value chosen (max depth).
+    pub state: String,
+    pub why: String,
+}
+
+/// The features a frame runs with.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Features {
+    pub bits: u32,
+    /// The maximum depth worth tracing.
+    pub depth: u32,
+    pub decisions: Vec<Decision>,
+}
+
+impl Features {
+    /// `frame` running with these features.
+    pub fn apply(&self, frame: &Frame) -> Frame {
+        let mut f = *frame;
+        f.features = self.bits;
+        f.max_depth = self.depth;
+        f
+    }
+
+    /// The decisions as an aligned table.
+    pub fn explain(&self) -> String {
+        let mut s = String::new();
+        for d in &self.decisions {
+            let _ = writeln!(s, "  {:<11} {:<4} {}", d.feature, d.state, d.why);
+        }
+        s
+    }
+
+    /// Names of the features on, or "all".
+    pub fn summary(&self) -> String {
+        if self.bits == FEATURES_ALL {
+            return "all".into();
+        }
+        let on: Vec<_> = NAMES
+            .iter()
+            .filter(|(_, b)| self.bits & b != 0)
+            .map(|(n, _)| *n)
+            .collect();
+        on.join("+")
+    }
+}
+
+fn plural(n: usize, what: &str) -> String {
+    format!("{n} {what}{}", if n == 1 { "" } else { "s" })
+}
+
+/// Derives the features `frame` (as `Scene::frame` made it) needs for `data`, then applies
+/// `forced`. Forcing off a primitive kind the scene contains is an error (its primitives
+/// would be skipped by the traversal but not by the light sampling).
+pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Features> {
+    let n_tris = data.model_tris.len();
+    let n_spheres = data.model_spheres.len();
+    let kind_of = |o: &shared::types::Object| data.materials.get(o.material as usize);
+    let count_kind = |k: MaterialKind| {
+        data.objects
+            .iter()
+            .filter(|o| kind_of(o).is_some_and(|m| m.kind == k as u32))
+            .count()
+    };
+    let metal = count_kind(MaterialKind::Metal);
+    let glass = count_kind(MaterialKind::Dielectric);
+    let diffuse = count_kind(MaterialKind::Diffuse);
+    let lights = data.lights.len();
+    let lens = frame.camera.u[3];
+    let nee_asked = frame.flags & FLAG_NEE != 0;
+
+    let mut decisions = Vec::new();
+    let mut bits = 0;
+    let mut decide = |name: &str, bit: u32, on: bool, why: String| {
+        let (on, why) = if forced.all {
+            (true, format!("forced on (all features); scene: {why}"))
+        } else if forced.on & bit != 0 {
+            (true, format!("forced on; scene: {why}"))
+        } else if forced.off & bit != 0 {
+            (false, format!("forced off; scene: {why}"))
+        } else {
+            (on, why)
+        };
+        if on {
+            bits |= bit;
+        }
+        decisions.push(Decision {
+            feature: name.into(),
+            state: (if on { "on" } else { "off" }).into(),
+            why,
+        });
+    };
+    decide(
+        "triangles",
+        FEATURE_TRIANGLES,
+        n_tris > 0,
+        if n_tris > 0 {
+            plural(n_tris, "triangle")
+        } else {
+            "no triangles".into()
+        },
+    );
+    decide(
+        "spheres",
+        FEATURE_SPHERES,
+        n_spheres > 0,
+        if n_spheres > 0 {
+            plural(n_spheres, "sphere")
+        } else {
+            "no spheres".into()
+        },
+    );
+    let nee_why = match (lights, nee_asked) {
+        (0, _) => "no emissive surfaces to sample".to_string(),
+        (n, false) => format!("switched off ({} present)", plural(n, "emissive primitive")),
+        (n, true) if diffuse == 0 => format!(
+            "no diffuse surfaces to light ({} present)",
+            plural(n, "emissive primitive")
+        ),
+        (n, true) => format!(
+            "{} toward {}",
+            plural(diffuse, "diffuse object"),
+            plural(n, "emissive primitive")
+        ),
+    };
+    decide("nee", FEATURE_NEE, lights > 0 && nee_asked && diffuse > 0, nee_why);
+    decide(
+        "metal",
+        FEATURE_METAL,
+        metal > 0,
+        if metal > 0 {
+            plural(metal, "metal object")
+        } else {
+            "no metal surfaces".into()
+        },
+    );
+    decide(
+        "dielectric",
+        FEATURE_DIELECTRIC,
+        glass > 0,
+        if glass > 0 {
+            plural(glass, "glass object")
+        } else {
+            "no glass".into()
+        },
+    );
+    decide(
+        "thin-lens",
+        FEATURE_THIN_LENS,
+        lens > 0.0,
+        if lens > 0.0 {
+            format!("aperture {}", 2.0 * lens)
+        } else {
+            "pinhole camera (aperture 0)".into()
+        },
+    );
+    let contains = |bit: u32, n: usize, what: &str| -> Result<()> {
+        if bits & bit == 0 && n > 0 {
+            bail!(
+                "the scene has {}: {what} cannot be left out",
+                plural(n, what.trim_end_matches('s'))
+            );
+        }
+        Ok(())
+    };
+    contains(FEATURE_TRIANGLES, n_tris, "triangles")?;
+    contains(FEATURE_SPHERES, n_spheres, "spheres")?;
+
+    // A path continues only off surfaces that scatter; without any, the first hit ends it.
+    let scatters = data.objects.iter().any(|o| {
+        kind_of(o).is_some_and(|m| {
+            let k = m.kind;
+            (k == MaterialKind::Diffuse as u32 && m.albedo[..3].iter().any(|&a| a > 0.0))
+                || (k == MaterialKind::Metal as u32 && bits & FEATURE_METAL != 0)
+                || (k == MaterialKind::Dielectric as u32 && bits & FEATURE_DIELECTRIC != 0)
+        })
+    });
+    let emits = lights > 0
+        || frame.sky_top[..3]
+            .iter()
+            .chain(&frame.sky_bottom[..3])
+            .any(|&s| s > 0.0);
+    let (depth, why) = if forced.all {
+        (frame.max_depth, "as asked (all features)".to_string())
+    } else if !emits {
+        (
+            1,
+            "nothing emits light (no emissive surfaces, black sky): one bounce shows it".into(),
+        )
+    } else if !scatters {
+        (1, "no surface scatters light: paths end at the first hit".into())
+    } else {
+        (frame.max_depth, "as asked (the scene scatters light)".into())
+    };
+    decisions.push(Decision {
+        feature: "max depth".into(),
+        state: depth.min(frame.max_depth).to_string(),
+        why,
+    });
+    Ok(Features {
+        bits,
+        depth: depth.min(frame.max_depth),
+        decisions,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::Scene;
+
+    fn features(scene: &str, forced: &[&str]) -> Result<Features> {
+        let s = Scene::builtin(scene)?;
+        let data = s.gpu_data(0.0);
+        let forced = Forced::parse(&forced.iter().map(|s| s.to_string()).collect::<Vec<_>>())?;
+        derive(&data, &s.frame(&data), &forced)
+    }
+
+    #[test]
+    fn the_cornell_box_needs_triangles_and_nee_only() {
+        let f = features("cornell", &[]).unwrap();
+        assert_eq!(f.bits, FEATURE_TRIANGLES | FEATURE_NEE, "{}", f.explain());
+        assert_eq!(f.depth, 16);
+        assert!(f.explain().contains("no spheres"), "{}", f.explain());
+    }
+
+    #[test]
+    fn the_spheres_scene_needs_its_materials() {
+        let f = features("spheres", &[]).unwrap();
+        for bit in [FEATURE_SPHERES, FEATURE_METAL, FEATURE_DIELECTRIC] {
+            assert!(f.bits & bit != 0, "{}", f.explain());
+        }
+    }
+
+    #[test]
+    fn forcing_works_and_bad_forcing_is_named() {
+        let f = features("cornell", &["+spheres", "-nee"]).unwrap();
+        assert_eq!(f.bits, FEATURE_TRIANGLES | FEATURE_SPHERES);
+        assert!(f.explain().contains("forced off"));
+        assert_eq!(features("cornell", &["all"]).unwrap().bits, FEATURES_ALL);
+        let e = features("cornell", &["-triangles"]).unwrap_err().to_string();
+        assert!(e.contains("triangles cannot be left out"), "{e}");
+        for bad in ["nee", "+glass", "+nee,-nee"] {
+            let items: Vec<String> = bad.split(',').map(String::from).collect();
+            assert!(Forced::parse(&items).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_scene_without_light_or_scattering_needs_one_bounce() {
+        let s = Scene::builtin("cornell").unwrap();
+        let mut data = s.gpu_data(0.0);
+        let frame = s.frame(&data);
+        data.lights.clear();
+        let f = derive(&data, &frame, &Forced::default()).unwrap();
+        assert_eq!(f.depth, 1, "{}", f.explain());
+        assert_eq!(f.bits & FEATURE_NEE, 0);
+    }
+}
