@@ -8,7 +8,6 @@ use crate::render::GpuRenderer;
 use crate::vk::{Gpu, Kernels};
 use anyhow::{Context, Result};
 use std::fmt::Write;
-use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -148,9 +147,4 @@ pub fn markdown(r: &Report) -> String {
         let _ = writeln!(s, "{}", line(row));
     }
     s
-}
-
-/// Writes `stem.md` and `stem.json` into `dir`.
-pub fn write(r: &Report, dir: &Path, stem: &str) -> Result<PathBuf> {
-    crate::bench::write_files(dir, stem, &markdown(r), r)
 }

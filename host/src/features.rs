@@ -158,26 +158,20 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
             why,
         });
     };
-    decide(
-        "triangles",
-        FEATURE_TRIANGLES,
-        n_tris > 0,
-        if n_tris > 0 {
-            plural(n_tris, "triangle")
-        } else {
-            "no triangles".into()
-        },
-    );
-    decide(
-        "spheres",
-        FEATURE_SPHERES,
-        n_spheres > 0,
-        if n_spheres > 0 {
-            plural(n_spheres, "sphere")
-        } else {
-            "no spheres".into()
-        },
-    );
+    let counted = [
+        ("triangles", FEATURE_TRIANGLES, n_tris, "triangle"),
+        ("spheres", FEATURE_SPHERES, n_spheres, "sphere"),
+        ("metal", FEATURE_METAL, metal, "metal object"),
+        ("dielectric", FEATURE_DIELECTRIC, glass, "glass object"),
+    ];
+    for (name, bit, n, what) in counted {
+        decide(
+            name,
+            bit,
+            n > 0,
+            if n > 0 { plural(n, what) } else { format!("no {what}s") },
+        );
+    }
     let nee_why = match (lights, nee_asked) {
         (0, _) => "no emissive surfaces to sample".to_string(),
         (n, false) => format!("switched off ({} present)", plural(n, "emissive primitive")),
@@ -192,26 +186,6 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
         ),
     };
     decide("nee", FEATURE_NEE, lights > 0 && nee_asked && diffuse > 0, nee_why);
-    decide(
-        "metal",
-        FEATURE_METAL,
-        metal > 0,
-        if metal > 0 {
-            plural(metal, "metal object")
-        } else {
-            "no metal surfaces".into()
-        },
-    );
-    decide(
-        "dielectric",
-        FEATURE_DIELECTRIC,
-        glass > 0,
-        if glass > 0 {
-            plural(glass, "glass object")
-        } else {
-            "no glass".into()
-        },
-    );
     decide(
         "thin-lens",
         FEATURE_THIN_LENS,

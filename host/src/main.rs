@@ -7,7 +7,7 @@ use raytrace::cli::{compare_command, render_command, SceneArgs};
 use raytrace::render::Backend;
 use raytrace::view::ViewArgs;
 use raytrace::vk::{Gpu, GpuOptions};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
 #[command(
@@ -92,24 +92,8 @@ enum Bench {
     },
     /// The viewer's per-frame GPU work without a window: frame-time percentiles.
     Realtime {
-        /// Scenes (built-in names or files).
-        #[arg(long, value_delimiter = ',', default_value = "instances,bunny")]
-        scenes: Vec<String>,
-        #[arg(long, default_value = "1920x1080", value_parser = raytrace::cli::parse_size)]
-        size: (u32, u32),
-        /// Samples per pixel per frame.
-        #[arg(long, default_value_t = 1)]
-        spf: u32,
-        #[arg(long, default_value_t = 4)]
-        depth: u32,
-        /// Timed frames per scene (after warm-up).
-        #[arg(long, default_value_t = 300)]
-        frames: usize,
-        #[arg(long, default_value_t = 30)]
-        warmup: usize,
-        /// Also run every scene with next-event estimation on.
-        #[arg(long)]
-        nee: bool,
+        #[command(flatten)]
+        options: raytrace::realtime::Options,
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
@@ -150,6 +134,22 @@ enum Bench {
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
+}
+
+/// Writes a benchmark report as `out/KIND-DATE-GPU.md` and `.json`, and prints it.
+fn publish(
+    out: &Path,
+    kind: &str,
+    date: &str,
+    gpu: &Gpu,
+    markdown: String,
+    value: &impl serde::Serialize,
+) -> Result<()> {
+    let stem = format!("{kind}-{date}-{}", slug(&gpu.name));
+    let md = raytrace::bench::write_files(out, &stem, &markdown, value)?;
+    println!("{markdown}");
+    println!("wrote {}", md.display());
+    Ok(())
 }
 
 fn main() -> Result<()> {
@@ -196,40 +196,22 @@ fn main() -> Result<()> {
                 },
         } => {
             let gpu = Gpu::new(&opts)?;
-            let report = raytrace::feature_bench::run(&gpu, &scenes, size, spp.max(1), runs)?;
-            let stem = format!("features-{}-{}", report.date, slug(&gpu.name));
-            let md = raytrace::feature_bench::write(&report, &out, &stem)?;
-            println!("{}", raytrace::feature_bench::markdown(&report));
-            println!("wrote {}", md.display());
+            let r = raytrace::feature_bench::run(&gpu, &scenes, size, spp.max(1), runs)?;
+            publish(
+                &out,
+                "features",
+                &r.date,
+                &gpu,
+                raytrace::feature_bench::markdown(&r),
+                &r,
+            )?;
         }
         Command::Bench {
-            what:
-                Bench::Realtime {
-                    scenes,
-                    size,
-                    spf,
-                    depth,
-                    frames,
-                    warmup,
-                    nee,
-                    out,
-                },
+            what: Bench::Realtime { options, out },
         } => {
             let gpu = Gpu::new(&opts)?;
-            let o = raytrace::realtime::Options {
-                scenes,
-                size,
-                spf,
-                depth,
-                frames,
-                warmup,
-                both_nee: nee,
-            };
-            let report = raytrace::realtime::run(&gpu, &o)?;
-            let md =
-                raytrace::realtime::write(&report, &out, &format!("realtime-{}-{}", report.date, slug(&gpu.name)))?;
-            println!("{}", raytrace::realtime::markdown(&report));
-            println!("wrote {}", md.display());
+            let r = raytrace::realtime::run(&gpu, &options)?;
+            publish(&out, "realtime", &r.date, &gpu, raytrace::realtime::markdown(&r), &r)?;
         }
         Command::Info { kernels } => {
             let gpu = Gpu::new(&opts)?;

@@ -10,7 +10,6 @@ use crate::render::{frame_timings, rays_traced, GpuRenderer};
 use crate::vk::{Commands, Gpu, Kernels};
 use anyhow::{bail, Context, Result};
 use std::fmt::Write;
-use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -70,14 +69,25 @@ pub struct Report {
 }
 
 /// Settings of a run.
+#[derive(clap::Args, Clone, Debug)]
 pub struct Options {
+    /// Scenes (built-in names or files).
+    #[arg(long, value_delimiter = ',', default_value = "instances,bunny")]
     pub scenes: Vec<String>,
+    #[arg(long, default_value = "1920x1080", value_parser = crate::cli::parse_size)]
     pub size: (u32, u32),
+    /// Samples per pixel per frame.
+    #[arg(long, default_value_t = 1)]
     pub spf: u32,
+    #[arg(long, default_value_t = 4)]
     pub depth: u32,
+    /// Timed frames per scene (after warm-up).
+    #[arg(long, default_value_t = 300)]
     pub frames: usize,
+    #[arg(long, default_value_t = 30)]
     pub warmup: usize,
-    /// Run every scene with next-event estimation off and on (else off only).
+    /// Also run every scene with next-event estimation on.
+    #[arg(long = "nee")]
     pub both_nee: bool,
 }
 
@@ -202,9 +212,4 @@ pub fn markdown(r: &Report) -> String {
         let _ = writeln!(s, "{}", row_line(row));
     }
     s
-}
-
-/// Writes `stem.md` and `stem.json` into `dir`.
-pub fn write(r: &Report, dir: &Path, stem: &str) -> Result<PathBuf> {
-    crate::bench::write_files(dir, stem, &markdown(r), r)
 }
