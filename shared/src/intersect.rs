@@ -84,10 +84,12 @@ pub fn triangle(r: &TriRay, tri: &Triangle, t_max: f32) -> (f32, f32, f32) {
     }
     let inv = 1.0 / det;
     let t = t_scaled * inv;
-    if t <= 0.0 || t >= t_max {
-        return MISS;
+    // Written so that a NaN (non-finite vertex or ray, overflowing shear) is a miss too.
+    if t > 0.0 && t < t_max {
+        (t, e1 * inv, e2 * inv)
+    } else {
+        MISS
     }
-    (t, e1 * inv, e2 * inv)
 }
 
 /// Nearest intersection distance in `(0, t_max)` of a ray with a sphere, or `INFINITY`.
