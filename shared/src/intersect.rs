@@ -120,15 +120,15 @@ pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32) -> f32 {
     }
 }
 
-/// Entry distance of a ray into the box `[lo, hi]` within `[0, t_max]`, or `INFINITY`.
-/// Comparisons are ordered so that a NaN slab distance (origin on a slab plane of an
-/// axis the ray runs parallel to) leaves the interval unchanged.
+/// Entry distance of a ray into the closed box `[lo, hi]` within `[0, t_max]`, or
+/// `INFINITY`. A ray running parallel to an axis inside that axis's slab, or on one of its
+/// planes (a NaN slab distance, `0 * inf`), is not narrowed by it, for either sign of zero.
 pub fn slab(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -> f32 {
     let t0 = (lo - origin) * inv_dir;
     let t1 = (hi - origin) * inv_dir;
-    let (near, far) = slab_axis(0.0, t_max, t0.x, t1.x);
-    let (near, far) = slab_axis(near, far, t0.y, t1.y);
-    let (near, far) = slab_axis(near, far, t0.z, t1.z);
+    let (near, far) = slab_axis(0.0, t_max, t0.x, t1.x, inv_dir.x);
+    let (near, far) = slab_axis(near, far, t0.y, t1.y, inv_dir.y);
+    let (near, far) = slab_axis(near, far, t0.z, t1.z, inv_dir.z);
     if near <= far {
         near
     } else {
@@ -136,9 +136,13 @@ pub fn slab(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -> f32 
     }
 }
 
-/// Narrows `[near, far]` by one axis's slab distances `a`, `b`; a NaN leaves it unchanged.
-fn slab_axis(near: f32, far: f32, a: f32, b: f32) -> (f32, f32) {
-    let (lo, hi) = if a > b { (b, a) } else { (a, b) };
+/// Narrows `[near, far]` by one axis's slab distances `a` (plane `lo`) and `b` (plane `hi`).
+/// The entry plane is chosen by the direction's sign, not by comparing `a` and `b`: then a
+/// NaN distance is always the one that leaves its end of the interval unchanged, and the
+/// other is `-inf` as entry or `+inf` as exit. (Ordering by `a > b` turned an origin on a
+/// plane with a `-0.0` direction component into a miss.)
+fn slab_axis(near: f32, far: f32, a: f32, b: f32, inv: f32) -> (f32, f32) {
+    let (lo, hi) = if inv < 0.0 { (b, a) } else { (a, b) };
     let hi = hi * SLAB_WIDEN;
     (if lo > near { lo } else { near }, if hi < far { hi } else { far })
 }
