@@ -7,7 +7,7 @@
 //! - boxes: the slab test with NaN-safe min/max and Ize's widening of the far distance;
 //! - secondary rays leave surfaces from origins offset by Wachter & Binder, Ray Tracing Gems
 //!   ch. 6, so they never re-hit the surface they start on.
-use crate::math::{difference_of_products, fma, sqrt, SLAB_WIDEN};
+use crate::math::{difference_of_products, fma, sqrt, two_product, two_sum, SLAB_WIDEN};
 use crate::types::{xyz, Sphere, Triangle};
 use spirv_std::glam::Vec3;
 
@@ -93,21 +93,47 @@ pub fn triangle(r: &TriRay, tri: &Triangle, t_max: f32) -> (f32, f32, f32) {
 }
 
 /// Nearest intersection distance in `(0, t_max)` of a ray with a sphere, or `INFINITY`.
-/// Ray Tracing Gems ch. 7: the discriminant from `r^2 - |f - (f.d) d / d.d|^2` and the
-/// roots as `c / q` and `q / a`, which lose no precision to cancellation.
+/// Ray Tracing Gems ch. 7: the roots as `c / q` and `q / a`, which lose no precision to
+/// cancellation, with three more steps that keep a few ulps for small far spheres and large
+/// near ones:
+/// - `f = origin - center` is kept exactly, as `f + fe` (its rounding alone is a sizeable
+///   part of a small sphere's radius, or of the height above a large sphere's surface);
+/// - `c = |f|^2 - r^2` is summed from exact squares (Ogita, Rump & Oishi's Dot2), so the
+///   cancellation of an origin near the surface costs nothing;
+/// - the discriminant `a r^2 - |f x d|^2 = b^2 - a c` is taken from whichever form cancels
+///   less: `|f x d|`, the centre's distance from the line times `|d|`, has exact-sign cross
+///   products and serves small far spheres; `b^2 - a c` serves rays that cut steeply into
+///   large near ones.
 pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32) -> f32 {
     let center = xyz(s.center_radius);
     let r = s.center_radius[3];
-    let f = origin - center;
+    let (fx, ex) = two_sum(origin.x, -center.x);
+    let (fy, ey) = two_sum(origin.y, -center.y);
+    let (fz, ez) = two_sum(origin.z, -center.z);
+    let (f, fe) = (Vec3::new(fx, fy, fz), Vec3::new(ex, ey, ez));
     let a = dir.dot(dir);
-    let b = -f.dot(dir);
-    let l = f + (b / a) * dir;
-    let disc = (r + l.length()) * (r - l.length());
-    if disc < 0.0 {
+    // A direction too short to square (|d| < 1e-19) would make every `a` term vanish.
+    if a < f32::MIN_POSITIVE {
         return f32::INFINITY;
     }
-    let c = f.dot(f) - r * r;
-    let root = sqrt(a * disc);
+    let b = -(f.dot(dir) + fe.dot(dir));
+    let c = norm2_minus_r2(f, fe, r);
+    let fxd = Vec3::new(
+        difference_of_products(f.y, dir.z, f.z, dir.y),
+        difference_of_products(f.z, dir.x, f.x, dir.z),
+        difference_of_products(f.x, dir.y, f.y, dir.x),
+    ) + fe.cross(dir);
+    let l = fxd.length();
+    let disc = if l < b.abs() {
+        let ra = r * sqrt(a);
+        (ra + l) * (ra - l)
+    } else {
+        difference_of_products(b, b, a, c)
+    };
+    if disc.is_nan() || disc < 0.0 {
+        return f32::INFINITY;
+    }
+    let root = sqrt(disc);
     let q = if b >= 0.0 { b + root } else { b - root };
     let (t0, t1) = if q == 0.0 { (0.0, 0.0) } else { (c / q, q / a) };
     let (near, far) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
@@ -118,6 +144,21 @@ pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32) -> f32 {
     } else {
         f32::INFINITY
     }
+}
+
+/// `|f + fe|^2 - r^2` where `fe` is small against `f`: the exact products `f_i^2` and
+/// `-r^2` are added by TwoSum and every rounding error is gathered into one correction
+/// (Ogita, Rump & Oishi 2005, Dot2), as if in twice the precision.
+fn norm2_minus_r2(f: Vec3, fe: Vec3, r: f32) -> f32 {
+    let (xx, ex) = two_product(f.x, f.x);
+    let (yy, ey) = two_product(f.y, f.y);
+    let (zz, ez) = two_product(f.z, f.z);
+    let (rr, er) = two_product(-r, r);
+    let (s1, e1) = two_sum(xx, yy);
+    let (s2, e2) = two_sum(s1, zz);
+    let (s3, e3) = two_sum(s2, rr);
+    let err = (ex + ey + ez + er) + (e1 + e2 + e3);
+    s3 + (err + fe.dot(f * 2.0 + fe))
 }
 
 /// Entry distance of a ray into the closed box `[lo, hi]` within `[0, t_max]`, or
