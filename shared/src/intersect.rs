@@ -7,7 +7,7 @@
 //! - boxes: the slab test with NaN-safe min/max and Ize's widening of the far distance;
 //! - secondary rays leave surfaces from origins offset by Wachter & Binder, Ray Tracing Gems
 //!   ch. 6, so they never re-hit the surface they start on.
-use crate::math::{difference_of_products, fma, sqrt, two_product, two_sum, SLAB_WIDEN};
+use crate::math::{difference_of_products, fma, max3, sqrt, two_product, two_sum, SLAB_WIDEN};
 use crate::types::{xyz, Sphere, Triangle};
 use spirv_std::glam::Vec3;
 
@@ -199,21 +199,54 @@ pub fn triangle_point(t: &Triangle, b1: f32, b2: f32) -> Vec3 {
     xyz(t.v0) * b0 + xyz(t.v1) * b1 + xyz(t.v2) * b2
 }
 
-/// Origin for a ray leaving a surface at `p` on the side of `n` (unit normal, pointing where
-/// the ray goes): Wachter & Binder's offset, a few ulps in integer space far from the origin
-/// and a small float step near it.
-pub fn offset_origin(p: Vec3, n: Vec3) -> Vec3 {
-    Vec3::new(offset_axis(p.x, n.x), offset_axis(p.y, n.y), offset_axis(p.z, n.z))
+/// Largest coordinate magnitude of a triangle's vertices: the scale its hit points and its
+/// intersection tests round at (see [`offset_origin`]).
+pub fn triangle_scale(t: &Triangle) -> f32 {
+    max3(xyz(t.v0).abs().max(xyz(t.v1).abs()).max(xyz(t.v2).abs()))
 }
 
-fn offset_axis(p: f32, n: f32) -> f32 {
+/// A sphere's radius: the scale the radial error of its re-projected hit points grows with
+/// (see [`offset_origin`]; the centre's magnitude does not matter, [`sphere`] is exact in
+/// `origin - center`).
+pub fn sphere_scale(s: &Sphere) -> f32 {
+    s.center_radius[3].abs()
+}
+
+/// Origin for a ray leaving a surface at `p` on the side of `n` (unit normal, pointing where
+/// the ray goes): Wachter & Binder's offset, a few ulps in integer space far from the origin
+/// and a small float step near it; and at least `scale * 2^-19` along `n`, where `scale` is
+/// the primitive's [`triangle_scale`] or [`sphere_scale`]. The hit point and the intersection
+/// tests of the new ray round at the primitive's scale, not at `p`'s: a point near the origin
+/// on a large ground sphere or quad is uncertain by a few ulps of `scale`, far more than
+/// Wachter & Binder's step there, and the new ray would hit the surface it leaves.
+pub fn offset_origin(p: Vec3, n: Vec3, scale: f32) -> Vec3 {
+    let step = scale * SCALE_STEP;
+    Vec3::new(
+        offset_axis(p.x, n.x, step),
+        offset_axis(p.y, n.y, step),
+        offset_axis(p.z, n.z, step),
+    )
+}
+
+/// Offset of [`offset_origin`] relative to the primitive's scale: 16 ulps of it.
+const SCALE_STEP: f32 = 1.0 / 524_288.0;
+
+/// One coordinate of [`offset_origin`]: whichever of the two offsets moves it farther.
+fn offset_axis(p: f32, n: f32, step: f32) -> f32 {
     const ORIGIN: f32 = 1.0 / 32.0;
     const FLOAT_SCALE: f32 = 1.0 / 65536.0;
     const INT_SCALE: f32 = 256.0;
-    if p.abs() < ORIGIN {
-        return fma(FLOAT_SCALE, n, p);
+    let moved = if p.abs() < ORIGIN {
+        fma(FLOAT_SCALE, n, p)
+    } else {
+        let of = (INT_SCALE * n) as i32;
+        let of = if p < 0.0 { -of } else { of };
+        f32::from_bits((p.to_bits() as i32).wrapping_add(of) as u32)
+    };
+    let scaled = fma(step, n, p);
+    if n > 0.0 {
+        moved.max(scaled)
+    } else {
+        moved.min(scaled)
     }
-    let of = (INT_SCALE * n) as i32;
-    let of = if p < 0.0 { -of } else { of };
-    f32::from_bits((p.to_bits() as i32).wrapping_add(of) as u32)
 }
