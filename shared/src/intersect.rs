@@ -2,11 +2,14 @@
 //! - triangles: the watertight test of Woop, Benthin & Wald (JCGT 2013) with edge functions
 //!   computed by Kahan's difference of products, so their signs are exact and two triangles
 //!   sharing an edge never both miss a ray through it (pbrt-v4 `IntersectTriangle`);
-//! - spheres: the stable quadratic of Haines et al., Ray Tracing Gems ch. 7 (small far
-//!   spheres and large near ones);
-//! - boxes: the slab test with NaN-safe min/max and Ize's widening of the far distance;
+//! - spheres: the stable quadratic of Haines et al., Ray Tracing Gems ch. 7, with the
+//!   origin's offset from the centre kept exact and compensated sums (Ogita, Rump & Oishi
+//!   2005) where it cancels, so small far spheres and large near ones keep a few ulps;
+//! - boxes: the slab test with NaN-safe min/max, entry planes chosen by the direction's sign
+//!   (either sign of zero), and Ize's widening of the far distance;
 //! - secondary rays leave surfaces from origins offset by Wachter & Binder, Ray Tracing Gems
-//!   ch. 6, so they never re-hit the surface they start on.
+//!   ch. 6, and by at least a few ulps of the primitive's own scale, so they never re-hit the
+//!   surface they start on.
 use crate::math::{difference_of_products, fma, max3, sqrt, two_product, two_sum, SLAB_WIDEN};
 use crate::types::{xyz, Sphere, Triangle};
 use spirv_std::glam::Vec3;
