@@ -2,12 +2,15 @@
 //! - triangles: the watertight test of Woop, Benthin & Wald (JCGT 2013) with edge functions
 //!   computed by Kahan's difference of products, so their signs are exact and two triangles
 //!   sharing an edge never both miss a ray through it (pbrt-v4 `IntersectTriangle`);
-//! - spheres: the stable quadratic of Haines et al., Ray Tracing Gems ch. 7 (small far
-//!   spheres and large near ones);
-//! - boxes: the slab test with NaN-safe min/max and Ize's widening of the far distance;
+//! - spheres: the stable quadratic of Haines et al., Ray Tracing Gems ch. 7, with the
+//!   origin's offset from the centre kept exact and compensated sums (Ogita, Rump & Oishi
+//!   2005) where it cancels, so small far spheres and large near ones keep a few ulps;
+//! - boxes: the slab test with NaN-safe min/max, entry planes chosen by the direction's sign
+//!   (either sign of zero), and Ize's widening of the far distance;
 //! - secondary rays leave surfaces from origins offset by Wachter & Binder, Ray Tracing Gems
-//!   ch. 6, so they never re-hit the surface they start on.
-use crate::math::{difference_of_products, fma, sqrt, SLAB_WIDEN};
+//!   ch. 6, and by at least a few ulps of the primitive's own scale, so they never re-hit the
+//!   surface they start on.
+use crate::math::{difference_of_products, fma, max3, sqrt, two_product, two_sum, SLAB_WIDEN};
 use crate::types::{xyz, Sphere, Triangle};
 use spirv_std::glam::Vec3;
 
@@ -84,28 +87,56 @@ pub fn triangle(r: &TriRay, tri: &Triangle, t_max: f32) -> (f32, f32, f32) {
     }
     let inv = 1.0 / det;
     let t = t_scaled * inv;
-    if t <= 0.0 || t >= t_max {
-        return MISS;
+    // Written so that a NaN (non-finite vertex or ray, overflowing shear) is a miss too.
+    if t > 0.0 && t < t_max {
+        (t, e1 * inv, e2 * inv)
+    } else {
+        MISS
     }
-    (t, e1 * inv, e2 * inv)
 }
 
 /// Nearest intersection distance in `(0, t_max)` of a ray with a sphere, or `INFINITY`.
-/// Ray Tracing Gems ch. 7: the discriminant from `r^2 - |f - (f.d) d / d.d|^2` and the
-/// roots as `c / q` and `q / a`, which lose no precision to cancellation.
+/// Ray Tracing Gems ch. 7: the roots as `c / q` and `q / a`, which lose no precision to
+/// cancellation, with three more steps that keep a few ulps for small far spheres and large
+/// near ones:
+/// - `f = origin - center` is kept exactly, as `f + fe` (its rounding alone is a sizeable
+///   part of a small sphere's radius, or of the height above a large sphere's surface);
+/// - `c = |f|^2 - r^2` is summed from exact squares (Ogita, Rump & Oishi's Dot2), so the
+///   cancellation of an origin near the surface costs nothing;
+/// - the discriminant `a r^2 - |f x d|^2 = b^2 - a c` is taken from whichever form cancels
+///   less: `|f x d|`, the centre's distance from the line times `|d|`, has exact-sign cross
+///   products and serves small far spheres; `b^2 - a c` serves rays that cut steeply into
+///   large near ones.
 pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32) -> f32 {
     let center = xyz(s.center_radius);
     let r = s.center_radius[3];
-    let f = origin - center;
+    let (fx, ex) = two_sum(origin.x, -center.x);
+    let (fy, ey) = two_sum(origin.y, -center.y);
+    let (fz, ez) = two_sum(origin.z, -center.z);
+    let (f, fe) = (Vec3::new(fx, fy, fz), Vec3::new(ex, ey, ez));
     let a = dir.dot(dir);
-    let b = -f.dot(dir);
-    let l = f + (b / a) * dir;
-    let disc = (r + l.length()) * (r - l.length());
-    if disc < 0.0 {
+    // A direction too short to square (|d| < 1e-19) would make every `a` term vanish.
+    if a < f32::MIN_POSITIVE {
         return f32::INFINITY;
     }
-    let c = f.dot(f) - r * r;
-    let root = sqrt(a * disc);
+    let b = -(f.dot(dir) + fe.dot(dir));
+    let c = norm2_minus_r2(f, fe, r);
+    let fxd = Vec3::new(
+        difference_of_products(f.y, dir.z, f.z, dir.y),
+        difference_of_products(f.z, dir.x, f.x, dir.z),
+        difference_of_products(f.x, dir.y, f.y, dir.x),
+    ) + fe.cross(dir);
+    let l = fxd.length();
+    let disc = if l < b.abs() {
+        let ra = r * sqrt(a);
+        (ra + l) * (ra - l)
+    } else {
+        difference_of_products(b, b, a, c)
+    };
+    if disc.is_nan() || disc < 0.0 {
+        return f32::INFINITY;
+    }
+    let root = sqrt(disc);
     let q = if b >= 0.0 { b + root } else { b - root };
     let (t0, t1) = if q == 0.0 { (0.0, 0.0) } else { (c / q, q / a) };
     let (near, far) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
@@ -118,15 +149,30 @@ pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32) -> f32 {
     }
 }
 
-/// Entry distance of a ray into the box `[lo, hi]` within `[0, t_max]`, or `INFINITY`.
-/// Comparisons are ordered so that a NaN slab distance (origin on a slab plane of an
-/// axis the ray runs parallel to) leaves the interval unchanged.
+/// `|f + fe|^2 - r^2` where `fe` is small against `f`: the exact products `f_i^2` and
+/// `-r^2` are added by TwoSum and every rounding error is gathered into one correction
+/// (Ogita, Rump & Oishi 2005, Dot2), as if in twice the precision.
+fn norm2_minus_r2(f: Vec3, fe: Vec3, r: f32) -> f32 {
+    let (xx, ex) = two_product(f.x, f.x);
+    let (yy, ey) = two_product(f.y, f.y);
+    let (zz, ez) = two_product(f.z, f.z);
+    let (rr, er) = two_product(-r, r);
+    let (s1, e1) = two_sum(xx, yy);
+    let (s2, e2) = two_sum(s1, zz);
+    let (s3, e3) = two_sum(s2, rr);
+    let err = (ex + ey + ez + er) + (e1 + e2 + e3);
+    s3 + (err + fe.dot(f * 2.0 + fe))
+}
+
+/// Entry distance of a ray into the closed box `[lo, hi]` within `[0, t_max]`, or
+/// `INFINITY`. A ray running parallel to an axis inside that axis's slab, or on one of its
+/// planes (a NaN slab distance, `0 * inf`), is not narrowed by it, for either sign of zero.
 pub fn slab(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -> f32 {
     let t0 = (lo - origin) * inv_dir;
     let t1 = (hi - origin) * inv_dir;
-    let (near, far) = slab_axis(0.0, t_max, t0.x, t1.x);
-    let (near, far) = slab_axis(near, far, t0.y, t1.y);
-    let (near, far) = slab_axis(near, far, t0.z, t1.z);
+    let (near, far) = slab_axis(0.0, t_max, t0.x, t1.x, inv_dir.x);
+    let (near, far) = slab_axis(near, far, t0.y, t1.y, inv_dir.y);
+    let (near, far) = slab_axis(near, far, t0.z, t1.z, inv_dir.z);
     if near <= far {
         near
     } else {
@@ -134,9 +180,13 @@ pub fn slab(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -> f32 
     }
 }
 
-/// Narrows `[near, far]` by one axis's slab distances `a`, `b`; a NaN leaves it unchanged.
-fn slab_axis(near: f32, far: f32, a: f32, b: f32) -> (f32, f32) {
-    let (lo, hi) = if a > b { (b, a) } else { (a, b) };
+/// Narrows `[near, far]` by one axis's slab distances `a` (plane `lo`) and `b` (plane `hi`).
+/// The entry plane is chosen by the direction's sign, not by comparing `a` and `b`: then a
+/// NaN distance is always the one that leaves its end of the interval unchanged, and the
+/// other is `-inf` as entry or `+inf` as exit. (Ordering by `a > b` turned an origin on a
+/// plane with a `-0.0` direction component into a miss.)
+fn slab_axis(near: f32, far: f32, a: f32, b: f32, inv: f32) -> (f32, f32) {
+    let (lo, hi) = if inv < 0.0 { (b, a) } else { (a, b) };
     let hi = hi * SLAB_WIDEN;
     (if lo > near { lo } else { near }, if hi < far { hi } else { far })
 }
@@ -152,21 +202,54 @@ pub fn triangle_point(t: &Triangle, b1: f32, b2: f32) -> Vec3 {
     xyz(t.v0) * b0 + xyz(t.v1) * b1 + xyz(t.v2) * b2
 }
 
-/// Origin for a ray leaving a surface at `p` on the side of `n` (unit normal, pointing where
-/// the ray goes): Wachter & Binder's offset, a few ulps in integer space far from the origin
-/// and a small float step near it.
-pub fn offset_origin(p: Vec3, n: Vec3) -> Vec3 {
-    Vec3::new(offset_axis(p.x, n.x), offset_axis(p.y, n.y), offset_axis(p.z, n.z))
+/// Largest coordinate magnitude of a triangle's vertices: the scale its hit points and its
+/// intersection tests round at (see [`offset_origin`]).
+pub fn triangle_scale(t: &Triangle) -> f32 {
+    max3(xyz(t.v0).abs().max(xyz(t.v1).abs()).max(xyz(t.v2).abs()))
 }
 
-fn offset_axis(p: f32, n: f32) -> f32 {
+/// A sphere's radius: the scale the radial error of its re-projected hit points grows with
+/// (see [`offset_origin`]; the centre's magnitude does not matter, [`sphere`] is exact in
+/// `origin - center`).
+pub fn sphere_scale(s: &Sphere) -> f32 {
+    s.center_radius[3].abs()
+}
+
+/// Origin for a ray leaving a surface at `p` on the side of `n` (unit normal, pointing where
+/// the ray goes): Wachter & Binder's offset, a few ulps in integer space far from the origin
+/// and a small float step near it; and at least `scale * 2^-19` along `n`, where `scale` is
+/// the primitive's [`triangle_scale`] or [`sphere_scale`]. The hit point and the intersection
+/// tests of the new ray round at the primitive's scale, not at `p`'s: a point near the origin
+/// on a large ground sphere or quad is uncertain by a few ulps of `scale`, far more than
+/// Wachter & Binder's step there, and the new ray would hit the surface it leaves.
+pub fn offset_origin(p: Vec3, n: Vec3, scale: f32) -> Vec3 {
+    let step = scale * SCALE_STEP;
+    Vec3::new(
+        offset_axis(p.x, n.x, step),
+        offset_axis(p.y, n.y, step),
+        offset_axis(p.z, n.z, step),
+    )
+}
+
+/// Offset of [`offset_origin`] relative to the primitive's scale: 16 ulps of it.
+const SCALE_STEP: f32 = 1.0 / 524_288.0;
+
+/// One coordinate of [`offset_origin`]: whichever of the two offsets moves it farther.
+fn offset_axis(p: f32, n: f32, step: f32) -> f32 {
     const ORIGIN: f32 = 1.0 / 32.0;
     const FLOAT_SCALE: f32 = 1.0 / 65536.0;
     const INT_SCALE: f32 = 256.0;
-    if p.abs() < ORIGIN {
-        return fma(FLOAT_SCALE, n, p);
+    let moved = if p.abs() < ORIGIN {
+        fma(FLOAT_SCALE, n, p)
+    } else {
+        let of = (INT_SCALE * n) as i32;
+        let of = if p < 0.0 { -of } else { of };
+        f32::from_bits((p.to_bits() as i32).wrapping_add(of) as u32)
+    };
+    let scaled = fma(step, n, p);
+    if n > 0.0 {
+        moved.max(scaled)
+    } else {
+        moved.min(scaled)
     }
-    let of = (INT_SCALE * n) as i32;
-    let of = if p < 0.0 { -of } else { of };
-    f32::from_bits((p.to_bits() as i32).wrapping_add(of) as u32)
 }

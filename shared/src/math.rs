@@ -47,6 +47,21 @@ pub fn difference_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
     dop + err
 }
 
+/// `a + b` as the unevaluated sum `s + e` of two floats, exactly (Knuth's TwoSum: any
+/// order of magnitude, no branch; it relies on additions not being reassociated).
+pub fn two_sum(a: f32, b: f32) -> (f32, f32) {
+    let s = a + b;
+    let b_part = s - a;
+    let a_part = s - b_part;
+    (s, (a - a_part) + (b - b_part))
+}
+
+/// `a * b` as the unevaluated sum `p + e` of two floats, exactly (one [`fma`]).
+pub fn two_product(a: f32, b: f32) -> (f32, f32) {
+    let p = a * b;
+    (p, fma(a, b, -p))
+}
+
 /// Largest component.
 pub fn max3(v: Vec3) -> f32 {
     v.x.max(v.y).max(v.z)

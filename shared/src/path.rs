@@ -68,8 +68,9 @@ impl World<'_> {
         }
     }
 
-    /// A uniform point on primitive `prim`: (point, unit normal).
-    fn sample_point(&self, prim: u32, u1: f32, u2: f32) -> (Vec3, Vec3) {
+    /// A uniform point on primitive `prim`: (point, unit normal, the primitive's scale for
+    /// [`offset_origin`]).
+    fn sample_point(&self, prim: u32, u1: f32, u2: f32) -> (Vec3, Vec3, f32) {
         let s = &self.scene;
         if s.is_triangle(prim) {
             let t = &s.tris[prim as usize];
@@ -77,11 +78,13 @@ impl World<'_> {
             (
                 intersect::triangle_point(t, b1, b2),
                 intersect::triangle_normal(t).normalize(),
+                intersect::triangle_scale(t),
             )
         } else {
-            let sp = s.spheres[(prim - s.n_tris) as usize].center_radius;
+            let sphere = &s.spheres[(prim - s.n_tris) as usize];
+            let sp = sphere.center_radius;
             let n = sampling::uniform_sphere(u1, u2);
-            (xyz(sp) + n * sp[3].abs(), n)
+            (xyz(sp) + n * sp[3].abs(), n, intersect::sphere_scale(sphere))
         }
     }
 
@@ -122,14 +125,15 @@ fn sky(f: &Frame, d: Vec3) -> Vec3 {
     xyz(f.sky_bottom) * (1.0 - a) + xyz(f.sky_top) * a
 }
 
-/// Next-event estimation from point `p` (unit normal `n` on the side the path is on) of a
-/// diffuse surface of albedo `albedo`: one light chosen uniformly, one point on it uniformly
-/// by area, one shadow ray. Returns the weighted contribution.
-fn direct_light(w: &World, p: Vec3, n: Vec3, albedo: Vec3, mis: bool, rng: &mut Rng) -> Vec3 {
+/// Next-event estimation from point `p` (unit normal `n` on the side the path is on, `scale`
+/// its primitive's for [`offset_origin`]) of a diffuse surface of albedo `albedo`: one light
+/// chosen uniformly, one point on it uniformly by area, one shadow ray. Returns the weighted
+/// contribution.
+fn direct_light(w: &World, p: Vec3, n: Vec3, scale: f32, albedo: Vec3, mis: bool, rng: &mut Rng) -> Vec3 {
     let count = w.frame.n_lights;
     let pick = ((rng.next_f32() * count as f32) as u32).min(count - 1);
     let light = w.lights[pick as usize];
-    let (q, nl) = w.sample_point(light, rng.next_f32(), rng.next_f32());
+    let (q, nl, light_scale) = w.sample_point(light, rng.next_f32(), rng.next_f32());
     let to = q - p;
     let dist = to.length();
     let wi = to / dist;
@@ -139,9 +143,9 @@ fn direct_light(w: &World, p: Vec3, n: Vec3, albedo: Vec3, mis: bool, rng: &mut 
         return Vec3::ZERO;
     }
     // Both ends offset off their surfaces; the shadow ray runs over t in (0, 1).
-    let from = offset_origin(p, n);
+    let from = offset_origin(p, n, scale);
     let to_side = if nl.dot(wi) < 0.0 { nl } else { -nl };
-    let target = offset_origin(q, to_side);
+    let target = offset_origin(q, to_side, light_scale);
     if w.any(from, target - from, 1.0) {
         return Vec3::ZERO;
     }
@@ -182,7 +186,7 @@ pub fn radiance(w: &World, origin: Vec3, dir: Vec3, rng: &mut Rng) -> (Vec3, u32
             break;
         }
         let m = w.material(hit.prim);
-        let (p, ng) = traverse::surface(&w.scene, hit.prim, o, d, &hit);
+        let (p, ng, scale) = traverse::surface(&w.scene, hit.prim, o, d, &hit);
         let le = xyz(m.emission);
         let cos_l = World::light_cos(ng, d);
         if max3(le) > 0.0 && cos_l > 0.0 {
@@ -202,11 +206,11 @@ pub fn radiance(w: &World, origin: Vec3, dir: Vec3, rng: &mut Rng) -> (Vec3, u32
         }
         let side = if d.dot(ng) < 0.0 { ng } else { -ng };
         if s.diffuse && nee && depth + 1 < f.max_depth {
-            l += beta * direct_light(w, p, side, xyz(m.albedo), mis, rng);
+            l += beta * direct_light(w, p, side, scale, xyz(m.albedo), mis, rng);
             rays += 1;
         }
         beta *= s.weight;
-        o = offset_origin(p, if s.dir.dot(ng) > 0.0 { ng } else { -ng });
+        o = offset_origin(p, if s.dir.dot(ng) > 0.0 { ng } else { -ng }, scale);
         d = s.dir;
         prev = s;
         depth += 1;

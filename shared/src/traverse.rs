@@ -177,20 +177,22 @@ fn visit(s: &Scene, r: &TriRay, child: u32, first_leaf: u32, limit: &mut f32, be
     (INVALID, f32::INFINITY)
 }
 
-/// Unit geometric normal of primitive `prim` at the hit `(t, b1, b2)` of `origin + t dir`,
-/// and the hit point.
-pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3) {
+/// The hit point of the hit `(t, b1, b2)` of `origin + t dir` on primitive `prim`, the unit
+/// geometric normal there, and the primitive's scale for [`intersect::offset_origin`].
+pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3, f32) {
     if s.is_triangle(prim) {
         let t = &s.tris[prim as usize];
         (
             intersect::triangle_point(t, h.u, h.v),
             intersect::triangle_normal(t).normalize(),
+            intersect::triangle_scale(t),
         )
     } else {
-        let sp = s.spheres[(prim - s.n_tris) as usize].center_radius;
+        let sphere = &s.spheres[(prim - s.n_tris) as usize];
+        let sp = sphere.center_radius;
         let c = xyz(sp);
         let n = (origin + h.t * dir - c).normalize();
         // Re-projected onto the surface: the hit point's error no longer grows with t.
-        (c + n * sp[3].abs(), n)
+        (c + n * sp[3].abs(), n, intersect::sphere_scale(sphere))
     }
 }

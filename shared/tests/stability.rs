@@ -1,0 +1,1235 @@
+//! Hard cases stay stable, on the CPU (DESIGN.md sections 3 and 4): the intersection,
+//! traversal, offset, scattering and sampling code the GPU runs, fed the inputs that break
+//! naive ray tracers.
+//!
+//! 1. Closed meshes near and far from the origin do not leak at shared vertices and edges.
+//! 2. Rays spawned from hits (Wachter & Binder offsets) never re-hit their own surface.
+//! 3. Axis-aligned rays with either sign of zero, flat boxes, origins on slab planes, and
+//!    non-finite rays or primitives: a miss or the right hit, never NaN, always returning.
+//! 4. Small far and large near spheres agree with an f64 reference to a few ulp.
+//! 5. Every material conserves energy; every sampling routine passes a chi-square test.
+mod common;
+
+use common::*;
+use shared::glam::{DVec3, Vec3};
+use shared::intersect::{self, offset_origin, TriRay};
+use shared::material::{self, reflect};
+use shared::sampling;
+use shared::traverse;
+use shared::types::{Hit, Material, MaterialKind, Sphere, Triangle, FEATURES_ALL, INVALID};
+
+const INF: f32 = f32::INFINITY;
+
+// ---------------------------------------------------------------------------------------------
+// 1. Watertightness
+// ---------------------------------------------------------------------------------------------
+
+/// Interior points of the unit meshes (also inside the octahedron `|x| + |y| + |z| < 1`).
+const INSIDE: [[f32; 3]; 4] = [
+    [0.0, 0.0, 0.0],
+    [0.1, -0.23, 0.31],
+    [-0.37, 0.05, -0.11],
+    [0.29, 0.33, -0.2],
+];
+/// Distances the meshes are moved by (along `(1, -1, 1)`), the rays' origins with them.
+const OFFSETS: [f32; 3] = [0.0, 1e3, 1e5];
+
+/// Rays of [`shoot_at_vertices_and_edges`] that found nothing, by query.
+#[derive(Debug, Default)]
+struct Leaks {
+    rays: usize,
+    brute: usize,
+    bvh: usize,
+    any_brute: usize,
+    any_bvh: usize,
+    /// Rays whose closest hit through the BVH is more than [`TIE_ULPS`] farther than by
+    /// brute force.
+    farther: usize,
+    /// Rays whose closest hits differ by at most [`TIE_ULPS`]: two triangles sharing the edge
+    /// or vertex hit, whose distances round differently; the BVH may skip the nearer one when
+    /// its box's entry distance rounds above the other's hit.
+    ties: usize,
+    first: Option<String>,
+}
+
+/// Distances of two hits of one ray at a shared edge or vertex may differ by this many ulps.
+const TIE_ULPS: f64 = 4.0;
+
+/// Rays from interior points aimed exactly at every vertex and every edge midpoint of a
+/// closed mesh, placed at each of [`OFFSETS`]; every ray must hit.
+fn shoot_at_vertices_and_edges(name: &str, mesh: &Mesh) -> Leaks {
+    assert!(mesh.is_closed(), "{name} is not a closed mesh");
+    let mut l = Leaks::default();
+    let edges = mesh.edges();
+    for s in OFFSETS {
+        let offset = Vec3::new(s, -s, s);
+        let world = World::new(mesh.triangles(offset), vec![]);
+        let scene = world.scene();
+        let v = mesh.moved(offset);
+        let targets: Vec<Vec3> = v
+            .iter()
+            .copied()
+            .chain(edges.iter().map(|&[a, b]| (v[a as usize] + v[b as usize]) * 0.5))
+            .collect();
+        for o in INSIDE {
+            let o = Vec3::from(o) + offset;
+            for &t in &targets {
+                let d = t - o;
+                l.rays += 1;
+                let brute = traverse::closest_brute(&scene, o, d, INF);
+                let bvh = traverse::closest(&scene, o, d, INF);
+                let (any_brute, any_bvh) = (traverse::any_brute(&scene, o, d, INF), traverse::any(&scene, o, d, INF));
+                let tie = brute.t != bvh.t && ulps(bvh.t, brute.t as f64) <= TIE_ULPS;
+                let farther = brute.t != bvh.t && !tie;
+                l.brute += (brute.prim == INVALID) as usize;
+                l.bvh += (bvh.prim == INVALID) as usize;
+                l.any_brute += !any_brute as usize;
+                l.any_bvh += !any_bvh as usize;
+                l.ties += tie as usize;
+                l.farther += farther as usize;
+                if brute.prim == INVALID || bvh.prim == INVALID || !any_brute || !any_bvh || farther {
+                    l.first.get_or_insert_with(|| {
+                        format!("from {o} along {d}: brute {brute:?}, BVH {bvh:?}, any {any_brute} / {any_bvh}")
+                    });
+                }
+            }
+        }
+    }
+    eprintln!("{name}: {l:?}");
+    l
+}
+
+fn assert_watertight(name: &str, mesh: &Mesh) {
+    let l = shoot_at_vertices_and_edges(name, mesh);
+    assert!(
+        l.brute + l.bvh + l.any_brute + l.any_bvh + l.farther == 0,
+        "{name}: leaks of {} rays: brute force {}, BVH {}, any-hit brute force {}, any-hit BVH {}; \
+         BVH hit farther than brute force (> {TIE_ULPS} ulp) on {}; first: {}",
+        l.rays,
+        l.brute,
+        l.bvh,
+        l.any_brute,
+        l.any_bvh,
+        l.farther,
+        l.first.unwrap_or_default()
+    );
+}
+
+#[test]
+fn icosphere_does_not_leak_at_vertices_or_edges() {
+    assert_watertight("icosphere (1280 triangles)", &icosphere(3));
+}
+
+#[test]
+fn flat_subdivided_octahedron_does_not_leak_at_vertices_or_edges() {
+    assert_watertight("octahedron, faces cut in 64", &octahedron(8));
+}
+
+#[test]
+fn cubes_of_triangles_do_not_leak_at_vertices_or_edges() {
+    assert_watertight("cube of 12 triangles", &cube(1));
+    assert_watertight("cube, faces cut in 8x8 squares", &cube(8));
+}
+
+// ---------------------------------------------------------------------------------------------
+// 2. Reintersection
+// ---------------------------------------------------------------------------------------------
+
+/// A surface to spawn secondary rays from.
+struct Surface {
+    name: String,
+    world: World,
+    /// Which surface each primitive belongs to (coplanar triangles share one).
+    part: Vec<u32>,
+    /// Closed and convex: a ray leaving it outward must miss everything. (One entering may
+    /// still leave at once through a neighbouring face where it starts on an edge.)
+    convex: bool,
+    center: Vec3,
+    /// Primary rays start `3 * reach` from `aim_at` and aim within `reach` of it.
+    aim_at: Vec3,
+    reach: f32,
+}
+
+impl Surface {
+    /// The surface with primary rays aimed within `reach` of `at`.
+    fn aimed(self, at: Vec3, reach: f32) -> Surface {
+        Surface {
+            name: format!("{}, hits within {reach} of {at}", self.name),
+            aim_at: at,
+            reach,
+            ..self
+        }
+    }
+}
+
+fn mesh_surface(name: &str, mesh: &Mesh, scale: f32, center: Vec3, convex: bool, part: Vec<u32>) -> Surface {
+    let m = Mesh {
+        verts: mesh.verts.iter().map(|&v| v * scale).collect(),
+        faces: mesh.faces.clone(),
+    };
+    Surface {
+        name: format!("{name} x{scale} at {center}"),
+        world: World::new(m.triangles(center), vec![]),
+        part,
+        convex,
+        center,
+        aim_at: center,
+        reach: scale,
+    }
+}
+
+fn sphere_surface(r: f32, center: Vec3) -> Surface {
+    Surface {
+        name: format!("sphere r={r} at {center}"),
+        world: World::new(
+            vec![],
+            vec![Sphere {
+                center_radius: [center.x, center.y, center.z, r],
+            }],
+        ),
+        part: vec![0],
+        convex: true,
+        center,
+        aim_at: center,
+        reach: r,
+    }
+}
+
+/// A tilted square of two triangles (one surface), `2 * half` wide.
+fn tilted_square(half: f32, center: Vec3) -> Surface {
+    let n = Vec3::new(0.3, 0.8, -0.52).normalize();
+    let (u, v) = sampling::basis(n);
+    let c = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)].map(|(a, b)| (u * a + v * b) * half);
+    let mesh = Mesh {
+        verts: c.to_vec(),
+        faces: vec![[0, 1, 2], [0, 2, 3]],
+    };
+    Surface {
+        name: format!("tilted square {half} at {center}"),
+        world: World::new(mesh.triangles(center), vec![]),
+        part: vec![0, 0],
+        convex: false,
+        center,
+        aim_at: center,
+        reach: half,
+    }
+}
+
+/// A bumpy height field of `n * n` squares over `[-half, half]^2` (not convex: every triangle
+/// is its own surface).
+fn height_field(n: usize, half: f32, center: Vec3) -> Surface {
+    let mut rnd = Random::new(99);
+    let mut verts = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (i as f32 / n as f32 * 2.0 - 1.0, j as f32 / n as f32 * 2.0 - 1.0);
+            verts.push(Vec3::new(x, rnd.range(-0.3, 0.3), y) * half);
+        }
+    }
+    let mut faces = Vec::new();
+    for j in 0..n as u32 {
+        for i in 0..n as u32 {
+            let a = j * (n as u32 + 1) + i;
+            let (b, c, d) = (a + 1, a + n as u32 + 2, a + n as u32 + 1);
+            faces.extend([[a, b, c], [a, c, d]]);
+        }
+    }
+    let part = (0..faces.len() as u32).collect();
+    let mesh = Mesh { verts, faces };
+    Surface {
+        name: format!("height field {half} at {center}"),
+        world: World::new(mesh.triangles(center), vec![]),
+        part,
+        convex: false,
+        center,
+        aim_at: center,
+        reach: half,
+    }
+}
+
+/// Secondary rays of [`spawn_from_hits`] and those that re-hit their surface.
+#[derive(Debug, Default)]
+struct Spawned {
+    hits: usize,
+    rays: usize,
+    failures: usize,
+    first: Option<String>,
+}
+
+/// Spawns secondary rays from `primaries` random hits as the path tracer does: origin offset
+/// to the side the new ray leaves to, direction reflected, cosine-distributed on the side of
+/// the incoming ray, or cosine-distributed through the surface. Rays that cross a convex
+/// surface spawn once more from its far side. Every ray is traced by brute force and through
+/// the BVH.
+fn spawn_from_hits(s: &Surface, primaries: usize, seed: u32) -> Spawned {
+    let scene = s.world.scene();
+    let mut rnd = Random::new(seed);
+    let mut out = Spawned::default();
+    for _ in 0..primaries {
+        let from = s.aim_at + rnd.unit() * (3.0 * s.reach);
+        let to = s.aim_at + rnd.unit() * (0.9 * s.reach * rnd.f32());
+        let d = (to - from).normalize();
+        let h = traverse::closest_brute(&scene, from, d, INF);
+        if h.prim == INVALID {
+            continue;
+        }
+        out.hits += 1;
+        let mut queue = vec![(from, d, h, 0)];
+        while let Some((o, d, h, depth)) = queue.pop() {
+            let (p, ng, scale) = traverse::surface(&scene, h.prim, o, d, &h);
+            let facing = if d.dot(ng) < 0.0 { ng } else { -ng };
+            let mut dirs = vec![reflect(d, facing)];
+            for _ in 0..2 {
+                let (u1, u2) = (rnd.f32(), rnd.f32());
+                dirs.push(sampling::cosine_hemisphere(facing, u1, u2));
+                let (u1, u2) = (rnd.f32(), rnd.f32());
+                dirs.push(sampling::cosine_hemisphere(-facing, u1, u2));
+            }
+            for d2 in dirs {
+                let o2 = offset_origin(p, if d2.dot(ng) > 0.0 { ng } else { -ng }, scale);
+                for (how, h2) in [
+                    ("brute force", traverse::closest_brute(&scene, o2, d2, INF)),
+                    ("BVH", traverse::closest(&scene, o2, d2, INF)),
+                ] {
+                    out.rays += 1;
+                    if let Some(why) = self_hit(s, h.prim, p, ng, d2, &h2) {
+                        out.failures += 1;
+                        out.first.get_or_insert_with(|| {
+                            format!("{how}: from {p} (prim {}, normal {ng}) along {d2}: {why}", h.prim)
+                        });
+                    } else if s.convex && depth == 0 && h2.prim != INVALID && how == "BVH" {
+                        queue.push((o2, d2, h2, depth + 1));
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Why the secondary ray from `p` on primitive `own` along `d2` with closest hit `h2` is
+/// wrong, if it is.
+fn self_hit(s: &Surface, own: u32, p: Vec3, ng: Vec3, d2: Vec3, h2: &Hit) -> Option<String> {
+    let hit = h2.prim != INVALID;
+    if s.world.tris.is_empty() {
+        // A sphere: outward rays leave it, inward ones cross it, never re-hitting the start.
+        let r = s.world.spheres[0].center_radius[3] as f64;
+        let cos = d2.as_dvec3().dot(ng.as_dvec3());
+        let chord = -2.0 * r * cos;
+        return if cos > 0.0 && hit {
+            Some(format!("outward ray hit the sphere at t = {}", h2.t))
+        } else if cos < 0.0 && !hit {
+            Some("inward ray escaped the sphere".into())
+        } else if cos < 0.0 && (h2.t as f64) < 0.5 * chord {
+            Some(format!("re-hit at t = {} on a chord of {chord}", h2.t))
+        } else {
+            None
+        };
+    }
+    if hit && s.part[h2.prim as usize] == s.part[own as usize] {
+        return Some(format!("re-hit its own surface (prim {}) at t = {}", h2.prim, h2.t));
+    }
+    if s.convex {
+        let outward = if (p - s.center).dot(ng) > 0.0 { ng } else { -ng };
+        if d2.dot(outward) > 0.0 && hit {
+            return Some(format!("outward ray hit prim {} at t = {}", h2.prim, h2.t));
+        }
+    }
+    None
+}
+
+/// Spawns from `primaries` hits on `s`; returns a line for the failure report if any
+/// secondary ray went wrong.
+fn self_hits(s: &Surface, primaries: usize, seed: u32) -> Option<String> {
+    let r = spawn_from_hits(s, primaries, seed);
+    eprintln!(
+        "{}: {} hits, {} secondary rays, {} wrong",
+        s.name, r.hits, r.rays, r.failures
+    );
+    if r.hits <= primaries / 4 {
+        return Some(format!("{}: only {} of {primaries} primary rays hit", s.name, r.hits));
+    }
+    (r.failures > 0).then(|| {
+        format!(
+            "{}: {} of {} secondary rays wrong; first: {}",
+            s.name,
+            r.failures,
+            r.rays,
+            r.first.unwrap_or_default()
+        )
+    })
+}
+
+const FAR: Vec3 = Vec3::new(1e4, -1e4, 1e4);
+
+#[test]
+fn secondary_rays_never_rehit_spheres() {
+    let mut wrong = Vec::new();
+    for (r, c) in [
+        (1.0, Vec3::ZERO),
+        (1.0, Vec3::new(0.2, -0.3, 0.1)),
+        (0.01, Vec3::new(3.0, 0.0, -2.0)),
+        (1.0, FAR),
+        (100.0, FAR),
+        (1e4, FAR),
+    ] {
+        wrong.extend(self_hits(&sphere_surface(r, c), 2000, 1));
+    }
+    // A ground sphere hit near the origin, far from its centre.
+    for r in [1e2, 1e3, 1e4, 1e5] {
+        let ground = sphere_surface(r, Vec3::new(0.0, -r, 0.0)).aimed(Vec3::ZERO, 10.0);
+        wrong.extend(self_hits(&ground, 2000, 6));
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+#[test]
+fn secondary_rays_never_rehit_triangle_meshes() {
+    let ico = icosphere(2);
+    let ico_parts = (0..ico.faces.len() as u32).collect::<Vec<_>>();
+    let cube = cube(4);
+    // Each of the cube's six faces is one plane: 32 triangles in order per face.
+    let cube_parts = (0..cube.faces.len() as u32).map(|i| i / 32).collect::<Vec<_>>();
+    let mut wrong = Vec::new();
+    for (scale, c) in [(1.0, Vec3::ZERO), (1.0, FAR), (50.0, FAR)] {
+        wrong.extend(self_hits(
+            &mesh_surface("icosphere", &ico, scale, c, true, ico_parts.clone()),
+            2000,
+            2,
+        ));
+        wrong.extend(self_hits(
+            &mesh_surface("cube", &cube, scale, c, true, cube_parts.clone()),
+            2000,
+            3,
+        ));
+        wrong.extend(self_hits(&tilted_square(scale, c), 2000, 4));
+        wrong.extend(self_hits(&height_field(6, scale, c), 2000, 5));
+    }
+    // A ground square far larger than the scene, hit near the origin.
+    for half in [1e2, 3e2, 1e3, 1e4, 1e5] {
+        wrong.extend(self_hits(
+            &tilted_square(half, Vec3::ZERO).aimed(Vec3::ZERO, 10.0),
+            2000,
+            7,
+        ));
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// 3. Axis-aligned rays, flat boxes, non-finite input
+// ---------------------------------------------------------------------------------------------
+
+/// Every direction with components in {-1, -0, +0, 1}, except the zero vectors.
+fn signed_zero_directions() -> Vec<Vec3> {
+    let c = [-1.0, -0.0, 0.0, 1.0f32];
+    let mut out = Vec::new();
+    for x in c {
+        for y in c {
+            for z in c {
+                if x != 0.0 || y != 0.0 || z != 0.0 {
+                    out.push(Vec3::new(x, y, z));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Entry distance of the ray into the closed box within `[0, t_max]` in exact arithmetic
+/// (`d` components in {-1, 0, 1}), or `INFINITY`.
+fn box_entry(o: Vec3, d: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -> f32 {
+    let (mut near, mut far) = (0.0f64, t_max as f64);
+    for k in 0..3 {
+        let (o, d, lo, hi) = (o[k] as f64, d[k] as f64, lo[k] as f64, hi[k] as f64);
+        if d == 0.0 {
+            if o < lo || o > hi {
+                return INF;
+            }
+        } else {
+            let (a, b) = ((lo - o) / d, (hi - o) / d);
+            near = near.max(a.min(b));
+            far = far.min(a.max(b));
+        }
+    }
+    if near <= far {
+        near as f32
+    } else {
+        INF
+    }
+}
+
+#[test]
+fn slab_is_exact_for_axis_aligned_rays_and_either_sign_of_zero() {
+    let boxes = [
+        (Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 2.0, 3.0)),
+        (Vec3::new(0.5, 0.0, 0.0), Vec3::new(0.5, 2.0, 3.0)),
+        (Vec3::new(0.0, 0.5, 0.0), Vec3::new(1.0, 0.5, 3.0)),
+        (Vec3::new(0.0, 0.0, 0.5), Vec3::new(1.0, 2.0, 0.5)),
+        (Vec3::new(0.0, 0.5, 0.5), Vec3::new(1.0, 0.5, 0.5)),
+        (Vec3::new(0.5, 0.5, 0.5), Vec3::new(0.5, 0.5, 0.5)),
+    ];
+    let dirs = signed_zero_directions();
+    let (mut checks, mut wrong) = (0, Vec::new());
+    for (lo, hi) in boxes {
+        let coords = |k: usize| [-1.0, lo[k], (lo[k] + hi[k]) * 0.5, hi[k], 4.0];
+        for x in coords(0) {
+            for y in coords(1) {
+                for z in coords(2) {
+                    let o = Vec3::new(x, y, z);
+                    for &d in &dirs {
+                        for t_max in [INF, 2.0] {
+                            let inv = TriRay::new(o, d).inv_dir;
+                            let got = intersect::slab(o, inv, lo, hi, t_max);
+                            let want = box_entry(o, d, lo, hi, t_max);
+                            checks += 1;
+                            if got != want {
+                                wrong.push(format!(
+                                    "box {lo}..{hi} from {o} along {d:?} t_max {t_max}: {got}, want {want}"
+                                ));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        wrong.is_empty(),
+        "{} of {checks} slab tests wrong, e.g.:\n{}",
+        wrong.len(),
+        wrong[..wrong.len().min(8)].join("\n")
+    );
+}
+
+/// A flat grid of `n * n` squares at height `z` over `[-1, 1]^2`: every leaf box is flat.
+fn floor(n: i32, z: f32) -> Mesh {
+    let mut verts = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            verts.push(Vec3::new(
+                2.0 * i as f32 / n as f32 - 1.0,
+                2.0 * j as f32 / n as f32 - 1.0,
+                z,
+            ));
+        }
+    }
+    let mut faces = Vec::new();
+    let w = n as u32 + 1;
+    for j in 0..n as u32 {
+        for i in 0..n as u32 {
+            let a = j * w + i;
+            faces.extend([[a, a + 1, a + w + 1], [a, a + w + 1, a + w]]);
+        }
+    }
+    Mesh { verts, faces }
+}
+
+#[test]
+fn axis_aligned_rays_hit_alike_through_bvh_and_brute_force() {
+    let coords = [-2.0, -1.0, -0.5, 0.0, 0.25, 0.5, 1.0, 2.0f32];
+    let dirs = signed_zero_directions();
+    let meshes = [
+        ("cube", cube(4).triangles(Vec3::ZERO)),
+        ("octahedron", octahedron(4).triangles(Vec3::ZERO)),
+        ("floor", floor(4, 0.25).triangles(Vec3::ZERO)),
+    ];
+    let (mut rays, mut hits, mut wrong) = (0, 0, Vec::new());
+    for (name, tris) in meshes {
+        let world = World::new(tris, vec![]);
+        let scene = world.scene();
+        for x in coords {
+            for y in coords {
+                for z in coords {
+                    let o = Vec3::new(x, y, z);
+                    for &d in &dirs {
+                        rays += 1;
+                        let brute = traverse::closest_brute(&scene, o, d, INF);
+                        let bvh = traverse::closest(&scene, o, d, INF);
+                        // The same ray with every zero component of the other sign.
+                        let flipped = Vec3::select(d.cmpeq(Vec3::ZERO), -d, d);
+                        let brute_flipped = traverse::closest_brute(&scene, o, flipped, INF);
+                        hits += (brute.prim != INVALID) as usize;
+                        let any = traverse::any(&scene, o, d, INF);
+                        let any_brute = traverse::any_brute(&scene, o, d, INF);
+                        if brute.t.to_bits() != bvh.t.to_bits()
+                            || brute.t.to_bits() != brute_flipped.t.to_bits()
+                            || any != any_brute
+                            || any != (brute.prim != INVALID)
+                        {
+                            wrong.push(format!(
+                                "{name} from {o} along {d:?}: brute {:?}, BVH {:?}, zeros flipped {:?}, any {any} / {any_brute}",
+                                brute.t, bvh.t, brute_flipped.t
+                            ));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    eprintln!("{rays} axis-aligned rays, {hits} hits, {} disagree", wrong.len());
+    assert!(
+        wrong.is_empty(),
+        "{} of {rays} rays disagree, e.g.:\n{}",
+        wrong.len(),
+        wrong[..wrong.len().min(8)].join("\n")
+    );
+}
+
+/// A cube of triangles, a sphere inside it and one beside it.
+fn mixed_world() -> World {
+    World::new(
+        cube(2).triangles(Vec3::ZERO),
+        vec![
+            Sphere {
+                center_radius: [0.0, 0.0, 0.0, 0.5],
+            },
+            Sphere {
+                center_radius: [3.0, 0.0, 0.0, 1.0],
+            },
+        ],
+    )
+}
+
+/// `v` with component `k` replaced by `x`.
+fn with(v: Vec3, k: usize, x: f32) -> Vec3 {
+    let mut v = v;
+    v[k] = x;
+    v
+}
+
+/// A hit must be a miss or lie in `(0, t_max)`, and name a primitive exactly when it is a hit.
+fn sane(h: &Hit, n_prims: u32, t_max: f32) -> bool {
+    if h.prim == INVALID {
+        h.t == INF
+    } else {
+        h.prim < n_prims && h.t > 0.0 && h.t < t_max && h.u.is_finite() && h.v.is_finite()
+    }
+}
+
+#[test]
+fn non_finite_rays_miss_and_return() {
+    let wrong = returns_within(120, "non-finite rays", || {
+        let world = mixed_world();
+        let scene = world.scene();
+        let (o0, d0) = (Vec3::new(0.1, 0.2, -3.0), Vec3::new(0.01, 0.02, 1.0));
+        let mut rays = Vec::new();
+        for bad in [f32::NAN, INF, -INF] {
+            for k in 0..3 {
+                rays.push((with(o0, k, bad), d0));
+                rays.push((o0, with(d0, k, bad)));
+                rays.push((with(o0, k, bad), with(d0, (k + 1) % 3, bad)));
+            }
+            rays.push((Vec3::splat(bad), d0));
+            rays.push((o0, Vec3::splat(bad)));
+        }
+        for zero in [Vec3::ZERO, -Vec3::ZERO, Vec3::new(0.0, -0.0, 0.0)] {
+            rays.push((o0, zero));
+        }
+        let mut wrong = Vec::new();
+        for (o, d) in rays {
+            let r = TriRay::new(o, d);
+            let queries = [
+                ("closest", traverse::closest(&scene, o, d, INF)),
+                ("closest_brute", traverse::closest_brute(&scene, o, d, INF)),
+            ];
+            for (what, h) in queries {
+                if h != Hit::MISS {
+                    wrong.push(format!("{what} from {o} along {d}: {h:?}"));
+                }
+            }
+            if traverse::any(&scene, o, d, INF) || traverse::any_brute(&scene, o, d, INF) {
+                wrong.push(format!("any from {o} along {d}: true"));
+            }
+            for prim in 0..scene.n_prims {
+                let t = traverse::primitive(&scene, &r, prim, INF).0;
+                if t != INF {
+                    wrong.push(format!("primitive {prim} from {o} along {d}: t = {t}"));
+                }
+            }
+            let root = &world.nodes[0];
+            let t = intersect::slab(o, r.inv_dir, Vec3::from(root.min), Vec3::from(root.max), INF);
+            if t.is_nan() {
+                wrong.push(format!("slab from {o} along {d}: NaN"));
+            }
+        }
+        // A good ray with a bad range.
+        for t_max in [f32::NAN, -INF, -1.0, 0.0, -0.0] {
+            let (o, d) = (o0, d0);
+            let r = TriRay::new(o, d);
+            for h in [
+                traverse::closest(&scene, o, d, t_max),
+                traverse::closest_brute(&scene, o, d, t_max),
+            ] {
+                if h != Hit::MISS {
+                    wrong.push(format!("t_max {t_max}: {h:?}"));
+                }
+            }
+            if traverse::any(&scene, o, d, t_max) || traverse::any_brute(&scene, o, d, t_max) {
+                wrong.push(format!("any with t_max {t_max}: true"));
+            }
+            for prim in 0..scene.n_prims {
+                let t = traverse::primitive(&scene, &r, prim, t_max).0;
+                if t != INF {
+                    wrong.push(format!("primitive {prim} with t_max {t_max}: t = {t}"));
+                }
+            }
+        }
+        // Finite rays at the edge of the range: any answer, but a sane one, the same both ways.
+        let extreme = [
+            (Vec3::new(0.1, 0.2, -3.0), Vec3::new(0.0, 0.0, 1e-40)),
+            (Vec3::new(0.1, 0.2, -3.0), Vec3::new(1e-30, 1e-38, 1e-39)),
+            (Vec3::new(0.1, 0.2, -3.0), Vec3::new(1e38, 3e38, f32::MAX)),
+            (Vec3::new(-f32::MAX, 0.2, 0.1), Vec3::new(1.0, 0.0, 0.0)),
+            (Vec3::new(1e30, 1e30, -1e30), Vec3::new(-1.0, -1.0, 1.0)),
+        ];
+        for (o, d) in extreme {
+            let bvh = traverse::closest(&scene, o, d, INF);
+            let brute = traverse::closest_brute(&scene, o, d, INF);
+            if !sane(&bvh, scene.n_prims, INF) || !sane(&brute, scene.n_prims, INF) || bvh.t != brute.t {
+                wrong.push(format!(
+                    "extreme ray from {o} along {d}: BVH {bvh:?}, brute force {brute:?}"
+                ));
+            }
+            let r = TriRay::new(o, d);
+            for prim in 0..scene.n_prims {
+                let t = traverse::primitive(&scene, &r, prim, INF).0;
+                if t.is_nan() {
+                    wrong.push(format!("extreme ray, primitive {prim}: NaN"));
+                }
+            }
+        }
+        wrong
+    });
+    assert!(wrong.is_empty(), "{} wrong answers:\n{}", wrong.len(), wrong.join("\n"));
+}
+
+#[test]
+fn broken_primitives_never_give_nan_and_traversal_returns() {
+    let (rays, wrong) = returns_within(120, "broken primitives", || {
+        let nan = f32::NAN;
+        let tri = |a: [f32; 3], b: [f32; 3], c: [f32; 3]| Triangle {
+            v0: [a[0], a[1], a[2], 0.0],
+            v1: [b[0], b[1], b[2], 0.0],
+            v2: [c[0], c[1], c[2], 0.0],
+        };
+        let mut tris = cube(2).triangles(Vec3::ZERO);
+        tris.extend([
+            tri([0.0, 0.0, 0.0], [nan, 0.0, 0.0], [0.0, 1.0, 0.0]),
+            tri([0.0, 0.0, 0.5], [INF, 0.0, 0.5], [0.0, 1.0, 0.5]),
+            tri([0.0, 0.0, -0.5], [1.0, -INF, -0.5], [0.0, 1.0, -0.5]),
+            tri([0.2, 0.2, 0.2], [0.2, 0.2, 0.2], [0.2, 0.2, 0.2]),
+            tri([-0.5, -0.5, 0.0], [0.0, 0.0, 0.0], [0.5, 0.5, 0.0]),
+            tri([nan; 3], [nan; 3], [nan; 3]),
+        ]);
+        let spheres = vec![
+            Sphere {
+                center_radius: [0.3, 0.3, 0.3, 0.0],
+            },
+            Sphere {
+                center_radius: [nan, 0.0, 0.0, 0.5],
+            },
+            Sphere {
+                center_radius: [0.0, 0.0, 0.0, nan],
+            },
+            Sphere {
+                center_radius: [-0.3, 0.2, 0.1, -0.25],
+            },
+        ];
+        let world = World::new(tris, spheres);
+        let scene = world.scene();
+        let mut rnd = Random::new(7);
+        let mut wrong = Vec::new();
+        let rays = 20_000;
+        for _ in 0..rays {
+            let o = rnd.unit() * 3.0;
+            let d = (rnd.unit() * 0.8 - o).normalize();
+            let bvh = traverse::closest(&scene, o, d, INF);
+            let brute = traverse::closest_brute(&scene, o, d, INF);
+            if !sane(&bvh, scene.n_prims, INF) || !sane(&brute, scene.n_prims, INF) || bvh.t != brute.t {
+                wrong.push(format!("from {o} along {d}: BVH {bvh:?}, brute force {brute:?}"));
+            }
+            let r = TriRay::new(o, d);
+            for prim in 0..scene.n_prims {
+                let t = traverse::primitive(&scene, &r, prim, INF).0;
+                if t.is_nan() {
+                    wrong.push(format!("from {o} along {d}: primitive {prim} gives NaN"));
+                }
+            }
+        }
+        (rays, wrong)
+    });
+    assert!(
+        wrong.is_empty(),
+        "{} wrong of {rays} rays, e.g.:\n{}",
+        wrong.len(),
+        wrong[..wrong.len().min(8)].join("\n")
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// 4. Spheres against an f64 reference
+// ---------------------------------------------------------------------------------------------
+
+/// Largest error allowed of a sphere hit distance against the f64 reference, in units of the
+/// `f32` spacing at the reference distance.
+const SPHERE_ULPS: f64 = 4.0;
+
+/// Nearest hit distance in `(0, inf)` of the `f32` ray with the `f32` sphere, in f64 (exact
+/// differences, products with 53-bit rounding), and the line's distance from the centre
+/// over the radius.
+fn sphere_reference(o: Vec3, d: Vec3, center: Vec3, r: f32) -> (Option<f64>, f64) {
+    let (o, d, c, r) = (o.as_dvec3(), d.as_dvec3(), center.as_dvec3(), r as f64);
+    let f = o - c;
+    let a = d.dot(d);
+    let perp = f.cross(d).length() / a.sqrt();
+    if perp > r {
+        return (None, perp / r);
+    }
+    let b = -f.dot(d);
+    let root = (a * (r - perp) * (r + perp)).sqrt();
+    let q = if b >= 0.0 { b + root } else { b - root };
+    let cc = f.dot(f) - r * r;
+    let (t0, t1) = (cc / q, q / a);
+    let (near, far) = (t0.min(t1), t0.max(t1));
+    let t = if near > 0.0 {
+        Some(near)
+    } else if far > 0.0 {
+        Some(far)
+    } else {
+        None
+    };
+    (t, perp / r)
+}
+
+/// How the f32 sphere test did against the reference.
+#[derive(Debug, Default)]
+struct SphereStats {
+    rays: usize,
+    checked: usize,
+    worst_ulps: f64,
+    worst_rel: f64,
+    wrong: Vec<String>,
+}
+
+impl SphereStats {
+    /// Compares one ray: where the reference hits with the line at most `0.995 r` from the
+    /// centre (at most 84 degrees from the normal) the test must hit within
+    /// [`SPHERE_ULPS`]; where the line passes beyond `1.005 r` it must miss.
+    fn check(&mut self, o: Vec3, d: Vec3, center: Vec3, r: f32) {
+        let s = Sphere {
+            center_radius: [center.x, center.y, center.z, r],
+        };
+        let got = intersect::sphere(o, d, &s, INF);
+        let (want, perp) = sphere_reference(o, d, center, r);
+        self.rays += 1;
+        match want {
+            Some(t) if perp <= 0.995 => {
+                self.checked += 1;
+                let e = ulps(got, t);
+                let rel = (got as f64 - t).abs() / t;
+                if e.is_nan() || e > self.worst_ulps {
+                    self.worst_ulps = e;
+                }
+                self.worst_rel = self.worst_rel.max(rel);
+                if e.is_nan() || e > SPHERE_ULPS {
+                    self.wrong.push(format!(
+                        "from {o} along {d} to r={r} at {center}: t = {got}, reference {t} ({e:.1} ulp), line at {perp:.3} r"
+                    ));
+                }
+            }
+            None if perp >= 1.005 && got != INF => self.wrong.push(format!(
+                "from {o} along {d} to r={r} at {center}: hit at {got}, line at {perp:.3} r"
+            )),
+            _ => {}
+        }
+    }
+
+    fn assert_ok(&self, what: &str) {
+        eprintln!(
+            "{what}: {} rays, {} checked, worst {:.2} ulp, relative {:.2e}, {} wrong",
+            self.rays,
+            self.checked,
+            self.worst_ulps,
+            self.worst_rel,
+            self.wrong.len()
+        );
+        assert!(
+            self.checked > self.rays / 4,
+            "{what}: only {} of {} rays checked",
+            self.checked,
+            self.rays
+        );
+        assert!(
+            self.wrong.is_empty(),
+            "{what}: {} of {} rays wrong (bound {SPHERE_ULPS} ulp), e.g.:\n{}",
+            self.wrong.len(),
+            self.rays,
+            self.wrong[..self.wrong.len().min(8)].join("\n")
+        );
+    }
+}
+
+#[test]
+fn small_far_spheres_match_the_f64_reference() {
+    let mut rnd = Random::new(11);
+    let mut st = SphereStats::default();
+    let r = 1e-3;
+    for _ in 0..64 {
+        let center = rnd.unit() * 1e4;
+        let (u, v) = sampling::basis(center.normalize());
+        for o in [Vec3::ZERO, Vec3::new(0.3, -0.7, 0.1), rnd.unit() * rnd.f32()] {
+            for _ in 0..32 {
+                let (x, y) = sampling::uniform_disk(rnd.f32(), rnd.f32());
+                let target = center + (u * x + v * y) * (1.5 * r);
+                st.check(o, (target - o).normalize(), center, r);
+            }
+        }
+    }
+    st.assert_ok("radius 1e-3 at 1e4");
+}
+
+#[test]
+fn large_near_spheres_match_the_f64_reference() {
+    let mut rnd = Random::new(12);
+    let mut st = SphereStats::default();
+    let r = 1e4;
+    let h = 1e-3;
+    for _ in 0..64 {
+        // The sphere at the origin seen from just above it, and a ground sphere below a
+        // viewer at the origin.
+        let n = rnd.unit();
+        let ground = Vec3::new(0.0, -r, 0.0);
+        let viewer = Vec3::new(rnd.range(-1.0, 1.0), h, rnd.range(-1.0, 1.0));
+        for (center, o) in [(Vec3::ZERO, n * (r + h)), (ground, viewer)] {
+            let up = (o - center).normalize();
+            for _ in 0..32 {
+                // Anywhere down towards the surface, grazing included.
+                let (u1, u2) = (rnd.f32(), rnd.f32());
+                let d = sampling::cosine_hemisphere(-up, u1, u2);
+                st.check(o, d, center, r);
+            }
+        }
+    }
+    st.assert_ok("radius 1e4 from 1e-3 above");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 5. Light transport
+// ---------------------------------------------------------------------------------------------
+
+fn material(kind: MaterialKind, albedo: f32, roughness: f32, ior: f32) -> Material {
+    Material {
+        albedo: [albedo, albedo, albedo, 0.0],
+        kind: kind as u32,
+        roughness,
+        ior,
+        ..Default::default()
+    }
+}
+
+/// Unpolarised Fresnel reflectance in f64, for light at `cos_i` going into relative index
+/// `eta`.
+fn fresnel_reference(cos_i: f64, eta: f64) -> f64 {
+    let sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if sin2_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    let rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    (rs * rs + rp * rp) / 2.0
+}
+
+/// Monte Carlo albedo of material `m` for light arriving at `cos_i` to a surface with
+/// normal `ng` (from outside, or from inside when `inside`): the mean throughput weight of
+/// the directions `scatter` returns, with every direction checked for where it may go.
+/// Returns (albedo, its standard error, fraction reflected).
+fn albedo(m: &Material, cos_i: f32, ng: Vec3, inside: bool, n: usize, rnd: &mut Random) -> (f64, f64, f64) {
+    let (t, _) = sampling::basis(ng);
+    let sin_i = (1.0 - cos_i * cos_i).max(0.0).sqrt();
+    // Arriving on the side of `facing`.
+    let facing = if inside { -ng } else { ng };
+    let d = (t * sin_i - facing * cos_i).normalize();
+    let (mut sum, mut sum2, mut reflected) = (0.0f64, 0.0f64, 0usize);
+    for _ in 0..n {
+        let s = material::scatter(m, d, ng, FEATURES_ALL, rnd.rng());
+        let w = if s.absorbed { 0.0 } else { s.weight.x as f64 };
+        assert!(w.is_finite() && w >= 0.0, "{m:?} at cos {cos_i}: weight {:?}", s.weight);
+        if !s.absorbed {
+            assert!(
+                (s.dir.length() - 1.0).abs() < 1e-5,
+                "{m:?}: direction {} not unit",
+                s.dir
+            );
+            let up = s.dir.dot(facing);
+            if m.kind == MaterialKind::Dielectric as u32 {
+                let eta = if inside { 1.0 / m.ior } else { m.ior };
+                if up > 0.0 {
+                    let mirror = reflect(d, facing);
+                    assert!(
+                        (s.dir - mirror).length() < 1e-5,
+                        "{m:?}: reflection {} not {mirror}",
+                        s.dir
+                    );
+                } else {
+                    // Snell: sin_t * eta = sin_i.
+                    let sin_t = s.dir.cross(facing).length();
+                    assert!(
+                        (sin_t * eta - sin_i).abs() < 1e-4,
+                        "{m:?} at cos {cos_i}: sin_t {sin_t} eta {eta}"
+                    );
+                }
+            } else {
+                assert!(
+                    up > 0.0,
+                    "{m:?} at cos {cos_i}: scattered through the surface: {}",
+                    s.dir
+                );
+            }
+            if m.kind == MaterialKind::Diffuse as u32 {
+                // Throughput f cos / pdf with f = albedo / pi.
+                let expect = m.albedo[0] as f64 * up as f64 / (std::f64::consts::PI * s.pdf as f64);
+                assert!(
+                    (w - expect).abs() < 1e-4 * expect.max(1.0),
+                    "diffuse weight {w}, f cos / pdf {expect}"
+                );
+            }
+            reflected += (up > 0.0) as usize;
+        }
+        sum += w;
+        sum2 += w * w;
+    }
+    let mean = sum / n as f64;
+    let var = (sum2 / n as f64 - mean * mean).max(0.0);
+    (mean, (var / n as f64).sqrt(), reflected as f64 / n as f64)
+}
+
+#[test]
+fn every_material_conserves_energy() {
+    let mut rnd = Random::new(21);
+    let n = 40_000;
+    let cosines = [1.0, 0.9, 0.7, 0.5, 0.3, 0.1, 0.02];
+    let mut materials = vec![
+        material(MaterialKind::Diffuse, 1.0, 0.0, 1.0),
+        material(MaterialKind::Diffuse, 0.6, 0.0, 1.0),
+    ];
+    for rough in [0.0, 0.1, 0.3, 0.6, 1.0] {
+        materials.push(material(MaterialKind::Metal, 1.0, rough, 1.0));
+    }
+    for ior in [1.33, 1.5, 2.4] {
+        materials.push(material(MaterialKind::Dielectric, 1.0, 0.0, ior));
+    }
+    let mut worst = 0.0f64;
+    for m in &materials {
+        for inside in [false, true] {
+            for &c in &cosines {
+                let ng = rnd.unit();
+                let (a, se, refl) = albedo(m, c, ng, inside, n, &mut rnd);
+                let bound = m.albedo[0] as f64 + 5.0 * se + 1e-6;
+                worst = worst.max(a - m.albedo[0] as f64);
+                assert!(a <= bound, "{m:?} at cos {c} inside {inside}: albedo {a} > {bound}");
+                assert!(a > 0.0, "{m:?} at cos {c}: absorbs everything");
+                if m.kind == MaterialKind::Dielectric as u32 {
+                    // Nothing absorbed; the reflected share is Fresnel's.
+                    assert_eq!(a, 1.0, "{m:?}: a smooth dielectric neither absorbs nor adds");
+                    let eta = if inside { 1.0 / m.ior } else { m.ior } as f64;
+                    let r = fresnel_reference(c as f64, eta);
+                    let (r32, _) = material::fresnel(c, eta as f32);
+                    assert!(
+                        (r32 as f64 - r).abs() < 1e-5,
+                        "fresnel({c}, {eta}) = {r32}, reference {r}"
+                    );
+                    let sigma = (r * (1.0 - r) / n as f64).sqrt();
+                    assert!(
+                        (refl - r).abs() <= 5.0 * sigma + 1e-9,
+                        "{m:?} at cos {c} inside {inside}: reflected {refl}, Fresnel {r} (sigma {sigma})"
+                    );
+                }
+                if m.kind == MaterialKind::Metal as u32 && m.roughness == 0.0 {
+                    assert_eq!(a, 1.0, "a mirror reflects everything");
+                }
+            }
+        }
+    }
+    eprintln!("largest albedo above the material's: {worst:.3e}");
+}
+
+/// Asserts that `counts` (equal expected counts) pass Pearson's chi-square test at p = 1e-4.
+fn assert_chi_square(what: &str, counts: &[u64]) -> f64 {
+    let chi2 = chi_square_uniform(counts);
+    let crit = chi_square_critical((counts.len() - 1) as f64, 1e-4);
+    eprintln!(
+        "{what}: chi-square {chi2:.1}, critical {crit:.1} at p = 1e-4, {} bins",
+        counts.len()
+    );
+    assert!(
+        chi2 < crit,
+        "{what}: chi-square {chi2:.1} over {} bins exceeds {crit:.1} (p < 1e-4)",
+        counts.len()
+    );
+    chi2
+}
+
+/// Bin of `x` in `[0, 1)` cut into `k` equal parts.
+fn bin(x: f64, k: usize) -> usize {
+    ((x * k as f64) as usize).min(k - 1)
+}
+
+/// Angle about unit `axis` of unit `d`, as a fraction of a turn, in a frame of our own.
+fn turn(d: DVec3, axis: DVec3) -> f64 {
+    let helper = if axis.x.abs() < 0.6 { DVec3::X } else { DVec3::Y };
+    let e1 = (helper - axis * helper.dot(axis)).normalize();
+    let e2 = axis.cross(e1);
+    let phi = d.dot(e2).atan2(d.dot(e1));
+    (phi / std::f64::consts::TAU).rem_euclid(1.0)
+}
+
+/// Counts of directions about `n` binned so that a cosine distribution fills all bins alike:
+/// `cos^2` (uniform under pdf cos / pi) times the angle about `n`.
+fn cosine_counts(n: Vec3, samples: usize, rnd: &mut Random, sample: impl Fn(Vec3, f32, f32) -> Vec3) -> Vec<u64> {
+    let k = 16;
+    let mut counts = vec![0u64; k * k];
+    let nd = n.as_dvec3().normalize();
+    for _ in 0..samples {
+        let d = sample(n, rnd.f32(), rnd.f32());
+        assert!((d.length() - 1.0).abs() < 1e-5, "not unit: {d}");
+        let d = d.as_dvec3();
+        let c = d.dot(nd);
+        assert!(c >= -1e-6, "below the hemisphere of {n}: {d}");
+        counts[bin(c * c, k) * k + bin(turn(d, nd), k)] += 1;
+    }
+    counts
+}
+
+#[test]
+fn cosine_hemisphere_passes_chi_square() {
+    let mut rnd = Random::new(31);
+    let normals = [
+        Vec3::Z,
+        -Vec3::Z,
+        Vec3::new(1e-4, 0.0, -1.0).normalize(),
+        Vec3::new(0.0, 1e-3, -1.0).normalize(),
+        Vec3::X,
+        rnd.unit(),
+        rnd.unit(),
+    ];
+    for n in normals {
+        let counts = cosine_counts(n, 256_000, &mut rnd, sampling::cosine_hemisphere);
+        assert_chi_square(&format!("cosine_hemisphere about {n}"), &counts);
+    }
+    // The test can fail: uniform directions over the hemisphere are rejected.
+    let uniform = |n: Vec3, u1: f32, u2: f32| {
+        let d = sampling::uniform_sphere(u1, u2);
+        if d.dot(n) < 0.0 {
+            -d
+        } else {
+            d
+        }
+    };
+    let counts = cosine_counts(Vec3::Z, 256_000, &mut rnd, uniform);
+    let chi2 = chi_square_uniform(&counts);
+    assert!(
+        chi2 > 10.0 * chi_square_critical(255.0, 1e-4),
+        "uniform hemisphere not rejected: {chi2}"
+    );
+}
+
+#[test]
+fn uniform_sphere_passes_chi_square() {
+    let mut rnd = Random::new(32);
+    let k = 16;
+    for axis in [DVec3::Z, DVec3::new(0.3, -0.5, 0.8).normalize()] {
+        let mut counts = vec![0u64; k * k];
+        for _ in 0..256_000 {
+            let d = sampling::uniform_sphere(rnd.f32(), rnd.f32());
+            assert!((d.length() - 1.0).abs() < 1e-5, "not unit: {d}");
+            let d = d.as_dvec3();
+            // Archimedes: the height along any axis is uniform in [-1, 1].
+            counts[bin((d.dot(axis) + 1.0) / 2.0, k) * k + bin(turn(d, axis), k)] += 1;
+        }
+        assert_chi_square(&format!("uniform_sphere about {axis}"), &counts);
+    }
+}
+
+#[test]
+fn uniform_triangle_passes_chi_square() {
+    let mut rnd = Random::new(33);
+    // The triangle cut into k * k congruent triangles of equal probability.
+    let k = 16;
+    let cell = |b1: f32, b2: f32| {
+        let (x, y) = (b1 as f64 * k as f64, b2 as f64 * k as f64);
+        let (i, j) = ((x as usize).min(k - 1), (y as usize).min(k - 1));
+        let upper = (x - i as f64) + (y - j as f64) >= 1.0;
+        // Row j holds 2 (k - j) - 1 cells: k - j upright, k - j - 1 upside down.
+        let before: usize = (0..j).map(|r| 2 * (k - r) - 1).sum();
+        (before + 2 * i + upper as usize).min(k * k - 1)
+    };
+    let mut counts = vec![0u64; k * k];
+    for _ in 0..256_000 {
+        let (b1, b2) = sampling::uniform_triangle(rnd.f32(), rnd.f32());
+        assert!(b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0 + 1e-6, "outside: {b1}, {b2}");
+        counts[cell(b1, b2)] += 1;
+    }
+    assert_chi_square("uniform_triangle", &counts);
+    // The test can fail: the naive (u1, u2 (1 - u1)) crowds the corner b1 = 1.
+    let mut naive = vec![0u64; k * k];
+    for _ in 0..256_000 {
+        let (u1, u2) = (rnd.f32(), rnd.f32());
+        naive[cell(u1, u2 * (1.0 - u1))] += 1;
+    }
+    let chi2 = chi_square_uniform(&naive);
+    assert!(
+        chi2 > 10.0 * chi_square_critical(255.0, 1e-4),
+        "naive triangle sampling not rejected: {chi2}"
+    );
+}
+
+#[test]
+fn uniform_disk_passes_chi_square() {
+    let mut rnd = Random::new(34);
+    let k = 16;
+    let mut counts = vec![0u64; k * k];
+    for _ in 0..256_000 {
+        let (x, y) = sampling::uniform_disk(rnd.f32(), rnd.f32());
+        let (x, y) = (x as f64, y as f64);
+        let r2 = x * x + y * y;
+        assert!(r2 <= 1.0 + 1e-6, "outside the disk: {x}, {y}");
+        let phi = (y.atan2(x) / std::f64::consts::TAU).rem_euclid(1.0);
+        counts[bin(r2, k) * k + bin(phi, k)] += 1;
+    }
+    assert_chi_square("uniform_disk", &counts);
+}
+
+#[test]
+fn uniform_ball_passes_chi_square() {
+    let mut rnd = Random::new(35);
+    let k = 8;
+    let mut counts = vec![0u64; k * k * k];
+    for _ in 0..512_000 {
+        let p = sampling::uniform_ball(rnd.f32(), rnd.f32(), rnd.f32()).as_dvec3();
+        let r = p.length();
+        assert!(r <= 1.0 + 1e-6, "outside the ball: {p}");
+        // Uniform in the ball: r^3, the height of the direction and its angle are uniform.
+        let dir = if r > 0.0 { p / r } else { DVec3::Z };
+        counts[(bin(r * r * r, k) * k + bin((dir.z + 1.0) / 2.0, k)) * k + bin(turn(dir, DVec3::Z), k)] += 1;
+    }
+    assert_chi_square("uniform_ball", &counts);
+}
+
+#[test]
+fn chi_square_critical_values_match_tables() {
+    // Tabulated upper quantiles: (dof, p, value).
+    for (dof, p, table) in [
+        (255.0, 1e-4, 347.654),
+        (511.0, 1e-4, 638.528),
+        (10.0, 0.05, 18.307),
+        (100.0, 0.01, 135.807),
+    ] {
+        let got = chi_square_critical(dof, p);
+        assert!(
+            (got - table).abs() / table < 0.01,
+            "chi-square({dof}, {p}) = {got}, table {table}"
+        );
+    }
+}
