@@ -1,17 +1,13 @@
-//! Helpers of the stability tests: a BVH built by the kernels the GPU runs, executed one
-//! invocation (and one phase of every lane) at a time as the host's CPU executor does; closed
+//! Helpers of the stability tests: primitives with the BVH the CPU executor builds; closed
 //! meshes with shared vertices; random numbers from the kernels' own streams; units in the
 //! last place; and a chi-square critical value.
 #![allow(dead_code)]
 
-use shared::bounds::{self, BoundsState};
+use raytrace::bvh::MortonBits;
 use shared::glam::Vec3;
-use shared::radix_sort::{self as sort, HistogramState, ScatterState, RADIX};
 use shared::rng::Rng;
-use shared::scan::{self, BlockScan};
 use shared::traverse::Scene;
-use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, FEATURES_ALL, TILE, WORKGROUP};
-use shared::{karras, morton, refit};
+use shared::types::{Node, Sphere, Triangle, FEATURES_ALL};
 use std::collections::HashMap;
 
 /// Primitives and the 30-bit LBVH over them.
@@ -22,8 +18,9 @@ pub struct World {
 }
 
 impl World {
+    /// The primitives with the 30-bit LBVH of the CPU executor (the kernels the GPU runs).
     pub fn new(tris: Vec<Triangle>, spheres: Vec<Sphere>) -> World {
-        let nodes = build_bvh(&tris, &spheres);
+        let nodes = raytrace::cpu::build(&tris, &spheres, MortonBits::B30).0.nodes;
         World { tris, spheres, nodes }
     }
 
@@ -38,98 +35,6 @@ impl World {
             features: FEATURES_ALL,
         }
     }
-}
-
-fn lanes(mut phase: impl FnMut(u32)) {
-    for lane in 0..WORKGROUP {
-        phase(lane);
-    }
-}
-
-/// The LBVH of `host/src/cpu.rs` with 30-bit codes: bounds, Morton codes, radix sort, Karras
-/// tree, refit, each kernel run for every invocation in turn.
-pub fn build_bvh(tris: &[Triangle], spheres: &[Sphere]) -> Vec<Node> {
-    let n = (tris.len() + spheres.len()) as u32;
-    let tiles = n.div_ceil(TILE);
-    let mut p = BuildParams {
-        n_tris: tris.len() as u32,
-        n,
-        shift: 0,
-        tiles,
-    };
-    let mut b = OrderedBounds::EMPTY;
-    for g in 0..tiles {
-        let mut st = BoundsState {
-            b: OrderedBounds::EMPTY,
-        };
-        lanes(|l| bounds::clear(l, &mut st));
-        lanes(|l| bounds::accumulate(l, g, &mut st, &p, tris, spheres));
-        lanes(|l| bounds::flush(l, &st, &mut b));
-    }
-    let mut keys = vec![0u32; n as usize];
-    let mut vals = vec![0u32; n as usize];
-    for i in 0..n {
-        morton::morton30(i, &p, &b, tris, spheres, &mut keys, &mut vals);
-    }
-    let mut keys_b = keys.clone();
-    let mut vals_b = vals.clone();
-    let mut counts = vec![0u32; (RADIX * tiles) as usize];
-    let mut supers = vec![0u32; (sort::passes(30) * RADIX * sort::super_count(&p)) as usize];
-    for pass in 0..sort::passes(30) {
-        p.shift = pass * sort::RADIX_BITS;
-        for g in 0..tiles {
-            let mut st = HistogramState {
-                counts: [0; RADIX as usize],
-            };
-            lanes(|l| sort::histogram_clear(l, &mut st));
-            lanes(|l| sort::histogram_count(l, g, &mut st, &p, &keys));
-            lanes(|l| sort::histogram_store(l, g, &st, &p, &mut counts, &mut supers));
-        }
-        let mut st = Box::new(ScatterState {
-            counts: [0; sort::COUNTERS],
-            total: [0; WORKGROUP as usize],
-            before: [0; WORKGROUP as usize],
-            digit_total: [0; RADIX as usize],
-            digit_before: [0; RADIX as usize],
-            base: [0; RADIX as usize],
-            scan: BlockScan {
-                sums: [0; WORKGROUP as usize],
-                totals: [0; scan::RAKES as usize],
-            },
-        });
-        for g in 0..tiles {
-            lanes(|l| sort::scatter_count(l, g, &mut st, &p, &keys, &counts, &supers));
-            lanes(|l| sort::scatter_sums(l, &mut st));
-            lanes(|l| scan::rake(l, &mut st.scan));
-            lanes(|l| scan::rake_totals(l, &mut st.scan));
-            lanes(|l| sort::scatter_offsets(l, &mut st));
-            lanes(|l| sort::scatter_write(l, g, &mut st, &p, &keys, &vals, &mut keys_b, &mut vals_b));
-        }
-        std::mem::swap(&mut keys, &mut keys_b);
-        std::mem::swap(&mut vals, &mut vals_b);
-    }
-    let total = (2 * n).saturating_sub(1) as usize;
-    let mut nodes = vec![Node::default(); total];
-    let mut parents = vec![0u32; total];
-    let mut visits = vec![0u32; n.saturating_sub(1) as usize];
-    for i in 0..n {
-        karras::build(
-            i,
-            &p,
-            &keys,
-            &vals,
-            tris,
-            spheres,
-            &mut nodes,
-            &mut parents,
-            &mut visits,
-        );
-    }
-    let words: &mut [u32] = bytemuck::cast_slice_mut(&mut nodes);
-    for i in 0..n {
-        refit::refit::<true>(i, &p, &parents, &mut visits, words);
-    }
-    nodes
 }
 
 /// A triangle mesh with shared vertices.
