@@ -2,12 +2,12 @@
 //! added, moved, rotated and removed between frames, and [`LiveScene::sync`] brings the GPU
 //! renderer up to date (new transforms only, or the whole scene when objects came or went).
 //! The BVH is rebuilt from the current scene every frame by the renderer.
-use crate::features::{self, Features, Forced};
+use crate::features::{self, Forced};
 use crate::render::{with_bvh, GpuRenderer};
 use crate::scene::{material, Animation, Scene, SceneGpu, SceneObject, Shape, Transform};
 use anyhow::{bail, Result};
 use glam::Vec3;
-use shared::types::{Frame, Object, Ray, INVALID};
+use shared::types::{Frame, Ray, INVALID};
 
 /// Materials given to added objects, in turn.
 const ADDED_MATERIALS: [&str; 3] = ["live white", "live mirror", "live glass"];
@@ -25,7 +25,6 @@ pub struct LiveScene {
     data: SceneGpu,
     /// Objects were added or removed since the renderer last saw the scene.
     reload: bool,
-    objects: Vec<Object>,
     added: usize,
 }
 
@@ -33,7 +32,6 @@ impl LiveScene {
     pub fn new(scene: Scene) -> LiveScene {
         let data = scene.gpu_data(0.0);
         LiveScene {
-            objects: data.objects.clone(),
             scene,
             time: 0.0,
             bvh: true,
@@ -53,14 +51,9 @@ impl LiveScene {
     /// Camera, settings and kernel features for the current scene.
     pub fn frame(&self) -> Frame {
         let frame = with_bvh(self.scene.frame(&self.data), self.bvh);
-        self.features().map_or(frame, |f| f.apply(&frame))
-    }
-
-    /// The kernel features the current scene needs, and why; an error where the forced
-    /// features contradict the scene (then [`LiveScene::frame`] runs every feature).
-    pub fn features(&self) -> Result<Features> {
-        let frame = with_bvh(self.scene.frame(&self.data), self.bvh);
-        features::derive(&self.data, &frame, &self.forced)
+        // Forced features that contradict the edited scene (a kind forced off, then added)
+        // fall back to every feature.
+        features::derive(&self.data, &frame, &self.forced).map_or(frame, |f| f.apply(&frame))
     }
 
     /// Brings `r` up to date: the whole scene after additions and removals, else the
@@ -69,17 +62,15 @@ impl LiveScene {
     pub fn sync(&mut self, r: &mut GpuRenderer) -> Result<bool> {
         if self.reload {
             self.data = self.scene.gpu_data(self.time);
-            self.objects = self.data.objects.clone();
             r.load(&self.data, &self.frame())?;
             self.reload = false;
             return Ok(true);
         }
         let objects = self.scene.objects_at(self.time);
         let mut restarted = false;
-        if objects != self.objects {
+        if objects != self.data.objects {
             r.set_objects(&objects)?;
-            self.data.objects.clone_from(&objects);
-            self.objects = objects;
+            self.data.objects = objects;
             restarted = true;
         }
         let frame = self.frame();
