@@ -2,8 +2,9 @@
 //! the kernel specialised to what the scene needs (`crate::features`), same frame, same
 //! random streams; the two images are compared to show the specialisation changes nothing
 //! but time.
+use crate::bench::percentile;
 use crate::cli::{Prepared, SceneArgs};
-use crate::picture::diff_stats;
+use crate::picture::{diff_stats, max_display_diff, Picture};
 use crate::render::GpuRenderer;
 use crate::vk::{Gpu, Kernels};
 use anyhow::{Context, Result};
@@ -48,7 +49,7 @@ fn prepare(scene: &str, size: (u32, u32), spp: u32, all: bool) -> Result<Prepare
 }
 
 /// Median trace milliseconds of `runs` frames of `p.spp` samples, and the last picture.
-fn time(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, crate::picture::Picture)> {
+fn time(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, Picture)> {
     r.set_bits(p.bits);
     r.load(&p.data, &p.frame)?;
     let mut ms = Vec::new();
@@ -65,7 +66,7 @@ fn time(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, crate::p
         }
     }
     ms.sort_by(f64::total_cmp);
-    Ok((ms[ms.len() / 2], r.picture()?))
+    Ok((percentile(&ms, 0.5), r.picture()?))
 }
 
 pub fn run(gpu: &Arc<Gpu>, scenes: &[String], size: (u32, u32), spp: u32, runs: usize) -> Result<Report> {
@@ -78,13 +79,6 @@ pub fn run(gpu: &Arc<Gpu>, scenes: &[String], size: (u32, u32), spp: u32, runs: 
         let (all_ms, a) = time(&mut r, &all, runs.max(1)).with_context(|| format!("{scene}, all features"))?;
         let (spec_ms, b) = time(&mut r, &spec, runs.max(1)).with_context(|| format!("{scene}, specialised"))?;
         let d = diff_stats(&a, &b)?;
-        let max_display_diff = a
-            .display
-            .iter()
-            .zip(&b.display)
-            .flat_map(|(x, y)| (0..3).map(move |k| ((x >> (8 * k)) & 255).abs_diff((y >> (8 * k)) & 255)))
-            .max()
-            .unwrap_or(0);
         let row = Row {
             scene: scene.clone(),
             features: spec.features.summary(),
@@ -93,7 +87,7 @@ pub fn run(gpu: &Arc<Gpu>, scenes: &[String], size: (u32, u32), spp: u32, runs: 
             all_ms,
             specialised_ms: spec_ms,
             relative_rmse: d.relative_rmse,
-            max_display_diff,
+            max_display_diff: max_display_diff(&a, &b),
         };
         eprintln!("{}", line(&row));
         rows.push(row);

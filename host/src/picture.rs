@@ -125,6 +125,16 @@ impl Picture {
     }
 }
 
+/// The largest difference of one colour byte between two display images.
+pub fn max_display_diff(a: &Picture, b: &Picture) -> u32 {
+    a.display
+        .iter()
+        .zip(&b.display)
+        .flat_map(|(x, y)| (0..3).map(move |k| ((x >> (8 * k)) & 255).abs_diff((y >> (8 * k)) & 255)))
+        .max()
+        .unwrap_or(0)
+}
+
 /// A packed pixel with its first and third bytes exchanged: BGRA to RGBA and back.
 pub fn swap_red_blue(p: u32) -> u32 {
     (p & 0xff00_ff00) | ((p & 0xff) << 16) | ((p >> 16) & 0xff)

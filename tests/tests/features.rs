@@ -3,7 +3,7 @@
 use integration_tests::{assert_no_validation_errors, gpu};
 use raytrace::bvh::MortonBits;
 use raytrace::cli::{Prepared, SceneArgs};
-use raytrace::picture::{diff_stats, Picture};
+use raytrace::picture::{diff_stats, max_display_diff, Picture};
 use raytrace::render::{render_cpu, GpuRenderer};
 use raytrace::vk::Kernels;
 use shared::types::FEATURES_ALL;
@@ -19,15 +19,6 @@ fn prepared(scene: &str, features: &str) -> Prepared {
 
 fn cpu(p: &Prepared) -> Picture {
     render_cpu(&p.data, &p.frame, p.spp, MortonBits::B30, &|_| {}).picture
-}
-
-fn max_display_diff(a: &Picture, b: &Picture) -> u32 {
-    a.display
-        .iter()
-        .zip(&b.display)
-        .flat_map(|(x, y)| (0..3).map(move |k| ((x >> (8 * k)) & 255).abs_diff((y >> (8 * k)) & 255)))
-        .max()
-        .unwrap_or(0)
 }
 
 const SCENES: [&str; 3] = ["cornell", "suzanne", "spheres"];
