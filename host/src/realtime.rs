@@ -6,7 +6,7 @@
 use crate::bench::percentile;
 use crate::cli::SceneArgs;
 use crate::live::LiveScene;
-use crate::render::{frame_timings, rays_traced, GpuRenderer};
+use crate::render::{frame_timings, GpuRenderer};
 use crate::vk::{Commands, Gpu, Kernels};
 use anyhow::{bail, Context, Result};
 use std::fmt::Write;
@@ -149,8 +149,7 @@ fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Opti
         build.push(sum(&|l| l != "trace" && l != "display"));
         wall.push(elapsed * 1e3);
         if i + 1 == o.warmup + o.frames {
-            let p = r.picture()?;
-            rays = rays_traced(&p) as f64 / p.samples.max(1) as f64 * o.spf as f64;
+            rays = r.rays_per_sample()? * o.spf as f64;
         }
     }
     let (tris, spheres) = live.scene.counts();

@@ -288,6 +288,20 @@ impl GpuRenderer {
         Ok(())
     }
 
+    /// Rays traced per sample over the whole image, from the accumulation image's ray counts
+    /// (0 before any sample).
+    pub fn rays_per_sample(&mut self) -> Result<f64> {
+        let pixels = (self.frame.width * self.frame.height) as usize;
+        let b = self.bufs.as_ref().context("no scene loaded")?;
+        let accum: Vec<[f32; 4]> = self.cmds.read_back(&b.accum, pixels)?;
+        let rays: f64 = accum.iter().map(|a| a[3] as f64).sum();
+        Ok(if self.samples == 0 {
+            0.0
+        } else {
+            rays / self.samples as f64
+        })
+    }
+
     /// The accumulated and displayed images.
     pub fn picture(&mut self) -> Result<Picture> {
         let pixels = (self.frame.width * self.frame.height) as usize;

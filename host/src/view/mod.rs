@@ -9,7 +9,7 @@ pub use camera::FlyCamera;
 use crate::cli::SceneArgs;
 use crate::live::LiveScene;
 use crate::picture::{swap_red_blue, Picture};
-use crate::render::{frame_timings, rays_traced, stage_totals, GpuRenderer};
+use crate::render::{frame_timings, stage_totals, GpuRenderer};
 use crate::scene::Shape;
 use crate::vk::{Buffer, Commands, Gpu, GpuOptions, Kernels, Swapchain};
 use anyhow::{anyhow, bail, Context, Result};
@@ -472,7 +472,7 @@ impl App {
         presented?;
         let bgra = sc.bgra;
         self.last_timings = frame_timings(&self.cmds)?;
-        self.count_frame();
+        self.count_frame()?;
         if !read {
             return Ok(None);
         }
@@ -494,7 +494,7 @@ impl App {
         }))
     }
 
-    fn count_frame(&mut self) {
+    fn count_frame(&mut self) -> Result<()> {
         let st = &mut self.stats;
         let since = *st.since.get_or_insert_with(Instant::now);
         st.frames += 1;
@@ -506,33 +506,25 @@ impl App {
         }
         let elapsed = since.elapsed().as_secs_f64();
         if elapsed < 0.5 {
-            return;
+            return Ok(());
         }
         let n = st.frames as f64;
         let gpu: f64 = st.stages.iter().map(|(_, t)| t).sum::<f64>() / n;
-        let build: f64 = st
-            .stages
-            .iter()
-            .filter(|(l, _)| !matches!(*l, "trace" | "display"))
-            .map(|(_, t)| t)
-            .sum::<f64>()
-            / n;
         let stage = |name: &str| st.stages.iter().find(|(l, _)| *l == name).map_or(0.0, |(_, t)| t / n);
-        let f = self.renderer.frame();
-        let paths = if self.traced == 0 {
-            0.0
-        } else {
-            (f.width * f.height * self.traced) as f64 / stage("trace").max(1e-9)
-        };
+        let (transform, trace, display) = (stage("transform"), stage("trace"), stage("display"));
+        let build = gpu - transform - trace - display;
+        // Twice a second: one read of the accumulation image's ray counts.
+        let rays = self.renderer.rays_per_sample()? * self.traced as f64;
         let title = format!(
-            "raytrace · {} · {:.1} fps · GPU {:.2} ms (transform+build {:.2}, trace {:.2}, display {:.2}) · {:.0} Mpaths/s · {} spp/frame, {} spp · depth {} · NEE {} · BVH {}{}",
+            "raytrace · {} · {:.1} fps · GPU {:.2} ms (transform {:.2}, build {:.2}, trace {:.2}, display {:.2}) · {:.2} Grays/s · {} spp/frame, {} spp · depth {} · NEE {} · BVH {}{}",
             self.live.scene.name,
             n / elapsed,
             gpu * 1e3,
+            transform * 1e3,
             build * 1e3,
-            stage("trace") * 1e3,
-            stage("display") * 1e3,
-            paths * 1e-6,
+            trace * 1e3,
+            display * 1e3,
+            rays / trace.max(1e-9) * 1e-9,
             self.spf,
             self.renderer.samples(),
             self.live.scene.settings.max_depth,
@@ -544,6 +536,7 @@ impl App {
             w.set_title(&title);
         }
         self.stats = Stats::default();
+        Ok(())
     }
 
     fn key(&mut self, el: &ActiveEventLoop, code: KeyCode) -> Result<()> {
@@ -731,14 +724,13 @@ impl App {
             Ok(s) => println!("BVH valid: {s:?}"),
             Err(e) => println!("BVH INVALID: {e}"),
         }
-        let picture = self.renderer.picture()?;
         let trace: f64 = self
             .last_timings
             .iter()
             .filter(|(l, _)| *l == "trace")
             .map(|(_, t)| t)
             .sum();
-        let rays = rays_traced(&picture) as f64 / picture.samples.max(1) as f64 * self.spf as f64;
+        let rays = self.renderer.rays_per_sample()? * self.traced as f64;
         println!(
             "last frame: {:.0} rays in {:.3} ms of tracing = {:.2} Grays/s",
             rays,
