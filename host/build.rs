@@ -12,9 +12,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     builder.build_script.defaults = true;
     builder.build_script.env_shader_spv_path = Some(true);
     let result = builder.build()?;
-    if !matches!(result.module, ModuleResult::SingleModule(_)) {
+    let ModuleResult::SingleModule(module) = &result.module else {
         return Err("expected a single SPIR-V module".into());
-    }
+    };
+    let words: Vec<u32> = std::fs::read(module)?
+        .chunks_exact(4)
+        .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+        .collect();
+    let precise = no_contraction(&words)?;
+    let precise_path = PathBuf::from(std::env::var("OUT_DIR")?).join("shader_crate_precise.spv");
+    std::fs::write(
+        &precise_path,
+        precise.iter().flat_map(|w| w.to_le_bytes()).collect::<Vec<u8>>(),
+    )?;
+    println!("cargo::rustc-env=SHADER_SPV_PATH={}", precise_path.display());
     let names: Vec<String> = result.entry_points.iter().map(|e| format!("{e:?}")).collect();
     let out = PathBuf::from(std::env::var("OUT_DIR")?).join("entry_points.rs");
     std::fs::write(
@@ -25,4 +36,59 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ),
     )?;
     Ok(())
+}
+
+/// SPIR-V opcodes and operands `no_contraction` reads and writes.
+const OP_EXT_INST_IMPORT: u32 = 11;
+const OP_EXT_INST: u32 = 12;
+const OP_DECORATE: u32 = 71;
+const ANNOTATIONS: [u32; 8] = [71, 72, 73, 74, 75, 332, 5632, 5633];
+/// OpFNegate, OpFAdd, OpFSub, OpFMul, OpFDiv, OpFRem, OpFMod, OpVectorTimesScalar, OpDot.
+const FLOAT_ARITHMETIC: [u32; 9] = [127, 129, 131, 133, 136, 140, 141, 142, 148];
+const NO_CONTRACTION: u32 = 42;
+const GLSL_FMA: u32 = 50;
+
+/// The module with every floating-point arithmetic instruction (and GLSL `Fma`) decorated
+/// `NoContraction`. Without it a Vulkan driver may fuse, reorder and simplify float
+/// arithmetic as if it were exact (Mesa folds `(a + b) - a` to `b`), which breaks the
+/// error-free sums and products of the sphere test and any bit-exact agreement with the CPU
+/// executor. rust-gpu has no way to emit the decoration itself.
+fn no_contraction(words: &[u32]) -> Result<Vec<u32>, Box<dyn std::error::Error>> {
+    if words.len() < 5 || words[0] != 0x0723_0203 {
+        return Err("not a little-endian SPIR-V module".into());
+    }
+    let mut glsl = None;
+    let mut targets = Vec::new();
+    let mut after_annotations = None;
+    let mut i = 5;
+    while i < words.len() {
+        let (count, op) = ((words[i] >> 16) as usize, words[i] & 0xffff);
+        if count == 0 || i + count > words.len() {
+            return Err(format!("malformed SPIR-V instruction at word {i}").into());
+        }
+        let inst = &words[i..i + count];
+        if op == OP_EXT_INST_IMPORT
+            && inst[2..]
+                .iter()
+                .flat_map(|w| w.to_le_bytes())
+                .take(12)
+                .eq(*b"GLSL.std.450")
+        {
+            glsl = Some(inst[1]);
+        }
+        if ANNOTATIONS.contains(&op) {
+            after_annotations = Some(i + count);
+        }
+        if FLOAT_ARITHMETIC.contains(&op) || (op == OP_EXT_INST && Some(inst[3]) == glsl && inst[4] == GLSL_FMA) {
+            targets.push(inst[2]);
+        }
+        i += count;
+    }
+    let at = after_annotations.ok_or("the SPIR-V module has no annotations")?;
+    let mut out = words[..at].to_vec();
+    for id in targets {
+        out.extend([3 << 16 | OP_DECORATE, id, NO_CONTRACTION]);
+    }
+    out.extend_from_slice(&words[at..]);
+    Ok(out)
 }

@@ -62,6 +62,44 @@ pub fn two_product(a: f32, b: f32) -> (f32, f32) {
     (p, fma(a, b, -p))
 }
 
+/// `a * b` as `p + e` exactly without a fused multiply-add (Dekker 1971 with Veltkamp's
+/// split), for devices whose GLSL `Fma` rounds twice: Vulkan allows it and llvmpipe's does.
+/// Exact as long as no multiply or add is fused or reordered, which the `NoContraction`
+/// decoration of every float operation in the kernels (`host/build.rs`) guarantees.
+pub fn two_product_split(a: f32, b: f32) -> (f32, f32) {
+    let p = a * b;
+    let (ah, al) = split(a);
+    let (bh, bl) = split(b);
+    (p, al * bl - (((p - ah * bh) - al * bh) - ah * bl))
+}
+
+/// `a` as `hi + lo` with 12 significant bits in `hi` (Veltkamp).
+fn split(a: f32) -> (f32, f32) {
+    let c = 4097.0 * a;
+    let hi = c - (c - a);
+    (hi, a - hi)
+}
+
+/// [`two_product`], or [`two_product_split`] where `fma` is not fused (`split`).
+pub fn exact_product(a: f32, b: f32, split: bool) -> (f32, f32) {
+    if split {
+        two_product_split(a, b)
+    } else {
+        two_product(a, b)
+    }
+}
+
+/// [`difference_of_products`], or the same from [`two_product_split`]s where `fma` is not
+/// fused (`split`): error a few ulps of the result.
+pub fn difference_of_products_exact(a: f32, b: f32, c: f32, d: f32, split: bool) -> f32 {
+    if !split {
+        return difference_of_products(a, b, c, d);
+    }
+    let (ab, ab_err) = two_product_split(a, b);
+    let (cd, cd_err) = two_product_split(c, d);
+    (ab - cd) + (ab_err - cd_err)
+}
+
 /// Largest component.
 pub fn max3(v: Vec3) -> f32 {
     v.x.max(v.y).max(v.z)

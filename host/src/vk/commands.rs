@@ -6,6 +6,9 @@ use ash::vk;
 use shared::types::BuildParams;
 use std::sync::Arc;
 
+/// Longest a submission may run before [`Commands::wait`] gives up on it.
+pub const GPU_TIMEOUT_NS: u64 = 600_000_000_000;
+
 const MAX_TIMESTAMPS: u32 = 64;
 
 pub struct Commands {
@@ -225,13 +228,20 @@ impl Commands {
         Ok(())
     }
 
-    /// Waits for the last submission to finish.
+    /// Waits for the last submission to finish; a submission still running after
+    /// [`GPU_TIMEOUT_NS`] is an error (a hung kernel), not a hang.
     pub fn wait(&mut self) -> Result<()> {
         let d = &self.gpu.device;
         // SAFETY: the fence belongs to this device and was given to the last submission.
         unsafe {
-            d.wait_for_fences(&[self.fence], true, u64::MAX)
-                .context("waiting for the GPU")?;
+            let r = d.wait_for_fences(&[self.fence], true, GPU_TIMEOUT_NS);
+            if r == Err(vk::Result::TIMEOUT) {
+                anyhow::bail!(
+                    "the GPU did not finish within {} s: a kernel hangs or the work is far too large",
+                    GPU_TIMEOUT_NS / 1_000_000_000
+                );
+            }
+            r.context("waiting for the GPU")?;
             d.reset_fences(&[self.fence]).context("resetting a fence")?;
         }
         Ok(())

@@ -1,10 +1,11 @@
 //! Compute pipelines for every entry point of the embedded SPIR-V, one shared pipeline layout
 //! (set 0: the build's `BINDINGS` storage buffers; set 1: the renderer's `RENDER_BINDINGS`;
 //! 16 bytes of push constants: `BuildParams` or `RenderPush`), and descriptor sets.
-use super::{Buffer, Gpu, SHADER_SPV};
+use super::{Buffer, Commands, Gpu, SHADER_SPV};
 use anyhow::{Context, Result};
 use ash::vk;
-use shared::types::{BuildParams, RenderPush, RENDER_BINDINGS};
+use gpu_allocator::MemoryLocation;
+use shared::types::{BuildParams, RenderPush, RENDER_BINDINGS, VARIANT_SPLIT_PRODUCTS};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
@@ -31,10 +32,11 @@ pub enum Kernel {
     PathTrace,
     DisplayImage,
     CastRays,
+    FmaProbe,
 }
 
 impl Kernel {
-    pub const ALL: [Kernel; 15] = [
+    pub const ALL: [Kernel; 16] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -50,6 +52,7 @@ impl Kernel {
         Kernel::PathTrace,
         Kernel::DisplayImage,
         Kernel::CastRays,
+        Kernel::FmaProbe,
     ];
 
     /// The entry point's name in the SPIR-V module.
@@ -70,6 +73,7 @@ impl Kernel {
             Kernel::PathTrace => "path_trace",
             Kernel::DisplayImage => "display_image",
             Kernel::CastRays => "cast_rays",
+            Kernel::FmaProbe => "fma_probe",
         }
     }
 }
@@ -84,6 +88,8 @@ pub struct Kernels {
     pipelines: Vec<vk::Pipeline>,
     /// Pipelines made with a value of specialisation constant 0, made when first asked for.
     specialised: Mutex<HashMap<(Kernel, u32), vk::Pipeline>>,
+    /// Whether the device's GLSL `Fma` rounds once (see [`Kernels::specialised`]).
+    pub fused_fma: bool,
 }
 
 impl Kernels {
@@ -98,6 +104,7 @@ impl Kernels {
             layout: vk::PipelineLayout::null(),
             pipelines: Vec::new(),
             specialised: Mutex::new(HashMap::new()),
+            fused_fma: true,
         };
         // SAFETY (all calls below): valid create infos on a live device; objects are owned by
         // `k` as soon as they exist, so an early return frees them.
@@ -135,7 +142,25 @@ impl Kernels {
             let p = k.create_pipeline(kernel, None)?;
             k.pipelines.push(p);
         }
+        k.fused_fma = k.probe_fma().context("probing the device's fma")?;
         Ok(k)
+    }
+
+    /// Whether the device's GLSL `Fma` rounds once, as the kernels' exact products assume:
+    /// Vulkan lets it round twice (llvmpipe's does). `fma_probe` computes
+    /// `(1 + 2^-12) (1 + 2^-12) - (1 + 2^-11)`: `2^-24` fused, `0` rounded twice.
+    fn probe_fma(&self) -> Result<bool> {
+        let x = 1.0 + f32::powi(2.0, -12);
+        let mut io = Buffer::new(&self.gpu, "fma probe", 16, MemoryLocation::GpuToCpu)?;
+        io.write(&[x, x, -(1.0 + f32::powi(2.0, -11)), f32::NAN])?;
+        let set = BindingSets::new(&self.gpu, self, 0, &[&[&io; BINDINGS]])?;
+        let mut cmds = Commands::new(&self.gpu)?;
+        cmds.begin()?;
+        cmds.dispatch_sets(self, &set.sets, Kernel::FmaProbe, &[0; 16], 1, 1);
+        cmds.barrier();
+        cmds.submit_wait()?;
+        let r: Vec<f32> = io.read(4)?;
+        Ok(r[3] == f32::powi(2.0, -24))
     }
 
     /// A pipeline of `kernel`, with specialisation constant 0 set to `constant` if given.
@@ -172,8 +197,14 @@ impl Kernels {
     }
 
     /// `kernel` specialised to `constant` (its specialisation constant 0: the path tracer's
-    /// `FEATURE_*` bits), made on first use and kept.
+    /// `FEATURE_*` and `VARIANT_*` bits), made on first use and kept. On a device whose `fma`
+    /// rounds twice [`VARIANT_SPLIT_PRODUCTS`] is added.
     pub fn specialised(&self, kernel: Kernel, constant: u32) -> Result<vk::Pipeline> {
+        let constant = if self.fused_fma {
+            constant
+        } else {
+            constant | VARIANT_SPLIT_PRODUCTS
+        };
         let mut cache = self
             .specialised
             .lock()

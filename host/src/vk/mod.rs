@@ -15,7 +15,7 @@ pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
 pub use swapchain::Swapchain;
 
 /// The SPIR-V module of `shader-crate`, compiled by `host/build.rs`.
-pub const SHADER_SPV: &[u8] = include_bytes!(env!("shader_crate.spv"));
+pub const SHADER_SPV: &[u8] = include_bytes!(env!("SHADER_SPV_PATH"));
 
 include!(concat!(env!("OUT_DIR"), "/entry_points.rs"));
 
