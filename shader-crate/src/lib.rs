@@ -13,7 +13,7 @@ use shared::types::{
     Triangle, FEATURES_ALL,
 };
 
-// The default of `path_trace`'s specialisation constant: every feature.
+// The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
 const _: () = assert!(FEATURES_ALL == 63);
 use shared::{display, karras, morton, refit, transform as xform};
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
@@ -254,6 +254,7 @@ pub fn cast_rays(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
     #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] rays: &[Ray],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit],
+    #[spirv(spec_constant(id = 0, default = 63))] features: u32,
 ) {
     let w = world!(
         tris,
@@ -264,7 +265,14 @@ pub fn cast_rays(
         materials,
         lights,
         frame,
-        FEATURES_ALL
+        features
     );
     path::cast(flat_index(id.x, id.y), p, &w, rays, hits);
+}
+
+/// `io[3] = fma(io[0], io[1], io[2])`: whether the device's `fma` rounds once
+/// (`Kernels::probe_fma`).
+#[spirv(compute(threads(1)))]
+pub fn fma_probe(#[spirv(storage_buffer, descriptor_set = 0, binding = 0)] io: &mut [f32]) {
+    io[3] = shared::math::fma(io[0], io[1], io[2]);
 }

@@ -10,7 +10,9 @@
 //! - secondary rays leave surfaces from origins offset by Wachter & Binder, Ray Tracing Gems
 //!   ch. 6, and by at least a few ulps of the primitive's own scale, so they never re-hit the
 //!   surface they start on.
-use crate::math::{difference_of_products, fma, max3, sqrt, two_product, two_sum, SLAB_WIDEN};
+use crate::math::{
+    difference_of_products, difference_of_products_exact, exact_product, fma, max3, sqrt, two_sum, SLAB_WIDEN,
+};
 use crate::types::{xyz, Sphere, Triangle};
 use spirv_std::glam::Vec3;
 
@@ -95,6 +97,37 @@ pub fn triangle(r: &TriRay, tri: &Triangle, t_max: f32) -> (f32, f32, f32) {
     }
 }
 
+/// Moller & Trumbore's ray-triangle test (JGT 1997), the common fast one, kept to measure
+/// what the watertight test costs (`raytrace bench accuracy`): its edge tests round, so a ray
+/// through a shared edge or vertex can miss both triangles. Same results as [`triangle`].
+pub fn triangle_moller_trumbore(r: &TriRay, tri: &Triangle, t_max: f32) -> (f32, f32, f32) {
+    const MISS: (f32, f32, f32) = (f32::INFINITY, 0.0, 0.0);
+    let v0 = xyz(tri.v0);
+    let (e1, e2) = (xyz(tri.v1) - v0, xyz(tri.v2) - v0);
+    let p = r.dir.cross(e2);
+    let det = e1.dot(p);
+    if det == 0.0 {
+        return MISS;
+    }
+    let inv = 1.0 / det;
+    let s = r.origin - v0;
+    let b1 = s.dot(p) * inv;
+    if b1 < 0.0 || b1 > 1.0 {
+        return MISS;
+    }
+    let q = s.cross(e1);
+    let b2 = r.dir.dot(q) * inv;
+    if b2 < 0.0 || b1 + b2 > 1.0 {
+        return MISS;
+    }
+    let t = e2.dot(q) * inv;
+    if t > 0.0 && t < t_max {
+        (t, b1, b2)
+    } else {
+        MISS
+    }
+}
+
 /// Nearest intersection distance in `(0, t_max)` of a ray with a sphere, or `INFINITY`.
 /// Ray Tracing Gems ch. 7: the roots as `c / q` and `q / a`, which lose no precision to
 /// cancellation, with three more steps that keep a few ulps for small far spheres and large
@@ -107,7 +140,10 @@ pub fn triangle(r: &TriRay, tri: &Triangle, t_max: f32) -> (f32, f32, f32) {
 ///   less: `|f x d|`, the centre's distance from the line times `|d|`, has exact-sign cross
 ///   products and serves small far spheres; `b^2 - a c` serves rays that cut steeply into
 ///   large near ones.
-pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32) -> f32 {
+///
+/// The exact products come from `fma`, or where the device's `fma` rounds twice (`split`)
+/// from Dekker's splitting (see [`exact_product`]).
+pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32, split: bool) -> f32 {
     let center = xyz(s.center_radius);
     let r = s.center_radius[3];
     let (fx, ex) = two_sum(origin.x, -center.x);
@@ -120,18 +156,18 @@ pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32) -> f32 {
         return f32::INFINITY;
     }
     let b = -(f.dot(dir) + fe.dot(dir));
-    let c = norm2_minus_r2(f, fe, r);
+    let c = norm2_minus_r2(f, fe, r, split);
     let fxd = Vec3::new(
-        difference_of_products(f.y, dir.z, f.z, dir.y),
-        difference_of_products(f.z, dir.x, f.x, dir.z),
-        difference_of_products(f.x, dir.y, f.y, dir.x),
+        difference_of_products_exact(f.y, dir.z, f.z, dir.y, split),
+        difference_of_products_exact(f.z, dir.x, f.x, dir.z, split),
+        difference_of_products_exact(f.x, dir.y, f.y, dir.x, split),
     ) + fe.cross(dir);
     let l = fxd.length();
     let disc = if l < b.abs() {
         let ra = r * sqrt(a);
         (ra + l) * (ra - l)
     } else {
-        difference_of_products(b, b, a, c)
+        difference_of_products_exact(b, b, a, c, split)
     };
     if disc.is_nan() || disc < 0.0 {
         return f32::INFINITY;
@@ -152,11 +188,11 @@ pub fn sphere(origin: Vec3, dir: Vec3, s: &Sphere, t_max: f32) -> f32 {
 /// `|f + fe|^2 - r^2` where `fe` is small against `f`: the exact products `f_i^2` and
 /// `-r^2` are added by TwoSum and every rounding error is gathered into one correction
 /// (Ogita, Rump & Oishi 2005, Dot2), as if in twice the precision.
-fn norm2_minus_r2(f: Vec3, fe: Vec3, r: f32) -> f32 {
-    let (xx, ex) = two_product(f.x, f.x);
-    let (yy, ey) = two_product(f.y, f.y);
-    let (zz, ez) = two_product(f.z, f.z);
-    let (rr, er) = two_product(-r, r);
+fn norm2_minus_r2(f: Vec3, fe: Vec3, r: f32, split: bool) -> f32 {
+    let (xx, ex) = exact_product(f.x, f.x, split);
+    let (yy, ey) = exact_product(f.y, f.y, split);
+    let (zz, ez) = exact_product(f.z, f.z, split);
+    let (rr, er) = exact_product(-r, r, split);
     let (s1, e1) = two_sum(xx, yy);
     let (s2, e2) = two_sum(s1, zz);
     let (s3, e3) = two_sum(s2, rr);
@@ -173,6 +209,23 @@ pub fn slab(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -> f32 
     let (near, far) = slab_axis(0.0, t_max, t0.x, t1.x, inv_dir.x);
     let (near, far) = slab_axis(near, far, t0.y, t1.y, inv_dir.y);
     let (near, far) = slab_axis(near, far, t0.z, t1.z, inv_dir.z);
+    if near <= far {
+        near
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// The plain slab test (Kay & Kajiya; min/max of the two planes per axis, no widening),
+/// kept to measure what [`slab`] costs. Its min/max of a NaN distance (a ray on a slab plane
+/// parallel to it) is whatever the hardware's min/max gives, and the far distance rounds
+/// down as often as up, so boxes of flat or touching primitives can be missed.
+pub fn slab_plain(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -> f32 {
+    let t0 = (lo - origin) * inv_dir;
+    let t1 = (hi - origin) * inv_dir;
+    let (lo, hi) = (t0.min(t1), t0.max(t1));
+    let near = lo.x.max(lo.y).max(lo.z).max(0.0);
+    let far = hi.x.min(hi.y).min(hi.z).min(t_max);
     if near <= far {
         near
     } else {

@@ -11,8 +11,8 @@ use crate::rng::Rng;
 use crate::sampling;
 use crate::traverse::{self, Scene};
 use crate::types::{
-    xyz, Camera, Frame, Hit, Material, Object, Ray, RenderPush, FEATURE_NEE, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS,
-    FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
+    xyz, Camera, Frame, Hit, Material, Object, Ray, RenderPush, CAST_ANY, CAST_SPAWN, FEATURE_NEE, FEATURE_THIN_LENS,
+    FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -119,6 +119,12 @@ pub fn camera_ray(c: &Camera, width: u32, height: u32, x: u32, y: u32, features:
     (origin, (target - origin).normalize())
 }
 
+/// Origin of a ray leaving the surface point `p` (unit geometric normal `ng`, primitive
+/// scale `scale`) along `dir`: offset to the side `dir` goes to.
+pub fn leave(p: Vec3, ng: Vec3, scale: f32, dir: Vec3) -> Vec3 {
+    offset_origin(p, if dir.dot(ng) > 0.0 { ng } else { -ng }, scale)
+}
+
 /// Radiance of rays that leave the scene.
 fn sky(f: &Frame, d: Vec3) -> Vec3 {
     let a = 0.5 * (d.y + 1.0);
@@ -210,7 +216,7 @@ pub fn radiance(w: &World, origin: Vec3, dir: Vec3, rng: &mut Rng) -> (Vec3, u32
             rays += 1;
         }
         beta *= s.weight;
-        o = offset_origin(p, if s.dir.dot(ng) > 0.0 { ng } else { -ng }, scale);
+        o = leave(p, ng, scale, s.dir);
         d = s.dir;
         prev = s;
         depth += 1;
@@ -259,10 +265,38 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
 }
 
 /// Closest hit of ray `i` of `rays` (origin `w`: unused, direction `w`: largest distance).
+/// With [`CAST_ANY`] an any-hit query; with [`CAST_SPAWN`] query `i` is the pair of rays
+/// `2 i`, `2 i + 1`: see there.
 pub fn cast(i: u32, p: &RenderPush, w: &World, rays: &[Ray], hits: &mut [Hit]) {
     if i >= p.count {
         return;
     }
-    let r = rays[i as usize];
-    hits[i as usize] = w.closest(xyz(r.origin), xyz(r.dir), r.dir[3]);
+    if p.flags & CAST_SPAWN == 0 {
+        let r = rays[i as usize];
+        let (o, d) = (xyz(r.origin), xyz(r.dir));
+        hits[i as usize] = if p.flags & CAST_ANY == 0 {
+            w.closest(o, d, r.dir[3])
+        } else if w.any(o, d, r.dir[3]) {
+            Hit {
+                t: 0.0,
+                prim: 0,
+                u: 0.0,
+                v: 0.0,
+            }
+        } else {
+            Hit::MISS
+        };
+        return;
+    }
+    let (first, second) = (rays[2 * i as usize], rays[2 * i as usize + 1]);
+    let (o, d) = (xyz(first.origin), xyz(first.dir));
+    let h = w.closest(o, d, first.dir[3]);
+    hits[2 * i as usize] = h;
+    hits[2 * i as usize + 1] = if h.prim == INVALID {
+        Hit::MISS
+    } else {
+        let (q, ng, scale) = traverse::surface(&w.scene, h.prim, o, d, &h);
+        let d2 = xyz(second.dir);
+        w.closest(leave(q, ng, scale, d2), d2, second.dir[3])
+    };
 }

@@ -4,7 +4,10 @@
 //! direction miss.
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
-use crate::types::{xyz, Hit, Node, Sphere, Triangle, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID};
+use crate::types::{
+    xyz, Hit, Node, Sphere, Triangle, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID, VARIANT_MOLLER_TRUMBORE,
+    VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS,
+};
 use spirv_std::glam::Vec3;
 
 /// Entries of the traversal stack. A Karras tree over `n` primitives with 30- or 63-bit
@@ -21,7 +24,8 @@ pub struct Scene<'a> {
     pub n_tris: u32,
     pub n_prims: u32,
     /// `FEATURE_*` bits: primitive kinds left out are never intersected (a specialisation
-    /// constant on the GPU, so their code is gone). Must include every kind present.
+    /// constant on the GPU, so their code is gone). Must include every kind present. And
+    /// `VARIANT_*` bits: the less robust tests to use instead.
     pub features: u32,
 }
 
@@ -45,11 +49,17 @@ pub fn primitive(s: &Scene, r: &TriRay, prim: u32, t_max: f32) -> (f32, f32, f32
         if s.features & FEATURE_TRIANGLES == 0 {
             return (f32::INFINITY, 0.0, 0.0);
         }
-        intersect::triangle(r, &s.tris[prim as usize], t_max)
+        let tri = &s.tris[prim as usize];
+        if s.features & VARIANT_MOLLER_TRUMBORE != 0 {
+            intersect::triangle_moller_trumbore(r, tri, t_max)
+        } else {
+            intersect::triangle(r, tri, t_max)
+        }
     } else if s.features & FEATURE_SPHERES == 0 {
         (f32::INFINITY, 0.0, 0.0)
     } else {
-        let t = intersect::sphere(r.origin, r.dir, &s.spheres[(prim - s.n_tris) as usize], t_max);
+        let split = s.features & VARIANT_SPLIT_PRODUCTS != 0;
+        let t = intersect::sphere(r.origin, r.dir, &s.spheres[(prim - s.n_tris) as usize], t_max, split);
         (t, 0.0, 0.0)
     }
 }
@@ -117,7 +127,7 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
     let r = TriRay::new(origin, dir);
     let mut limit = t_max;
     let root = s.nodes[0];
-    if intersect::slab(origin, r.inv_dir, Vec3::from(root.min), Vec3::from(root.max), limit) == f32::INFINITY {
+    if slab(s, &r, &root, limit) == f32::INFINITY {
         return best;
     }
     if n == 1 {
@@ -157,12 +167,22 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
     }
 }
 
+/// Entry distance of the ray into node `c`'s box (see [`intersect::slab`]).
+fn slab(s: &Scene, r: &TriRay, c: &Node, limit: f32) -> f32 {
+    let (lo, hi) = (Vec3::from(c.min), Vec3::from(c.max));
+    if s.features & VARIANT_PLAIN_SLAB != 0 {
+        intersect::slab_plain(r.origin, r.inv_dir, lo, hi, limit)
+    } else {
+        intersect::slab(r.origin, r.inv_dir, lo, hi, limit)
+    }
+}
+
 /// Tests child `child`'s box; a hit leaf's primitive is intersected at once (updating
 /// `limit` and `best`), a hit internal node is returned with its entry distance for the
 /// caller to descend into. Returns `(INVALID, INFINITY)` otherwise.
 fn visit(s: &Scene, r: &TriRay, child: u32, first_leaf: u32, limit: &mut f32, best: &mut Hit) -> (u32, f32) {
     let c = s.nodes[child as usize];
-    let t_box = intersect::slab(r.origin, r.inv_dir, Vec3::from(c.min), Vec3::from(c.max), *limit);
+    let t_box = slab(s, r, &c, *limit);
     if t_box == f32::INFINITY {
         return (INVALID, f32::INFINITY);
     }

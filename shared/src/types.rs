@@ -327,7 +327,7 @@ pub struct RenderPush {
     pub samples: u32,
     /// Number of rays (ray casts).
     pub count: u32,
-    /// `DISPLAY_*` flags (display pass).
+    /// `DISPLAY_*` flags (display pass) or `CAST_*` flags (ray casts).
     pub flags: u32,
 }
 
@@ -349,6 +349,27 @@ pub const FEATURE_DIELECTRIC: u32 = 1 << 4;
 pub const FEATURE_THIN_LENS: u32 = 1 << 5;
 /// Every feature: the kernel that runs any scene.
 pub const FEATURES_ALL: u32 = (1 << 6) - 1;
+
+// Intersection variants, bits of the same specialisation constant: less robust tests that
+// only `raytrace bench accuracy` sets (what the robust defaults of DESIGN.md section 3
+// cost), and the device workaround the host sets.
+
+/// Triangles by Moller & Trumbore (1997) instead of the watertight test.
+pub const VARIANT_MOLLER_TRUMBORE: u32 = 1 << 6;
+/// Boxes by the plain slab test (no NaN handling, no widening) instead of the robust one.
+pub const VARIANT_PLAIN_SLAB: u32 = 1 << 7;
+
+/// Exact products without a fused multiply-add (`math::two_product_split`): set by the host
+/// where the device's `Fma` rounds twice (Vulkan allows it; llvmpipe's does), so the sphere
+/// test keeps its precision there.
+pub const VARIANT_SPLIT_PRODUCTS: u32 = 1 << 8;
+
+/// Ray casts ([`RenderPush::flags`]): ray `2 i` is cast, then a ray leaves its hit point
+/// along the direction of ray `2 i + 1` (its `w`: largest distance) as a path does; hits
+/// `2 i` and `2 i + 1` are theirs.
+pub const CAST_SPAWN: u32 = 1;
+/// Ray casts: any-hit queries (shadow rays); a hit is `t = 0`, primitive 0.
+pub const CAST_ANY: u32 = 2;
 
 /// Display pass: pack pixels as B, G, R, A bytes (for BGRA swapchain images).
 pub const DISPLAY_BGRA: u32 = 1;

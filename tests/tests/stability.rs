@@ -11,6 +11,7 @@
 mod common;
 
 use common::*;
+use raytrace::hard_cases::closed_meshes;
 use shared::glam::{DVec3, Vec3};
 use shared::intersect::{self, offset_origin, TriRay};
 use shared::material::{self, reflect};
@@ -23,16 +24,6 @@ const INF: f32 = f32::INFINITY;
 // ---------------------------------------------------------------------------------------------
 // 1. Watertightness
 // ---------------------------------------------------------------------------------------------
-
-/// Interior points of the unit meshes (also inside the octahedron `|x| + |y| + |z| < 1`).
-const INSIDE: [[f32; 3]; 4] = [
-    [0.0, 0.0, 0.0],
-    [0.1, -0.23, 0.31],
-    [-0.37, 0.05, -0.11],
-    [0.29, 0.33, -0.2],
-];
-/// Distances the meshes are moved by (along `(1, -1, 1)`), the rays' origins with them.
-const OFFSETS: [f32; 3] = [0.0, 1e3, 1e5];
 
 /// Rays of [`shoot_at_vertices_and_edges`] that found nothing, by query.
 #[derive(Debug, Default)]
@@ -60,38 +51,27 @@ const TIE_ULPS: f64 = 4.0;
 fn shoot_at_vertices_and_edges(name: &str, mesh: &Mesh) -> Leaks {
     assert!(mesh.is_closed(), "{name} is not a closed mesh");
     let mut l = Leaks::default();
-    let edges = mesh.edges();
     for s in OFFSETS {
         let offset = Vec3::new(s, -s, s);
         let world = World::new(mesh.triangles(offset), vec![]);
         let scene = world.scene();
-        let v = mesh.moved(offset);
-        let targets: Vec<Vec3> = v
-            .iter()
-            .copied()
-            .chain(edges.iter().map(|&[a, b]| (v[a as usize] + v[b as usize]) * 0.5))
-            .collect();
-        for o in INSIDE {
-            let o = Vec3::from(o) + offset;
-            for &t in &targets {
-                let d = t - o;
-                l.rays += 1;
-                let brute = traverse::closest_brute(&scene, o, d, INF);
-                let bvh = traverse::closest(&scene, o, d, INF);
-                let (any_brute, any_bvh) = (traverse::any_brute(&scene, o, d, INF), traverse::any(&scene, o, d, INF));
-                let tie = brute.t != bvh.t && ulps(bvh.t, brute.t as f64) <= TIE_ULPS;
-                let farther = brute.t != bvh.t && !tie;
-                l.brute += (brute.prim == INVALID) as usize;
-                l.bvh += (bvh.prim == INVALID) as usize;
-                l.any_brute += !any_brute as usize;
-                l.any_bvh += !any_bvh as usize;
-                l.ties += tie as usize;
-                l.farther += farther as usize;
-                if brute.prim == INVALID || bvh.prim == INVALID || !any_brute || !any_bvh || farther {
-                    l.first.get_or_insert_with(|| {
-                        format!("from {o} along {d}: brute {brute:?}, BVH {bvh:?}, any {any_brute} / {any_bvh}")
-                    });
-                }
+        for (o, d) in rays_at_vertices_and_edges(mesh, offset) {
+            l.rays += 1;
+            let brute = traverse::closest_brute(&scene, o, d, INF);
+            let bvh = traverse::closest(&scene, o, d, INF);
+            let (any_brute, any_bvh) = (traverse::any_brute(&scene, o, d, INF), traverse::any(&scene, o, d, INF));
+            let tie = brute.t != bvh.t && ulps(bvh.t, brute.t as f64) <= TIE_ULPS;
+            let farther = brute.t != bvh.t && !tie;
+            l.brute += (brute.prim == INVALID) as usize;
+            l.bvh += (bvh.prim == INVALID) as usize;
+            l.any_brute += !any_brute as usize;
+            l.any_bvh += !any_bvh as usize;
+            l.ties += tie as usize;
+            l.farther += farther as usize;
+            if brute.prim == INVALID || bvh.prim == INVALID || !any_brute || !any_bvh || farther {
+                l.first.get_or_insert_with(|| {
+                    format!("from {o} along {d}: brute {brute:?}, BVH {bvh:?}, any {any_brute} / {any_bvh}")
+                });
             }
         }
     }
@@ -129,6 +109,59 @@ fn flat_subdivided_octahedron_does_not_leak_at_vertices_or_edges() {
 fn cubes_of_triangles_do_not_leak_at_vertices_or_edges() {
     assert_watertight("cube of 12 triangles", &cube(1));
     assert_watertight("cube, faces cut in 8x8 squares", &cube(8));
+}
+
+/// The watertightness rays on the GPU: every closed mesh at every offset, built and traced
+/// by the GPU (the kernels as the driver compiled them: fused or reordered arithmetic would
+/// show here), closest and any hit, through the BVH and by brute force.
+#[test]
+fn closed_meshes_do_not_leak_on_the_gpu() {
+    let Some(mut g) = GpuWorld::open("closed_meshes_do_not_leak_on_the_gpu") else {
+        return;
+    };
+    let mut failures = Vec::new();
+    for (name, mesh) in closed_meshes() {
+        let mut l = Leaks::default();
+        for s in OFFSETS {
+            let offset = Vec3::new(s, -s, s);
+            g.load(&World::new(mesh.triangles(offset), vec![]));
+            let rays: Vec<_> = rays_at_vertices_and_edges(&mesh, offset)
+                .into_iter()
+                .map(|(o, d)| (o, d, INF))
+                .collect();
+            g.set_mode(true, 0);
+            let (bvh, any_bvh) = (g.closest(&rays), g.any(&rays));
+            g.set_mode(false, 0);
+            let (brute, any_brute) = (g.closest(&rays), g.any(&rays));
+            for i in 0..rays.len() {
+                let (b, h) = (brute[i], bvh[i]);
+                let tie = b.t != h.t && ulps(h.t, b.t as f64) <= TIE_ULPS;
+                let farther = b.t != h.t && !tie;
+                l.rays += 1;
+                l.brute += (b.prim == INVALID) as usize;
+                l.bvh += (h.prim == INVALID) as usize;
+                l.any_brute += !any_brute[i] as usize;
+                l.any_bvh += !any_bvh[i] as usize;
+                l.ties += tie as usize;
+                l.farther += farther as usize;
+                if b.prim == INVALID || h.prim == INVALID || !any_brute[i] || !any_bvh[i] || farther {
+                    let (o, d, _) = rays[i];
+                    l.first.get_or_insert_with(|| {
+                        format!(
+                            "offset {s}, from {o} along {d}: brute {b:?}, BVH {h:?}, any {} / {}",
+                            any_brute[i], any_bvh[i]
+                        )
+                    });
+                }
+            }
+        }
+        eprintln!("GPU, {name}: {l:?}");
+        if l.brute + l.bvh + l.any_brute + l.any_bvh + l.farther > 0 {
+            failures.push(format!("{name}: {l:?}"));
+        }
+    }
+    g.assert_no_validation_errors();
+    assert!(failures.is_empty(), "leaks on the GPU:\n{}", failures.join("\n"));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -416,6 +449,111 @@ fn secondary_rays_never_rehit_triangle_meshes() {
     assert!(wrong.is_empty(), "{}", wrong.join("\n"));
 }
 
+/// [`self_hits`] on the GPU: the GPU finds the primary hits, the directions are chosen from
+/// them here as [`spawn_from_hits`] does, and the GPU offsets each new origin from its hit
+/// point and traces it through its BVH (`CAST_SPAWN`: the path tracer's own code).
+fn gpu_self_hits(g: &mut GpuWorld, s: &Surface, primaries: usize, seed: u32) -> Option<String> {
+    g.load(&s.world);
+    let scene = s.world.scene();
+    let mut rnd = Random::new(seed);
+    let primary: Vec<(Vec3, Vec3, f32)> = (0..primaries)
+        .map(|_| {
+            let from = s.aim_at + rnd.unit() * (3.0 * s.reach);
+            let to = s.aim_at + rnd.unit() * (0.9 * s.reach * rnd.f32());
+            (from, (to - from).normalize(), INF)
+        })
+        .collect();
+    let hits = g.closest(&primary);
+    let (mut pairs, mut starts) = (Vec::new(), Vec::new());
+    for (&(o, d, _), h) in primary.iter().zip(&hits) {
+        if h.prim == INVALID {
+            continue;
+        }
+        let (p, ng, _) = traverse::surface(&scene, h.prim, o, d, h);
+        let facing = if d.dot(ng) < 0.0 { ng } else { -ng };
+        let mut dirs = vec![reflect(d, facing)];
+        for _ in 0..2 {
+            let (u1, u2) = (rnd.f32(), rnd.f32());
+            dirs.push(sampling::cosine_hemisphere(facing, u1, u2));
+            let (u1, u2) = (rnd.f32(), rnd.f32());
+            dirs.push(sampling::cosine_hemisphere(-facing, u1, u2));
+        }
+        for d2 in dirs {
+            pairs.push(((o, d), d2));
+            starts.push((*h, p, ng));
+        }
+    }
+    let n_hits = pairs.len() / 5;
+    let out = g.spawn(&pairs);
+    let mut wrong = Vec::new();
+    for (((_, d2), (h, p, ng)), (first, second)) in pairs.iter().zip(&starts).zip(&out) {
+        if first != h {
+            wrong.push(format!(
+                "the spawning cast's primary hit {first:?} is not the cast's {h:?}"
+            ));
+        } else if let Some(why) = self_hit(s, h.prim, *p, *ng, *d2, second) {
+            wrong.push(format!("from {p} (prim {}, normal {ng}) along {d2}: {why}", h.prim));
+        }
+    }
+    eprintln!(
+        "GPU, {}: {n_hits} hits, {} secondary rays, {} wrong",
+        s.name,
+        out.len(),
+        wrong.len()
+    );
+    if n_hits <= primaries / 4 {
+        return Some(format!("{}: only {n_hits} of {primaries} primary rays hit", s.name));
+    }
+    (!wrong.is_empty()).then(|| {
+        format!(
+            "{}: {} of {} wrong; first: {}",
+            s.name,
+            wrong.len(),
+            out.len(),
+            wrong[0]
+        )
+    })
+}
+
+#[test]
+fn secondary_rays_never_rehit_on_the_gpu() {
+    let Some(mut g) = GpuWorld::open("secondary_rays_never_rehit_on_the_gpu") else {
+        return;
+    };
+    let mut surfaces = Vec::new();
+    for (r, c) in [
+        (1.0, Vec3::ZERO),
+        (0.01, Vec3::new(3.0, 0.0, -2.0)),
+        (1.0, FAR),
+        (1e4, FAR),
+    ] {
+        surfaces.push(sphere_surface(r, c));
+    }
+    for r in [1e2, 1e3, 1e4, 1e5] {
+        surfaces.push(sphere_surface(r, Vec3::new(0.0, -r, 0.0)).aimed(Vec3::ZERO, 10.0));
+    }
+    let ico = icosphere(2);
+    let ico_parts: Vec<u32> = (0..ico.faces.len() as u32).collect();
+    let cube = cube(4);
+    let cube_parts: Vec<u32> = (0..cube.faces.len() as u32).map(|i| i / 32).collect();
+    for (scale, c) in [(1.0, Vec3::ZERO), (50.0, FAR)] {
+        surfaces.push(mesh_surface("icosphere", &ico, scale, c, true, ico_parts.clone()));
+        surfaces.push(mesh_surface("cube", &cube, scale, c, true, cube_parts.clone()));
+        surfaces.push(tilted_square(scale, c));
+        surfaces.push(height_field(6, scale, c));
+    }
+    for half in [1e2, 1e3, 1e5] {
+        surfaces.push(tilted_square(half, Vec3::ZERO).aimed(Vec3::ZERO, 10.0));
+    }
+    let wrong: Vec<String> = surfaces
+        .iter()
+        .enumerate()
+        .filter_map(|(k, s)| gpu_self_hits(&mut g, s, 1000, 20 + k as u32))
+        .collect();
+    g.assert_no_validation_errors();
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
 // ---------------------------------------------------------------------------------------------
 // 3. Axis-aligned rays, flat boxes, non-finite input
 // ---------------------------------------------------------------------------------------------
@@ -607,25 +745,45 @@ fn sane(h: &Hit, n_prims: u32, t_max: f32) -> bool {
     }
 }
 
+/// A ray that hits [`mixed_world`], and the bad ranges tried with it.
+const GOOD_RAY: (Vec3, Vec3) = (Vec3::new(0.1, 0.2, -3.0), Vec3::new(0.01, 0.02, 1.0));
+const BAD_T_MAX: [f32; 5] = [f32::NAN, -INF, -1.0, 0.0, -0.0];
+
+/// [`GOOD_RAY`] with NaN or infinite components in its origin, direction or both, and zero
+/// directions of either sign: every query must miss.
+fn non_finite_rays() -> Vec<(Vec3, Vec3)> {
+    let (o0, d0) = GOOD_RAY;
+    let mut rays = Vec::new();
+    for bad in [f32::NAN, INF, -INF] {
+        for k in 0..3 {
+            rays.push((with(o0, k, bad), d0));
+            rays.push((o0, with(d0, k, bad)));
+            rays.push((with(o0, k, bad), with(d0, (k + 1) % 3, bad)));
+        }
+        rays.push((Vec3::splat(bad), d0));
+        rays.push((o0, Vec3::splat(bad)));
+    }
+    for zero in [Vec3::ZERO, -Vec3::ZERO, Vec3::new(0.0, -0.0, 0.0)] {
+        rays.push((o0, zero));
+    }
+    rays
+}
+
+/// Finite rays at the edge of the range: tiny and huge directions, huge origins.
+const EXTREME_RAYS: [(Vec3, Vec3); 5] = [
+    (Vec3::new(0.1, 0.2, -3.0), Vec3::new(0.0, 0.0, 1e-40)),
+    (Vec3::new(0.1, 0.2, -3.0), Vec3::new(1e-30, 1e-38, 1e-39)),
+    (Vec3::new(0.1, 0.2, -3.0), Vec3::new(1e38, 3e38, f32::MAX)),
+    (Vec3::new(-f32::MAX, 0.2, 0.1), Vec3::new(1.0, 0.0, 0.0)),
+    (Vec3::new(1e30, 1e30, -1e30), Vec3::new(-1.0, -1.0, 1.0)),
+];
+
 #[test]
 fn non_finite_rays_miss_and_return() {
     let wrong = returns_within(120, "non-finite rays", || {
         let world = mixed_world();
         let scene = world.scene();
-        let (o0, d0) = (Vec3::new(0.1, 0.2, -3.0), Vec3::new(0.01, 0.02, 1.0));
-        let mut rays = Vec::new();
-        for bad in [f32::NAN, INF, -INF] {
-            for k in 0..3 {
-                rays.push((with(o0, k, bad), d0));
-                rays.push((o0, with(d0, k, bad)));
-                rays.push((with(o0, k, bad), with(d0, (k + 1) % 3, bad)));
-            }
-            rays.push((Vec3::splat(bad), d0));
-            rays.push((o0, Vec3::splat(bad)));
-        }
-        for zero in [Vec3::ZERO, -Vec3::ZERO, Vec3::new(0.0, -0.0, 0.0)] {
-            rays.push((o0, zero));
-        }
+        let rays = non_finite_rays();
         let mut wrong = Vec::new();
         for (o, d) in rays {
             let r = TriRay::new(o, d);
@@ -654,8 +812,8 @@ fn non_finite_rays_miss_and_return() {
             }
         }
         // A good ray with a bad range.
-        for t_max in [f32::NAN, -INF, -1.0, 0.0, -0.0] {
-            let (o, d) = (o0, d0);
+        for t_max in BAD_T_MAX {
+            let (o, d) = GOOD_RAY;
             let r = TriRay::new(o, d);
             for h in [
                 traverse::closest(&scene, o, d, t_max),
@@ -676,13 +834,7 @@ fn non_finite_rays_miss_and_return() {
             }
         }
         // Finite rays at the edge of the range: any answer, but a sane one, the same both ways.
-        let extreme = [
-            (Vec3::new(0.1, 0.2, -3.0), Vec3::new(0.0, 0.0, 1e-40)),
-            (Vec3::new(0.1, 0.2, -3.0), Vec3::new(1e-30, 1e-38, 1e-39)),
-            (Vec3::new(0.1, 0.2, -3.0), Vec3::new(1e38, 3e38, f32::MAX)),
-            (Vec3::new(-f32::MAX, 0.2, 0.1), Vec3::new(1.0, 0.0, 0.0)),
-            (Vec3::new(1e30, 1e30, -1e30), Vec3::new(-1.0, -1.0, 1.0)),
-        ];
+        let extreme = EXTREME_RAYS;
         for (o, d) in extreme {
             let bvh = traverse::closest(&scene, o, d, INF);
             let brute = traverse::closest_brute(&scene, o, d, INF);
@@ -702,6 +854,101 @@ fn non_finite_rays_miss_and_return() {
         wrong
     });
     assert!(wrong.is_empty(), "{} wrong answers:\n{}", wrong.len(), wrong.join("\n"));
+}
+
+/// The axis-aligned and non-finite rays on the GPU: a miss or the right hit, no NaN, the
+/// same through the BVH and by brute force and as on the CPU, and every query returns.
+/// (Broken primitives are left to the CPU: scenes with non-finite vertices are refused
+/// before they reach the GPU.)
+#[test]
+fn axis_aligned_and_non_finite_rays_on_the_gpu() {
+    let Some(mut g) = GpuWorld::open("axis_aligned_and_non_finite_rays_on_the_gpu") else {
+        return;
+    };
+    let mut wrong = Vec::new();
+    // Axis-aligned rays: GPU BVH == GPU brute force == the same ray with zeros flipped,
+    // bit for bit; any-hit agrees; hits as on the CPU within a few ulps.
+    let coords = [-2.0, -1.0, -0.5, 0.0, 0.25, 0.5, 1.0, 2.0f32];
+    let dirs = signed_zero_directions();
+    let meshes = [
+        ("cube", cube(4).triangles(Vec3::ZERO)),
+        ("octahedron", octahedron(4).triangles(Vec3::ZERO)),
+        ("floor", floor(4, 0.25).triangles(Vec3::ZERO)),
+    ];
+    for (name, tris) in meshes {
+        let world = World::new(tris, vec![]);
+        let scene = world.scene();
+        g.load(&world);
+        let mut rays = Vec::new();
+        for x in coords {
+            for y in coords {
+                for z in coords {
+                    rays.extend(dirs.iter().map(|&d| (Vec3::new(x, y, z), d, INF)));
+                }
+            }
+        }
+        let flipped: Vec<_> = rays
+            .iter()
+            .map(|&(o, d, t)| (o, Vec3::select(d.cmpeq(Vec3::ZERO), -d, d), t))
+            .collect();
+        g.set_mode(true, 0);
+        let (bvh, any) = (g.closest(&rays), g.any(&rays));
+        g.set_mode(false, 0);
+        let (brute, brute_flipped) = (g.closest(&rays), g.closest(&flipped));
+        for (i, &(o, d, _)) in rays.iter().enumerate() {
+            let cpu = traverse::closest_brute(&scene, o, d, INF);
+            // A ray along an open mesh's boundary edge may hit on one device and not the
+            // other (division rounds differently); elsewhere they agree.
+            let on_edge = |h: &Hit| h.prim != INVALID && h.u.min(h.v).min(1.0 - h.u - h.v) < 1e-5;
+            let same_cpu = (cpu.prim == INVALID) == (brute[i].prim == INVALID)
+                && (cpu.prim == INVALID || ulps(brute[i].t, cpu.t as f64) <= TIE_ULPS)
+                || on_edge(&cpu)
+                || on_edge(&brute[i]);
+            if brute[i].t.to_bits() != bvh[i].t.to_bits()
+                || brute[i].t.to_bits() != brute_flipped[i].t.to_bits()
+                || any[i] != (brute[i].prim != INVALID)
+                || !same_cpu
+            {
+                wrong.push(format!(
+                    "{name} from {o} along {d:?}: GPU brute {:?}, BVH {:?}, zeros flipped {:?}, any {}; CPU {:?}",
+                    brute[i].t, bvh[i].t, brute_flipped[i].t, any[i], cpu.t
+                ));
+            }
+        }
+    }
+    // Non-finite rays and bad ranges: misses; extreme rays: sane, BVH == brute force.
+    let world = mixed_world();
+    g.load(&world);
+    let mut bad: Vec<_> = non_finite_rays().into_iter().map(|(o, d)| (o, d, INF)).collect();
+    bad.extend(BAD_T_MAX.map(|t| (GOOD_RAY.0, GOOD_RAY.1, t)));
+    let extreme: Vec<_> = EXTREME_RAYS.iter().map(|&(o, d)| (o, d, INF)).collect();
+    let n = world.scene().n_prims;
+    let mut extreme_hits = Vec::new();
+    for bvh in [true, false] {
+        g.set_mode(bvh, 0);
+        // A kernel that never returned would fail here: `Commands::wait` gives up on it.
+        let (hits, any) = (g.closest(&bad), g.any(&bad));
+        for (i, r) in bad.iter().enumerate() {
+            if hits[i] != Hit::MISS || any[i] {
+                wrong.push(format!("BVH {bvh}: {r:?}: {:?}, any {}", hits[i], any[i]));
+            }
+        }
+        extreme_hits.push(g.closest(&extreme));
+    }
+    // Any sane answer (primitives tie at these distances), the same both ways.
+    for (i, r) in extreme.iter().enumerate() {
+        let (bvh, brute) = (extreme_hits[0][i], extreme_hits[1][i]);
+        if !sane(&bvh, n, INF) || !sane(&brute, n, INF) || bvh.t != brute.t {
+            wrong.push(format!("extreme ray {r:?}: BVH {bvh:?}, brute force {brute:?}"));
+        }
+    }
+    g.assert_no_validation_errors();
+    assert!(
+        wrong.is_empty(),
+        "{} wrong answers on the GPU, e.g.:\n{}",
+        wrong.len(),
+        wrong[..wrong.len().min(8)].join("\n")
+    );
 }
 
 #[test]
@@ -774,6 +1021,9 @@ fn broken_primitives_never_give_nan_and_traversal_returns() {
 /// Largest error allowed of a sphere hit distance against the f64 reference, in units of the
 /// `f32` spacing at the reference distance.
 const SPHERE_ULPS: f64 = 4.0;
+/// The same on the GPU, whose division may be off by 2.5 ulp and square root by more
+/// (Vulkan's precision table): measured worst 4.21 ulp on the H100.
+const SPHERE_ULPS_GPU: f64 = 8.0;
 
 /// Nearest hit distance in `(0, inf)` of the `f32` ray with the `f32` sphere, in f64 (exact
 /// differences, products with 53-bit rounding), and the line's distance from the centre
@@ -803,8 +1053,10 @@ fn sphere_reference(o: Vec3, d: Vec3, center: Vec3, r: f32) -> (Option<f64>, f64
 }
 
 /// How the f32 sphere test did against the reference.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 struct SphereStats {
+    /// Largest error allowed, ulps.
+    bound: f64,
     rays: usize,
     checked: usize,
     worst_ulps: f64,
@@ -813,14 +1065,30 @@ struct SphereStats {
 }
 
 impl SphereStats {
+    fn new(bound: f64) -> SphereStats {
+        SphereStats {
+            bound,
+            rays: 0,
+            checked: 0,
+            worst_ulps: 0.0,
+            worst_rel: 0.0,
+            wrong: Vec::new(),
+        }
+    }
+
     /// Compares one ray: where the reference hits with the line at most `0.995 r` from the
     /// centre (at most 84 degrees from the normal) the test must hit within
     /// [`SPHERE_ULPS`]; where the line passes beyond `1.005 r` it must miss.
-    fn check(&mut self, o: Vec3, d: Vec3, center: Vec3, r: f32) {
+    /// Compares [`intersect::sphere`] (exact products by `fma`, or by splitting: `split`).
+    fn check(&mut self, o: Vec3, d: Vec3, center: Vec3, r: f32, split: bool) {
         let s = Sphere {
             center_radius: [center.x, center.y, center.z, r],
         };
-        let got = intersect::sphere(o, d, &s, INF);
+        self.compare(o, d, center, r, intersect::sphere(o, d, &s, INF, split));
+    }
+
+    /// [`SphereStats::check`] of a distance `got` found elsewhere (on the GPU).
+    fn compare(&mut self, o: Vec3, d: Vec3, center: Vec3, r: f32, got: f32) {
         let (want, perp) = sphere_reference(o, d, center, r);
         self.rays += 1;
         match want {
@@ -832,7 +1100,7 @@ impl SphereStats {
                     self.worst_ulps = e;
                 }
                 self.worst_rel = self.worst_rel.max(rel);
-                if e.is_nan() || e > SPHERE_ULPS {
+                if e.is_nan() || e > self.bound {
                     self.wrong.push(format!(
                         "from {o} along {d} to r={r} at {center}: t = {got}, reference {t} ({e:.1} ulp), line at {perp:.3} r"
                     ));
@@ -862,56 +1130,110 @@ impl SphereStats {
         );
         assert!(
             self.wrong.is_empty(),
-            "{what}: {} of {} rays wrong (bound {SPHERE_ULPS} ulp), e.g.:\n{}",
+            "{what}: {} of {} rays wrong (bound {} ulp), e.g.:\n{}",
             self.wrong.len(),
             self.rays,
+            self.bound,
             self.wrong[..self.wrong.len().min(8)].join("\n")
         );
     }
 }
 
-#[test]
-fn small_far_spheres_match_the_f64_reference() {
+/// Rays at small far spheres: (origin, direction, centre), radius [`SMALL_R`].
+fn small_far_sphere_rays() -> Vec<(Vec3, Vec3, Vec3)> {
     let mut rnd = Random::new(11);
-    let mut st = SphereStats::default();
-    let r = 1e-3;
+    let mut rays = Vec::new();
     for _ in 0..64 {
         let center = rnd.unit() * 1e4;
         let (u, v) = sampling::basis(center.normalize());
         for o in [Vec3::ZERO, Vec3::new(0.3, -0.7, 0.1), rnd.unit() * rnd.f32()] {
             for _ in 0..32 {
                 let (x, y) = sampling::uniform_disk(rnd.f32(), rnd.f32());
-                let target = center + (u * x + v * y) * (1.5 * r);
-                st.check(o, (target - o).normalize(), center, r);
+                let target = center + (u * x + v * y) * (1.5 * SMALL_R);
+                rays.push((o, (target - o).normalize(), center));
             }
         }
     }
-    st.assert_ok("radius 1e-3 at 1e4");
+    rays
 }
+const SMALL_R: f32 = 1e-3;
 
-#[test]
-fn large_near_spheres_match_the_f64_reference() {
+/// Rays at large spheres from just above them: (origin, direction, centre), radius
+/// [`LARGE_R`]; the sphere at the origin and a ground sphere below the origin.
+fn large_near_sphere_rays() -> Vec<(Vec3, Vec3, Vec3)> {
     let mut rnd = Random::new(12);
-    let mut st = SphereStats::default();
-    let r = 1e4;
+    let mut rays = Vec::new();
     let h = 1e-3;
     for _ in 0..64 {
-        // The sphere at the origin seen from just above it, and a ground sphere below a
-        // viewer at the origin.
         let n = rnd.unit();
-        let ground = Vec3::new(0.0, -r, 0.0);
+        let ground = Vec3::new(0.0, -LARGE_R, 0.0);
         let viewer = Vec3::new(rnd.range(-1.0, 1.0), h, rnd.range(-1.0, 1.0));
-        for (center, o) in [(Vec3::ZERO, n * (r + h)), (ground, viewer)] {
+        for (center, o) in [(Vec3::ZERO, n * (LARGE_R + h)), (ground, viewer)] {
             let up = (o - center).normalize();
             for _ in 0..32 {
                 // Anywhere down towards the surface, grazing included.
                 let (u1, u2) = (rnd.f32(), rnd.f32());
-                let d = sampling::cosine_hemisphere(-up, u1, u2);
-                st.check(o, d, center, r);
+                rays.push((o, sampling::cosine_hemisphere(-up, u1, u2), center));
             }
         }
     }
-    st.assert_ok("radius 1e4 from 1e-3 above");
+    rays
+}
+const LARGE_R: f32 = 1e4;
+
+#[test]
+fn small_far_spheres_match_the_f64_reference() {
+    for split in [false, true] {
+        let mut st = SphereStats::new(SPHERE_ULPS);
+        for (o, d, c) in small_far_sphere_rays() {
+            st.check(o, d, c, SMALL_R, split);
+        }
+        st.assert_ok(&format!("radius 1e-3 at 1e4, split products {split}"));
+    }
+}
+
+#[test]
+fn large_near_spheres_match_the_f64_reference() {
+    for split in [false, true] {
+        let mut st = SphereStats::new(SPHERE_ULPS);
+        for (o, d, c) in large_near_sphere_rays() {
+            st.check(o, d, c, LARGE_R, split);
+        }
+        st.assert_ok(&format!("radius 1e4 from 1e-3 above, split products {split}"));
+    }
+}
+
+/// The same sphere rays on the GPU, each sphere alone in its scene, traced through the
+/// GPU's BVH: within the same few ulps of the f64 reference.
+#[test]
+fn spheres_match_the_f64_reference_on_the_gpu() {
+    let Some(mut g) = GpuWorld::open("spheres_match_the_f64_reference_on_the_gpu") else {
+        return;
+    };
+    for (what, rays, r) in [
+        ("GPU, radius 1e-3 at 1e4", small_far_sphere_rays(), SMALL_R),
+        ("GPU, radius 1e4 from 1e-3 above", large_near_sphere_rays(), LARGE_R),
+    ] {
+        let mut st = SphereStats::new(SPHERE_ULPS_GPU);
+        let mut centers: Vec<Vec3> = Vec::new();
+        for x in &rays {
+            if !centers.contains(&x.2) {
+                centers.push(x.2);
+            }
+        }
+        for c in centers {
+            let sphere = Sphere {
+                center_radius: [c.x, c.y, c.z, r],
+            };
+            g.load(&World::new(vec![], vec![sphere]));
+            let these: Vec<_> = rays.iter().filter(|x| x.2 == c).map(|&(o, d, _)| (o, d, INF)).collect();
+            for (&(o, d, _), h) in these.iter().zip(g.closest(&these)) {
+                st.compare(o, d, c, r, h.t);
+            }
+        }
+        st.assert_ok(what);
+    }
+    g.assert_no_validation_errors();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1232,4 +1554,185 @@ fn chi_square_critical_values_match_tables() {
             "chi-square({dof}, {p}) = {got}, table {table}"
         );
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 6. LBVH edge cases
+// ---------------------------------------------------------------------------------------------
+
+fn tri(a: Vec3, b: Vec3, c: Vec3) -> Triangle {
+    Triangle {
+        v0: [a.x, a.y, a.z, 0.0],
+        v1: [b.x, b.y, b.z, 0.0],
+        v2: [c.x, c.y, c.z, 0.0],
+    }
+}
+
+/// A random small triangle near `center`.
+fn small_triangle(rnd: &mut Random, center: Vec3, size: f32) -> Triangle {
+    tri(
+        center + rnd.unit() * size,
+        center + rnd.unit() * size,
+        center + rnd.unit() * size,
+    )
+}
+
+/// Inputs that stress the builder: one and two primitives, all centroids equal (the Morton
+/// codes all equal: only the index tie-break orders them), one far outlier (every other
+/// centroid collapses into a few 30-bit codes), and zero-area triangles (points and
+/// segments) among ordinary ones. The indices of the zero-area ones come last.
+fn lbvh_edge_cases() -> Vec<(&'static str, World, Vec<u32>)> {
+    let mut rnd = Random::new(31);
+    let one = vec![tri(
+        Vec3::new(-1.0, -1.0, 0.0),
+        Vec3::new(1.0, -1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+    )];
+    let two = vec![
+        one[0],
+        tri(
+            Vec3::new(-1.0, -1.0, 1.0),
+            Vec3::new(0.0, 1.0, 1.0),
+            Vec3::new(1.0, -1.0, 1.0),
+        ),
+    ];
+    let sphere = |c: Vec3, r: f32| Sphere {
+        center_radius: [c.x, c.y, c.z, r],
+    };
+    // Triangles around one centroid: each is `c + a, c + b, c - a - b`.
+    let same_centroid: Vec<Triangle> = (0..300)
+        .map(|_| {
+            let (a, b) = (rnd.unit() * rnd.range(0.1, 1.0), rnd.unit() * rnd.range(0.1, 1.0));
+            let c = Vec3::new(0.5, 0.25, -0.5);
+            tri(c + a, c + b, c - a - b)
+        })
+        .collect();
+    let mut outlier: Vec<Triangle> = (0..2000)
+        .map(|_| {
+            let c = rnd.unit();
+            small_triangle(&mut rnd, c, 0.05)
+        })
+        .collect();
+    outlier.push(small_triangle(&mut rnd, Vec3::new(1e6, -1e6, 1e6), 0.05));
+    let mut degenerate: Vec<Triangle> = (0..500)
+        .map(|_| {
+            let c = rnd.unit();
+            small_triangle(&mut rnd, c, 0.1)
+        })
+        .collect();
+    let n = degenerate.len() as u32;
+    for _ in 0..200 {
+        let p = rnd.unit();
+        let q = p + rnd.unit() * 0.2;
+        degenerate.push(tri(p, p, p));
+        degenerate.push(tri(p, q, p + (q - p) * 0.5));
+    }
+    let zero_area: Vec<u32> = (n..degenerate.len() as u32).collect();
+    vec![
+        ("one triangle", World::new(one, vec![]), vec![]),
+        ("two triangles", World::new(two, vec![]), vec![]),
+        ("one sphere", World::new(vec![], vec![sphere(Vec3::ZERO, 1.0)]), vec![]),
+        (
+            "a triangle and a sphere",
+            World::new(vec![tri(Vec3::X, Vec3::Y, Vec3::Z)], vec![sphere(Vec3::ZERO, 0.5)]),
+            vec![],
+        ),
+        (
+            "300 triangles with one centroid",
+            World::new(same_centroid, vec![]),
+            vec![],
+        ),
+        (
+            "300 spheres with one centre",
+            World::new(
+                vec![],
+                (0..300).map(|k| sphere(Vec3::ONE, 0.01 * (k + 1) as f32)).collect(),
+            ),
+            vec![],
+        ),
+        ("2000 triangles and one at 1e6", World::new(outlier, vec![]), vec![]),
+        (
+            "500 triangles and 400 of zero area",
+            World::new(degenerate, vec![]),
+            zero_area,
+        ),
+    ]
+}
+
+/// Random rays through the unit ball, and rays at the far outlier (`t_max` 10 for both).
+fn edge_case_rays(seed: u32) -> Vec<(Vec3, Vec3, f32)> {
+    let mut rnd = Random::new(seed);
+    let mut rays: Vec<_> = (0..3000)
+        .map(|_| {
+            let o = rnd.unit() * 3.0;
+            (o, rnd.unit() * 0.9 - o, 10.0)
+        })
+        .collect();
+    let far = Vec3::new(1e6, -1e6, 1e6);
+    rays.extend((0..100).map(|_| {
+        // Every ray only as far as its own cluster: across 1e6 a hit on the other is
+        // rounding noise (the GPU's unfused fma makes it differ between box and triangle).
+        let o = far + rnd.unit() * 2.0;
+        (o, far + rnd.unit() * 0.03 - o, 10.0)
+    }));
+    rays
+}
+
+/// The builder's hard inputs on both backends: each BVH passes the validator (the CPU
+/// executor's here, the GPU's in [`GpuWorld::load`]), closest hits through it equal brute
+/// force, and zero-area triangles are never hit.
+#[test]
+fn lbvh_edge_cases_trace_like_brute_force() {
+    let mut g = GpuWorld::open("lbvh_edge_cases_trace_like_brute_force");
+    let mut wrong = Vec::new();
+    for (name, world, zero_area) in lbvh_edge_cases() {
+        let bvh = raytrace::cpu::build(&world.tris, &world.spheres, raytrace::bvh::MortonBits::B30).0;
+        if let Err(e) = raytrace::validate::validate(&bvh.nodes, &bvh.parents, &world.tris, &world.spheres) {
+            wrong.push(format!("{name}: CPU BVH invalid: {e}"));
+            continue;
+        }
+        let scene = world.scene();
+        let rays = edge_case_rays(41);
+        let brute: Vec<Hit> = rays
+            .iter()
+            .map(|&(o, d, t)| traverse::closest_brute(&scene, o, d, t))
+            .collect();
+        let hits = brute.iter().filter(|h| h.prim != INVALID).count();
+        if hits < 20 {
+            wrong.push(format!("{name}: only {hits} rays hit"));
+        }
+        let mut backends = vec![(
+            "CPU",
+            rays.iter()
+                .map(|&(o, d, t)| traverse::closest(&scene, o, d, t))
+                .collect::<Vec<_>>(),
+        )];
+        let mut brutes = vec![brute];
+        if let Some(g) = g.as_mut() {
+            // Against the GPU's own brute force: its division rounds differently, so rays
+            // grazing a lone triangle's edge (the outlier's) may hit there and miss here.
+            g.load(&world);
+            backends.push(("GPU", g.closest(&rays)));
+            g.set_mode(false, 0);
+            brutes.push(g.closest(&rays));
+        }
+        for ((backend, got), brute) in backends.into_iter().zip(&brutes) {
+            for (i, (h, b)) in got.iter().zip(brute).enumerate() {
+                if zero_area.contains(&h.prim) {
+                    wrong.push(format!("{name}, {backend}: ray {i} hit zero-area triangle {}", h.prim));
+                } else if h.prim != b.prim && ulps(h.t, b.t as f64) > TIE_ULPS {
+                    wrong.push(format!("{name}, {backend}: ray {i}: {h:?}, brute force {b:?}"));
+                }
+            }
+        }
+    }
+    if let Some(g) = &g {
+        g.assert_no_validation_errors();
+    }
+    assert!(
+        wrong.is_empty(),
+        "{} wrong, e.g.:\n{}",
+        wrong.len(),
+        wrong[..wrong.len().min(8)].join("\n")
+    );
 }

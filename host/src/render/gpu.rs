@@ -10,7 +10,8 @@ use anyhow::{bail, Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
 use shared::types::{
-    grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, DISPLAY_BGRA, TILE_SIDE, WORKGROUP,
+    grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN, DISPLAY_BGRA,
+    TILE_SIDE, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -330,15 +331,36 @@ impl GpuRenderer {
         self.lbvh.primitives()
     }
 
-    /// Closest hits of `rays` through the current BVH (or brute force, by the frame's flag).
+    /// Closest hits of `rays` through the current BVH (or brute force, by the frame's flag),
+    /// with the frame's `FEATURE_*` and `VARIANT_*` bits.
     pub fn cast(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
+        self.cast_flags(rays, rays.len(), 0)
+    }
+
+    /// Whether anything lies along each of `rays` (the shadow-ray query), as hits with `t = 0`
+    /// or misses.
+    pub fn cast_any(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
+        self.cast_flags(rays, rays.len(), CAST_ANY)
+    }
+
+    /// Rays leaving hits, as paths do ([`CAST_SPAWN`]): `pairs[2 i]` is cast, and from its
+    /// hit point a ray along `pairs[2 i + 1]`'s direction, origin offset on the GPU. Returns
+    /// both hits of every pair.
+    pub fn cast_spawn(&mut self, pairs: &[Ray]) -> Result<Vec<Hit>> {
+        if pairs.len() % 2 != 0 {
+            bail!("spawning casts take pairs of rays, {} given", pairs.len());
+        }
+        self.cast_flags(pairs, pairs.len() / 2, CAST_SPAWN)
+    }
+
+    fn cast_flags(&mut self, rays: &[Ray], count: usize, flags: u32) -> Result<Vec<Hit>> {
         let mut b = self.bufs.take().context("no scene loaded")?;
-        let r = self.cast_with(&mut b, rays);
+        let r = self.cast_with(&mut b, rays, count, flags);
         self.bufs = Some(b);
         r
     }
 
-    fn cast_with(&mut self, b: &mut SceneBuffers, rays: &[Ray]) -> Result<Vec<Hit>> {
+    fn cast_with(&mut self, b: &mut SceneBuffers, rays: &[Ray], count: usize, flags: u32) -> Result<Vec<Hit>> {
         if (b.rays.size as usize) < size_of_val(rays) {
             b.rays = Buffer::new(&self.gpu, "rays", size_of_val(rays) as u64, MemoryLocation::GpuOnly)?;
             b.hits = Buffer::new(
@@ -351,14 +373,16 @@ impl GpuRenderer {
         }
         self.upload(&b.rays, rays)?;
         let push = RenderPush {
-            count: rays.len() as u32,
+            count: count as u32,
+            flags,
             ..Default::default()
         };
         let sets = [self.lbvh.set()?, b.set()?];
-        let (x, y) = grid((rays.len() as u32).div_ceil(WORKGROUP));
+        let (x, y) = grid((count as u32).div_ceil(WORKGROUP));
+        let cast = self.kernels.specialised(Kernel::CastRays, self.frame.features)?;
         self.cmds.begin()?;
         self.cmds
-            .dispatch_sets(&self.kernels, &sets, Kernel::CastRays, bytemuck::bytes_of(&push), x, y);
+            .dispatch_pipeline(&self.kernels, cast, &sets, bytemuck::bytes_of(&push), x, y);
         self.cmds.barrier();
         self.cmds.submit_wait().context("casting rays")?;
         self.cmds.read_back(&b.hits, rays.len())

@@ -1,14 +1,14 @@
 //! Helpers of the stability tests: primitives with the BVH the CPU executor builds; closed
-//! meshes with shared vertices; random numbers from the kernels' own streams; units in the
+//! meshes with shared vertices (from `raytrace::hard_cases`); random numbers from the kernels' own streams; units in the
 //! last place; and a chi-square critical value.
 #![allow(dead_code)]
 
 use raytrace::bvh::MortonBits;
+pub use raytrace::hard_cases::{cube, icosphere, octahedron, rays_at_vertices_and_edges, Mesh, OFFSETS};
 use shared::glam::Vec3;
 use shared::rng::Rng;
 use shared::traverse::Scene;
-use shared::types::{Node, Sphere, Triangle, FEATURES_ALL};
-use std::collections::HashMap;
+use shared::types::{Hit, Node, Ray, Sphere, Triangle, FEATURES_ALL, FLAG_BVH, INVALID};
 
 /// Primitives and the 30-bit LBVH over them.
 pub struct World {
@@ -35,202 +35,6 @@ impl World {
             features: FEATURES_ALL,
         }
     }
-}
-
-/// A triangle mesh with shared vertices.
-#[derive(Clone, Debug, Default)]
-pub struct Mesh {
-    pub verts: Vec<Vec3>,
-    pub faces: Vec<[u32; 3]>,
-}
-
-impl Mesh {
-    /// Triangles of the mesh moved by `offset` (each vertex once, so shared ones stay shared).
-    pub fn triangles(&self, offset: Vec3) -> Vec<Triangle> {
-        let v: Vec<[f32; 4]> = self.moved(offset).iter().map(|p| [p.x, p.y, p.z, 0.0]).collect();
-        self.faces
-            .iter()
-            .map(|f| Triangle {
-                v0: v[f[0] as usize],
-                v1: v[f[1] as usize],
-                v2: v[f[2] as usize],
-            })
-            .collect()
-    }
-
-    /// Vertices moved by `offset`, rounded to `f32` as the triangles' are.
-    pub fn moved(&self, offset: Vec3) -> Vec<Vec3> {
-        self.verts.iter().map(|&p| p + offset).collect()
-    }
-
-    /// Every undirected edge once.
-    pub fn edges(&self) -> Vec<[u32; 2]> {
-        let mut e: Vec<[u32; 2]> = self
-            .faces
-            .iter()
-            .flat_map(|f| [[f[0], f[1]], [f[1], f[2]], [f[2], f[0]]])
-            .map(|[a, b]| [a.min(b), a.max(b)])
-            .collect();
-        e.sort_unstable();
-        e.dedup();
-        e
-    }
-
-    /// Whether every edge is shared by exactly two faces (a closed manifold surface).
-    pub fn is_closed(&self) -> bool {
-        let mut count: HashMap<[u32; 2], u32> = HashMap::new();
-        for f in &self.faces {
-            for [a, b] in [[f[0], f[1]], [f[1], f[2]], [f[2], f[0]]] {
-                *count.entry([a.min(b), a.max(b)]).or_default() += 1;
-            }
-        }
-        count.values().all(|&c| c == 2)
-    }
-}
-
-/// Icosahedron subdivided `levels` times, vertices pushed onto the unit sphere.
-pub fn icosphere(levels: u32) -> Mesh {
-    let t = (1.0 + 5.0f32.sqrt()) / 2.0;
-    let mut verts: Vec<Vec3> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|&p| Vec3::from(p).normalize())
-    .collect();
-    let mut faces: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut next = Vec::with_capacity(faces.len() * 4);
-        let mut midpoint = |a: u32, b: u32, verts: &mut Vec<Vec3>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                verts.push(((verts[a as usize] + verts[b as usize]) * 0.5).normalize());
-                verts.len() as u32 - 1
-            })
-        };
-        for [a, b, c] in faces {
-            let ab = midpoint(a, b, &mut verts);
-            let bc = midpoint(b, c, &mut verts);
-            let ca = midpoint(c, a, &mut verts);
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        faces = next;
-    }
-    Mesh { verts, faces }
-}
-
-/// Vertex indices of a mesh built on an integer lattice: each lattice point once.
-#[derive(Default)]
-struct Lattice {
-    index: HashMap<[i32; 3], u32>,
-    mesh: Mesh,
-}
-
-impl Lattice {
-    fn vertex(&mut self, p: [i32; 3], scale: f32) -> u32 {
-        let mesh = &mut self.mesh;
-        *self.index.entry(p).or_insert_with(|| {
-            mesh.verts
-                .push(Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) * scale);
-            mesh.verts.len() as u32 - 1
-        })
-    }
-}
-
-/// Octahedron `|x| + |y| + |z| = 1` with every face cut into `n * n` coplanar triangles: many
-/// edges between coplanar neighbours, and vertices on the axes.
-pub fn octahedron(n: i32) -> Mesh {
-    let mut l = Lattice::default();
-    let s = 1.0 / n as f32;
-    for sx in [-1, 1] {
-        for sy in [-1, 1] {
-            for sz in [-1, 1] {
-                // Lattice point (i, j, k) with i + j + k = n on this face.
-                let p = |i: i32, j: i32| [sx * i, sy * j, sz * (n - i - j)];
-                let flip = sx * sy * sz < 0;
-                let push = |l: &mut Lattice, a: [i32; 3], b: [i32; 3], c: [i32; 3]| {
-                    let (a, b, c) = (l.vertex(a, s), l.vertex(b, s), l.vertex(c, s));
-                    l.mesh.faces.push(if flip { [a, c, b] } else { [a, b, c] });
-                };
-                for i in 0..n {
-                    for j in 0..n - i {
-                        push(&mut l, p(i, j), p(i + 1, j), p(i, j + 1));
-                        if i + j + 1 < n {
-                            push(&mut l, p(i + 1, j), p(i + 1, j + 1), p(i, j + 1));
-                        }
-                    }
-                }
-            }
-        }
-    }
-    l.mesh
-}
-
-/// The cube `[-1, 1]^3` with every face cut into `n * n` squares of two triangles each (the
-/// diagonal alternating), so every box of a face's triangles is flat.
-pub fn cube(n: i32) -> Mesh {
-    let mut l = Lattice::default();
-    let s = 1.0 / n as f32;
-    for axis in 0..3 {
-        for side in [0, n] {
-            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-            let p = |i: i32, j: i32| {
-                let mut q = [0; 3];
-                q[axis] = side;
-                q[u] = i;
-                q[v] = j;
-                // Lattice 0..n maps to -1..1 as (2 q - n) / n.
-                [2 * q[0] - n, 2 * q[1] - n, 2 * q[2] - n]
-            };
-            for i in 0..n {
-                for j in 0..n {
-                    let (a, b, c, d) = (p(i, j), p(i + 1, j), p(i + 1, j + 1), p(i, j + 1));
-                    let q = [a, b, c, d].map(|x| l.vertex(x, s));
-                    let tris = if (i + j) % 2 == 0 {
-                        [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]
-                    } else {
-                        [[q[0], q[1], q[3]], [q[1], q[2], q[3]]]
-                    };
-                    for t in tris {
-                        // Counter-clockwise seen from outside.
-                        l.mesh.faces.push(if side == 0 { [t[0], t[2], t[1]] } else { t });
-                    }
-                }
-            }
-        }
-    }
-    l.mesh
 }
 
 /// Uniform numbers from the kernels' own stream (fixed seed per test).
@@ -309,4 +113,92 @@ pub fn returns_within<T: Send + 'static>(secs: u64, what: &str, f: impl FnOnce()
     });
     rx.recv_timeout(std::time::Duration::from_secs(secs))
         .unwrap_or_else(|e| panic!("{what}: did not return ({e})"))
+}
+
+/// Primitives on the GPU, placed by the transform stage (one identity-transformed mesh
+/// object, one object per sphere translated to its centre: both exact) with the BVH the
+/// GPU builds, queried through the `cast_rays` kernel.
+pub struct GpuWorld {
+    pub gpu: std::sync::Arc<raytrace::vk::Gpu>,
+    renderer: raytrace::render::GpuRenderer,
+    frame: shared::types::Frame,
+}
+
+impl GpuWorld {
+    /// The device with validation on, or `None` (after a skip line) where there is none.
+    pub fn open(test: &str) -> Option<GpuWorld> {
+        let gpu = integration_tests::gpu(test)?;
+        let kernels = std::sync::Arc::new(raytrace::vk::Kernels::new(&gpu).expect("kernels"));
+        let renderer = raytrace::render::GpuRenderer::new(&gpu, &kernels).expect("renderer");
+        Some(GpuWorld {
+            gpu,
+            renderer,
+            frame: Default::default(),
+        })
+    }
+
+    /// Loads `w`'s primitives and builds their BVH on the GPU, which must pass the validator;
+    /// queries go through the BVH.
+    pub fn load(&mut self, w: &World) {
+        let scene = raytrace::hard_cases::scene_of(&w.tris, &w.spheres);
+        let data = scene.gpu_data(0.0);
+        let mut frame = scene.frame(&data);
+        frame.features = FEATURES_ALL;
+        let r = &mut self.renderer;
+        r.load(&data, &frame).expect("load");
+        r.render(0, true).expect("transform and build");
+        let (tris, spheres) = r.world().expect("world-space primitives");
+        assert!(
+            tris == w.tris && spheres == w.spheres,
+            "the transform stage moved the primitives"
+        );
+        let bvh = r.bvh().expect("BVH");
+        if let Err(e) = raytrace::validate::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
+            panic!("the GPU's BVH is invalid: {e}");
+        }
+        self.frame = frame;
+    }
+
+    /// Queries through the BVH (`bvh`) or by brute force, with `variants` (`VARIANT_*`).
+    pub fn set_mode(&mut self, bvh: bool, variants: u32) {
+        let mut f = self.frame;
+        f.flags = if bvh { f.flags | FLAG_BVH } else { f.flags & !FLAG_BVH };
+        f.features = FEATURES_ALL | variants;
+        self.renderer.set_frame(&f).expect("frame");
+    }
+
+    /// Closest hits of `(origin, direction, t_max)` rays.
+    pub fn closest(&mut self, rays: &[(Vec3, Vec3, f32)]) -> Vec<Hit> {
+        self.renderer.cast(&to_rays(rays)).expect("cast")
+    }
+
+    /// Whether anything lies along each ray.
+    pub fn any(&mut self, rays: &[(Vec3, Vec3, f32)]) -> Vec<bool> {
+        let hits = self.renderer.cast_any(&to_rays(rays)).expect("cast");
+        hits.iter().map(|h| h.prim != INVALID).collect()
+    }
+
+    /// For each `(primary, direction)`: the primary ray's closest hit and that of a ray
+    /// leaving its hit point along `direction`, origin offset on the GPU.
+    pub fn spawn(&mut self, pairs: &[((Vec3, Vec3), Vec3)]) -> Vec<(Hit, Hit)> {
+        let rays: Vec<(Vec3, Vec3, f32)> = pairs
+            .iter()
+            .flat_map(|&((o, d), d2)| [(o, d, f32::INFINITY), (Vec3::ZERO, d2, f32::INFINITY)])
+            .collect();
+        let hits = self.renderer.cast_spawn(&to_rays(&rays)).expect("cast");
+        hits.chunks(2).map(|h| (h[0], h[1])).collect()
+    }
+
+    pub fn assert_no_validation_errors(&self) {
+        integration_tests::assert_no_validation_errors(&self.gpu);
+    }
+}
+
+fn to_rays(rays: &[(Vec3, Vec3, f32)]) -> Vec<Ray> {
+    rays.iter()
+        .map(|&(o, d, t_max)| Ray {
+            origin: [o.x, o.y, o.z, 0.0],
+            dir: [d.x, d.y, d.z, t_max],
+        })
+        .collect()
 }
