@@ -117,6 +117,16 @@ enum Bench {
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
+    /// What accuracy costs in time: error against GPU time for spp, NEE, MIS, Russian
+    /// roulette and depth; BVH quality (30/63-bit codes, brute force); intersection precision
+    /// (watertight against Moller-Trumbore, robust against plain slabs). Markdown, JSON and
+    /// PNG plots.
+    Accuracy {
+        #[command(flatten)]
+        options: raytrace::accuracy::Options,
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
     /// BVH build: per-stage GPU time, throughput, memory, CPU executor time.
     Build {
         /// Timed runs per input (after warm-up).
@@ -212,6 +222,17 @@ fn main() -> Result<()> {
             let gpu = Gpu::new(&opts)?;
             let r = raytrace::realtime::run(&gpu, &options)?;
             publish(&out, "realtime", &r.date, &gpu, raytrace::realtime::markdown(&r), &r)?;
+        }
+        Command::Bench {
+            what: Bench::Accuracy { options, out },
+        } => {
+            let gpu = Gpu::new(&opts)?;
+            let r = raytrace::accuracy::run(&gpu, &options)?;
+            let stem = format!("accuracy-{}-{}-{}", slug(&options.scene), r.date, slug(&gpu.name));
+            let plots = raytrace::accuracy::plots(&r, &out, &stem)?;
+            let md = raytrace::bench::write_files(&out, &stem, &raytrace::accuracy::markdown(&r, &plots), &r)?;
+            println!("{}", raytrace::accuracy::markdown(&r, &plots));
+            println!("wrote {} and {} plots", md.display(), plots.len());
         }
         Command::Info { kernels } => {
             let gpu = Gpu::new(&opts)?;

@@ -1,0 +1,61 @@
+//! `raytrace bench accuracy` end to end on a tiny frame: the error falls with samples, the
+//! robust intersection tests never leak where Moller-Trumbore does, and the report's plots
+//! are real PNGs.
+use integration_tests::gpu;
+use raytrace::accuracy::{markdown, plots, run, Options};
+
+#[test]
+fn accuracy_bench_measures_error_time_and_leaks() {
+    let Some(gpu) = gpu("accuracy_bench_measures_error_time_and_leaks") else {
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("raytrace-accuracy-{}", std::process::id()));
+    let o = Options {
+        scene: "cornell".into(),
+        size: (16, 16),
+        max_spp: 16,
+        reference_spp: 256,
+        depth_spp: 2,
+        speed_spp: 1,
+        speed_size: (16, 16),
+        runs: 1,
+        cache: dir.join("cache"),
+    };
+    let r = run(&gpu, &o).expect("bench accuracy");
+    assert_eq!(r.convergence.len(), 4);
+    for c in &r.convergence {
+        let spp: Vec<u32> = c.points.iter().map(|p| p.spp).collect();
+        assert_eq!(spp, [1, 2, 4, 8, 16], "{}", c.name);
+        assert!(
+            c.points.iter().all(|p| p.ms > 0.0 && p.rel_mse.is_finite()),
+            "{}: {:?}",
+            c.name,
+            c.points
+        );
+    }
+    let nee_mis = &r.convergence[2].points;
+    assert!(
+        nee_mis[4].rel_mse < nee_mis[0].rel_mse,
+        "NEE + MIS: the error did not fall from 1 to 16 spp: {nee_mis:?}"
+    );
+    assert!(r
+        .bvh
+        .iter()
+        .take(2)
+        .all(|b| b.sah >= 1.0 && b.build_ms > 0.0 && b.rays_per_s > 0.0));
+    let robust = &r.precision[0];
+    assert_eq!((robust.leaks_bvh, robust.leaks_brute), (0, 0), "{robust:?}");
+    assert!(robust.rays > 10_000);
+    let mt = &r.precision[1];
+    assert!(mt.leaks_brute > 0, "Moller-Trumbore found every shared edge: {mt:?}");
+    // The reference is cached for later runs: one EXR file.
+    let cached = std::fs::read_dir(&o.cache).expect("cache").count();
+    assert_eq!(cached, 1);
+    let names = plots(&r, &dir, "t").expect("plots");
+    for n in &names {
+        let img = image::open(dir.join(n)).expect("plot decodes");
+        assert_eq!((img.width(), img.height()), (900, 600));
+    }
+    assert!(markdown(&r, &names).contains("| NEE + MIS |"));
+    integration_tests::assert_no_validation_errors(&gpu);
+}
