@@ -64,8 +64,11 @@ pub fn primitive(s: &Scene, r: &TriRay, prim: u32, t_max: f32) -> (f32, f32, f32
     }
 }
 
-fn usable(origin: Vec3, dir: Vec3) -> bool {
-    finite3(origin) && finite3(dir) && dir != Vec3::ZERO
+/// Whether a query can hit anything: finite origin and direction, a direction not zero, and
+/// a range `(0, t_max)` that is not empty or NaN. Tested explicitly: Vulkan drivers need not
+/// keep NaN semantics in comparisons (the H100's any-hit query with `t_max` NaN hit).
+fn usable(origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+    finite3(origin) && finite3(dir) && dir != Vec3::ZERO && !t_max.is_nan() && t_max > 0.0
 }
 
 /// Closest hit in `(0, t_max)`, testing every primitive. (llvmpipe, and so lavapipe, ends
@@ -73,7 +76,7 @@ fn usable(origin: Vec3, dir: Vec3) -> bool {
 /// primitives.)
 pub fn closest_brute(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
     let mut best = Hit::MISS;
-    if !usable(origin, dir) {
+    if !usable(origin, dir, t_max) {
         return best;
     }
     let r = TriRay::new(origin, dir);
@@ -92,7 +95,7 @@ pub fn closest_brute(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
 
 /// Whether anything lies in `(0, t_max)`, testing every primitive.
 pub fn any_brute(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
-    if !usable(origin, dir) {
+    if !usable(origin, dir, t_max) {
         return false;
     }
     let r = TriRay::new(origin, dir);
@@ -121,7 +124,7 @@ pub fn any(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
 fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
     let mut best = Hit::MISS;
     let n = s.n_prims;
-    if n == 0 || !usable(origin, dir) {
+    if n == 0 || !usable(origin, dir, t_max) {
         return best;
     }
     let r = TriRay::new(origin, dir);
