@@ -16,7 +16,7 @@ use crate::cli::{Prepared, SceneArgs};
 use crate::hard_cases::{closed_meshes, rays_at_vertices_and_edges, scene_of, OFFSETS};
 use crate::picture::Picture;
 use crate::plot::{line_chart, Chart, Scale, Series};
-use crate::render::GpuRenderer;
+use crate::render::{stage_ms, GpuRenderer};
 use crate::vk::{Gpu, Kernels};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
@@ -155,11 +155,6 @@ fn with_flags(f: &Frame, on: u32, off: u32) -> Frame {
     }
 }
 
-/// Trace milliseconds of the stages of one submission.
-fn trace_ms(t: &[(&'static str, f64)]) -> f64 {
-    t.iter().filter(|(l, _)| *l == "trace").map(|(_, s)| s * 1e3).sum()
-}
-
 /// Transform and build milliseconds of one submission.
 fn build_ms(t: &[(&'static str, f64)]) -> f64 {
     t.iter()
@@ -235,7 +230,7 @@ fn convergence(
     let (mut spp, mut ms, mut out) = (0, 0.0, Vec::new());
     let mut next = 1;
     while next <= max_spp {
-        ms += trace_ms(&r.render(next - spp, false)?);
+        ms += stage_ms(&r.render(next - spp, false)?, "trace");
         spp = next;
         out.push(point(&r.picture()?, reference, spp, f.max_depth, ms));
         next *= 2;
@@ -249,7 +244,7 @@ fn rays_per_s(r: &mut GpuRenderer, f: &Frame, spp: u32, runs: usize) -> Result<f
     let mut ms = Vec::new();
     for _ in 0..runs.max(1) + 1 {
         r.set_frame(f)?;
-        ms.push(trace_ms(&r.render(spp, false)?));
+        ms.push(stage_ms(&r.render(spp, false)?, "trace"));
     }
     ms.remove(0);
     ms.sort_by(f64::total_cmp);
@@ -417,7 +412,7 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             ..with_flags(&base, FLAG_NEE | FLAG_MIS, 0)
         };
         r.load(&p.data, &f)?;
-        let ms = trace_ms(&r.render(o.depth_spp, false)?);
+        let ms = stage_ms(&r.render(o.depth_spp, false)?, "trace");
         depth.points.push(point(&r.picture()?, &reference, o.depth_spp, d, ms));
     }
     let fast = prepare(&o.scene, o.speed_size)?;

@@ -5,7 +5,7 @@
 use crate::bench::percentile;
 use crate::cli::{Prepared, SceneArgs};
 use crate::picture::{diff_stats, max_display_diff, Picture};
-use crate::render::GpuRenderer;
+use crate::render::{stage_ms, GpuRenderer};
 use crate::vk::{Gpu, Kernels};
 use anyhow::{Context, Result};
 use std::fmt::Write;
@@ -57,12 +57,7 @@ fn time(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, Picture)
         r.set_frame(&p.frame)?;
         let t = r.render(p.spp, true)?;
         if i > 0 {
-            ms.push(
-                t.iter()
-                    .filter(|(l, _)| *l == "trace")
-                    .map(|(_, s)| s * 1e3)
-                    .sum::<f64>(),
-            );
+            ms.push(stage_ms(&t, "trace"));
         }
     }
     ms.sort_by(f64::total_cmp);

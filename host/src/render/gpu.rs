@@ -73,6 +73,12 @@ pub fn frame_timings(cmds: &Commands) -> Result<Vec<(&'static str, f64)>> {
         .collect())
 }
 
+/// Milliseconds of the stage labelled `label` in timings of [`frame_timings`] (summed where
+/// it appears more than once, 0 where it does not).
+pub fn stage_ms(timings: &[(&'static str, f64)], label: &str) -> f64 {
+    timings.iter().filter(|(l, _)| *l == label).map(|(_, s)| s * 1e3).sum()
+}
+
 /// Renders scenes on the GPU.
 pub struct GpuRenderer {
     gpu: Arc<Gpu>,
@@ -347,7 +353,7 @@ impl GpuRenderer {
     /// hit point a ray along `pairs[2 i + 1]`'s direction, origin offset on the GPU. Returns
     /// both hits of every pair.
     pub fn cast_spawn(&mut self, pairs: &[Ray]) -> Result<Vec<Hit>> {
-        if pairs.len() % 2 != 0 {
+        if !pairs.len().is_multiple_of(2) {
             bail!("spawning casts take pairs of rays, {} given", pairs.len());
         }
         self.cast_flags(pairs, pairs.len() / 2, CAST_SPAWN)

@@ -724,18 +724,12 @@ impl App {
             Ok(s) => println!("BVH valid: {s:?}"),
             Err(e) => println!("BVH INVALID: {e}"),
         }
-        let trace: f64 = self
-            .last_timings
-            .iter()
-            .filter(|(l, _)| *l == "trace")
-            .map(|(_, t)| t)
-            .sum();
+        let trace_ms = crate::render::stage_ms(&self.last_timings, "trace");
         let rays = self.renderer.rays_per_sample()? * self.traced as f64;
         println!(
-            "last frame: {:.0} rays in {:.3} ms of tracing = {:.2} Grays/s",
+            "last frame: {:.0} rays in {trace_ms:.3} ms of tracing = {:.2} Grays/s",
             rays,
-            trace * 1e3,
-            rays / trace.max(1e-9) * 1e-9
+            rays / trace_ms.max(1e-6) * 1e-6
         );
         Ok(())
     }
