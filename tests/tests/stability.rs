@@ -1181,26 +1181,25 @@ fn large_near_sphere_rays() -> Vec<(Vec3, Vec3, Vec3)> {
 }
 const LARGE_R: f32 = 1e4;
 
-#[test]
-fn small_far_spheres_match_the_f64_reference() {
+/// Every ray of `rays` at its sphere of radius `r`, with products by `fma` and by splitting.
+fn assert_spheres_match(what: &str, rays: &[(Vec3, Vec3, Vec3)], r: f32) {
     for split in [false, true] {
         let mut st = SphereStats::new(SPHERE_ULPS);
-        for (o, d, c) in small_far_sphere_rays() {
-            st.check(o, d, c, SMALL_R, split);
+        for &(o, d, c) in rays {
+            st.check(o, d, c, r, split);
         }
-        st.assert_ok(&format!("radius 1e-3 at 1e4, split products {split}"));
+        st.assert_ok(&format!("{what}, split products {split}"));
     }
 }
 
 #[test]
+fn small_far_spheres_match_the_f64_reference() {
+    assert_spheres_match("radius 1e-3 at 1e4", &small_far_sphere_rays(), SMALL_R);
+}
+
+#[test]
 fn large_near_spheres_match_the_f64_reference() {
-    for split in [false, true] {
-        let mut st = SphereStats::new(SPHERE_ULPS);
-        for (o, d, c) in large_near_sphere_rays() {
-            st.check(o, d, c, LARGE_R, split);
-        }
-        st.assert_ok(&format!("radius 1e4 from 1e-3 above, split products {split}"));
-    }
+    assert_spheres_match("radius 1e4 from 1e-3 above", &large_near_sphere_rays(), LARGE_R);
 }
 
 /// The same sphere rays on the GPU, each sphere alone in its scene, traced through the
