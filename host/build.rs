@@ -15,9 +15,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let ModuleResult::SingleModule(module) = &result.module else {
         return Err("expected a single SPIR-V module".into());
     };
-    let words: Vec<u32> = std::fs::read(module)?
-        .chunks_exact(4)
-        .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+    let bytes = std::fs::read(module)?;
+    let words: Vec<u32> = bytes
+        .as_chunks::<4>()
+        .0
+        .iter()
+        .map(|w| u32::from_le_bytes(*w))
         .collect();
     let precise = no_contraction(&words)?;
     let precise_path = PathBuf::from(std::env::var("OUT_DIR")?).join("shader_crate_precise.spv");
