@@ -5,7 +5,7 @@
 //! multiple importance sampling (Veach 1997, power heuristic). One invocation per pixel adds
 //! its samples' radiance into the accumulation image.
 use crate::intersect::{self, offset_origin};
-use crate::material::{self, Scatter};
+use crate::material;
 use crate::math::{finite3, max3};
 use crate::rng::Rng;
 use crate::sampling;
@@ -165,70 +165,105 @@ fn direct_light(w: &World, p: Vec3, n: Vec3, scale: f32, albedo: Vec3, mis: bool
     albedo * (1.0 / PI) * le * (cos_s * weight / pdf_light)
 }
 
-/// Radiance arriving along the ray `origin + t dir` (unit `dir`), and the number of rays
-/// traced for it.
-pub fn radiance(w: &World, origin: Vec3, dir: Vec3, rng: &mut Rng) -> (Vec3, u32) {
-    let f = w.frame;
-    let nee = w.scene.features & FEATURE_NEE != 0 && f.flags & FLAG_NEE != 0 && f.n_lights > 0;
-    let mis = nee && f.flags & FLAG_MIS != 0;
-    let roulette = f.flags & FLAG_RUSSIAN_ROULETTE != 0;
-    let mut l = Vec3::ZERO;
-    let mut beta = Vec3::ONE;
-    let mut rays = 0;
-    let (mut o, mut d) = (origin, dir);
-    let mut prev = Scatter {
-        dir,
-        weight: Vec3::ONE,
-        pdf: 0.0,
-        diffuse: false,
-        absorbed: false,
-    };
-    let mut depth = 0;
-    while depth < f.max_depth {
-        let hit = w.closest(o, d, f32::INFINITY);
-        rays += 1;
-        if hit.prim == INVALID {
-            l += beta * sky(f, d);
-            break;
-        }
-        let m = w.material(hit.prim);
-        let (p, ng, scale) = traverse::surface(&w.scene, hit.prim, o, d, &hit);
-        let le = xyz(m.emission);
-        let cos_l = World::light_cos(ng, d);
-        if max3(le) > 0.0 && cos_l > 0.0 {
-            // Paths that next-event estimation also reaches count with their MIS weight.
-            let weight = if !(prev.diffuse && nee) {
-                1.0
-            } else if mis {
-                sampling::power_heuristic(prev.pdf, w.light_pdf(hit.prim, hit.t, cos_l))
-            } else {
-                0.0
-            };
-            l += beta * le * weight;
-        }
-        let s = material::scatter(&m, d, ng, w.scene.features, rng);
-        if s.absorbed {
-            break;
-        }
-        let side = if d.dot(ng) < 0.0 { ng } else { -ng };
-        if s.diffuse && nee && depth + 1 < f.max_depth {
-            l += beta * direct_light(w, p, side, scale, xyz(m.albedo), mis, rng);
-            rays += 1;
-        }
-        beta *= s.weight;
-        o = leave(p, ng, scale, s.dir);
-        d = s.dir;
-        prev = s;
-        depth += 1;
-        if roulette && depth >= ROULETTE_AFTER {
-            let survive = max3(beta).min(0.95);
-            if rng.next_f32() >= survive {
-                break;
-            }
-            beta /= survive;
+/// The switches of the bounce loop, read once per invocation.
+#[derive(Copy, Clone)]
+struct Mode {
+    nee: bool,
+    mis: bool,
+    roulette: bool,
+}
+
+impl Mode {
+    fn of(w: &World) -> Mode {
+        let f = w.frame;
+        let nee = w.scene.features & FEATURE_NEE != 0 && f.flags & FLAG_NEE != 0 && f.n_lights > 0;
+        Mode {
+            nee,
+            mis: nee && f.flags & FLAG_MIS != 0,
+            roulette: f.flags & FLAG_RUSSIAN_ROULETTE != 0,
         }
     }
-    (l, rays)
+}
+
+/// A path in flight: the ray it continues along and what its earlier bounces carry.
+#[derive(Copy, Clone)]
+struct Path {
+    origin: Vec3,
+    dir: Vec3,
+    /// Radiance gathered so far, and the throughput of the bounces behind.
+    l: Vec3,
+    beta: Vec3,
+    /// The last scattering: its direction's density and whether it was diffuse (for MIS).
+    prev_pdf: f32,
+    prev_diffuse: bool,
+    depth: u32,
+    rays: u32,
+}
+
+impl Path {
+    fn new(origin: Vec3, dir: Vec3) -> Path {
+        Path {
+            origin,
+            dir,
+            l: Vec3::ZERO,
+            beta: Vec3::ONE,
+            prev_pdf: 0.0,
+            prev_diffuse: false,
+            depth: 0,
+            rays: 0,
+        }
+    }
+}
+
+/// One segment of path `q` (which has `q.depth < max_depth`): trace it, add what it sees,
+/// scatter. Returns whether the path goes on.
+fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
+    let f = w.frame;
+    let (o, d) = (q.origin, q.dir);
+    let hit = w.closest(o, d, f32::INFINITY);
+    q.rays += 1;
+    if hit.prim == INVALID {
+        q.l += q.beta * sky(f, d);
+        return false;
+    }
+    let m = w.material(hit.prim);
+    let (p, ng, scale) = traverse::surface(&w.scene, hit.prim, o, d, &hit);
+    let le = xyz(m.emission);
+    let cos_l = World::light_cos(ng, d);
+    if max3(le) > 0.0 && cos_l > 0.0 {
+        // Paths that next-event estimation also reaches count with their MIS weight.
+        let weight = if !(q.prev_diffuse && mode.nee) {
+            1.0
+        } else if mode.mis {
+            sampling::power_heuristic(q.prev_pdf, w.light_pdf(hit.prim, hit.t, cos_l))
+        } else {
+            0.0
+        };
+        q.l += q.beta * le * weight;
+    }
+    let s = material::scatter(&m, d, ng, w.scene.features, rng);
+    if s.absorbed {
+        return false;
+    }
+    let side = if d.dot(ng) < 0.0 { ng } else { -ng };
+    if s.diffuse && mode.nee && q.depth + 1 < f.max_depth {
+        q.l += q.beta * direct_light(w, p, side, scale, xyz(m.albedo), mode.mis, rng);
+        q.rays += 1;
+    }
+    q.beta *= s.weight;
+    q.origin = leave(p, ng, scale, s.dir);
+    q.dir = s.dir;
+    q.prev_pdf = s.pdf;
+    q.prev_diffuse = s.diffuse;
+    q.depth += 1;
+    if mode.roulette && q.depth >= ROULETTE_AFTER {
+        let survive = max3(q.beta).min(0.95);
+        if rng.next_f32() >= survive {
+            return false;
+        }
+        q.beta /= survive;
+    }
+    q.depth < f.max_depth
 }
 
 /// Adds `p.samples` samples of pixel `(x, y)` to `accum`: see [`pixel_samples`].
@@ -245,21 +280,42 @@ pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32
 /// Samples `p.sample_base..p.sample_base + p.samples` of pixel `(x, y)`: the sum of their
 /// radiance (`xyz`) and the number of rays traced (`w`). Samples whose radiance is not
 /// finite are dropped.
+///
+/// One loop runs every bounce of every sample, starting the next sample's camera ray as soon
+/// as a path ends (path regeneration): on a GPU the lanes of a subgroup then trace together
+/// until each has finished all its samples, instead of idling at every sample until the
+/// subgroup's longest path ends. Each sample keeps its own random stream and samples are
+/// summed in order, so the result is the same as tracing them one after another.
 pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
     let f = w.frame;
+    let mode = Mode::of(w);
     let pixel = y * f.width + x;
     let mut sum = Vec3::ZERO;
     let mut rays = 0;
-    let mut s = 0;
-    while s < p.samples {
-        let mut rng = Rng::new(pixel, p.sample_base + s, f.seed);
-        let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
-        let (l, r) = radiance(w, o, d, &mut rng);
-        if finite3(l) {
-            sum += l;
+    let mut started = 0;
+    let mut q = Path::new(Vec3::ZERO, Vec3::Z);
+    let mut rng = Rng::new(pixel, p.sample_base, f.seed);
+    let mut live = false;
+    loop {
+        if !live {
+            if started == p.samples {
+                break;
+            }
+            rng = Rng::new(pixel, p.sample_base + started, f.seed);
+            let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
+            q = Path::new(o, d);
+            started += 1;
+            if f.max_depth == 0 {
+                continue;
+            }
         }
-        rays += r;
-        s += 1;
+        live = bounce(w, mode, &mut q, &mut rng);
+        if !live {
+            if finite3(q.l) {
+                sum += q.l;
+            }
+            rays += q.rays;
+        }
     }
     [sum.x, sum.y, sum.z, rays as f32]
 }
