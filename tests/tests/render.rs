@@ -350,3 +350,31 @@ fn bad_scene_input_names_the_file_and_the_problem() {
         );
     }
 }
+
+/// Path regeneration (`path::pixel_samples` starts a lane's next sample as soon as its path
+/// ends) must give the image of tracing the samples one after another: eight samples in one
+/// dispatch and eight dispatches of one sample accumulate the same bits.
+#[test]
+fn samples_in_one_dispatch_equal_samples_one_at_a_time() {
+    let Some(gpu) = gpu("samples_in_one_dispatch_equal_samples_one_at_a_time") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    for scene in ["cornell", "spheres"] {
+        let p = prepared(scene, 24, 8, &[]);
+        r.load(&p.data, &p.frame).expect("load");
+        r.render(8, true).expect("render");
+        let together = r.picture().expect("picture");
+        r.load(&p.data, &p.frame).expect("load");
+        r.render(1, true).expect("render");
+        for _ in 1..8 {
+            r.render(1, false).expect("render");
+        }
+        let apart = r.picture().expect("picture");
+        let bits = |p: &Picture| p.accum.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert!(together.accum.iter().any(|a| a[0] > 0.0), "{scene}: black image");
+        assert_eq!(bits(&together), bits(&apart), "{scene}: accumulation images differ");
+    }
+    assert_no_validation_errors(&gpu);
+}
