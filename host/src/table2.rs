@@ -4,7 +4,7 @@
 //! BVH rebuilt every frame; BVH build times; and the GPU's speed-up over the CPU against rays
 //! per pixel for the Cornell box (the thesis's Figure 3).
 use crate::cli::{Prepared, SceneArgs};
-use crate::picture::write_svg_plot;
+use crate::plot::{line_chart, Chart, Scale, Series};
 use crate::render::{render_cpu, stage_totals, GpuRenderer};
 use crate::vk::{Gpu, Kernels};
 use anyhow::{Context, Result};
@@ -201,20 +201,24 @@ pub fn markdown(r: &Report) -> String {
 pub fn write(r: &Report, dir: &Path, stem: &str) -> Result<PathBuf> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let md = dir.join(format!("{stem}.md"));
-    let svg = format!("{stem}-speedup.svg");
-    let text = markdown(r) + &format!("\n![speed-up]({svg})\n");
+    let png = format!("{stem}-speedup.png");
+    let text = markdown(r) + &format!("\n![speed-up]({png})\n");
     std::fs::write(&md, text).with_context(|| format!("writing {}", md.display()))?;
     let json = dir.join(format!("{stem}.json"));
     std::fs::write(&json, serde_json::to_string_pretty(r)?).with_context(|| format!("writing {}", json.display()))?;
     let points: Vec<(f64, f64)> = r.speedup.iter().map(|&(spp, c, g)| (spp as f64, c / g)).collect();
-    write_svg_plot(
-        &dir.join(svg),
-        &format!("GPU speed-up over the CPU executor, Cornell box ({})", r.device),
-        "rays per pixel",
-        "speed-up (CPU time / GPU time)",
-        &[("Cornell box 800x800, depth 16".to_string(), points)],
-        true,
-        true,
-    )?;
+    let title = format!("GPU speed-up over the CPU executor, Cornell box ({})", r.device);
+    let chart = Chart {
+        title: &title,
+        x_label: "rays per pixel",
+        y_label: "speed-up (CPU time / GPU time)",
+        x_scale: Scale::Log,
+        y_scale: Scale::Log,
+    };
+    let series = [Series {
+        name: "Cornell box 800x800, depth 16".to_string(),
+        points,
+    }];
+    line_chart(&dir.join(png), &chart, &series, 900, 600)?;
     Ok(md)
 }
