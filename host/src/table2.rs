@@ -222,3 +222,29 @@ pub fn write(r: &Report, dir: &Path, stem: &str) -> Result<PathBuf> {
     line_chart(&dir.join(png), &chart, &series, 900, 600)?;
     Ok(md)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn report_writes_markdown_json_and_the_speedup_png_it_links() {
+        let r = Report {
+            date: "2026-11-21".into(),
+            device: "test GPU".into(),
+            cpu: "test CPU".into(),
+            command: "raytrace bench table2".into(),
+            rows: vec![],
+            speedup: vec![(1, 100.0, 1.0), (2, 190.0, 1.5), (4, 380.0, 2.9)],
+        };
+        let dir = std::env::temp_dir().join(format!("table2-report-{}", std::process::id()));
+        let md = write(&r, &dir, "t").unwrap();
+        let text = std::fs::read_to_string(&md).unwrap();
+        assert!(text.contains("![speed-up](t-speedup.png)"), "{text}");
+        assert!(text.contains("| 4 | 380.0 | 2.900 | 131x |"), "{text}");
+        let png = image::open(dir.join("t-speedup.png")).unwrap();
+        assert_eq!((png.width(), png.height()), (900, 600));
+        assert!(dir.join("t.json").is_file());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
