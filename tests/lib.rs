@@ -1,6 +1,7 @@
 //! Helpers of the integration tests: opening the GPU (skip or fail without one), checking
 //! the validation layer, and writing both sides of a mismatch to a file.
-use raytrace::vk::{Gpu, GpuOptions};
+use raytrace::render::GpuRenderer;
+use raytrace::vk::{Gpu, GpuOptions, Kernels};
 use std::fmt::Debug;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -21,6 +22,14 @@ pub fn gpu(test: &str) -> Option<Arc<Gpu>> {
             None
         }
     }
+}
+
+/// [`gpu`] with a path tracer on it (all kernels built), or `None` where [`gpu`] skips.
+pub fn renderer(test: &str) -> Option<(Arc<Gpu>, GpuRenderer)> {
+    let gpu = self::gpu(test)?;
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    let r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    Some((gpu, r))
 }
 
 /// Fails if the validation layer reported any error.

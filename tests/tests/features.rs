@@ -1,13 +1,11 @@
 //! Kernels specialised to the scene render what the all-features kernel renders, on both
 //! backends, and leaving a feature out really removes it.
-use integration_tests::{assert_no_validation_errors, gpu};
+use integration_tests::{assert_no_validation_errors, renderer};
 use raytrace::bvh::MortonBits;
 use raytrace::cli::{Prepared, SceneArgs};
 use raytrace::picture::{diff_stats, max_display_diff, Picture};
-use raytrace::render::{render_cpu, GpuRenderer};
-use raytrace::vk::Kernels;
+use raytrace::render::render_cpu;
 use shared::types::FEATURES_ALL;
-use std::sync::Arc;
 
 fn prepared(scene: &str, features: &str) -> Prepared {
     let mut args = vec!["raytrace", scene, "--size", "12x12", "--spp", "2"];
@@ -35,11 +33,9 @@ fn specialised_kernels_render_the_same_picture_on_the_cpu() {
 
 #[test]
 fn specialised_kernels_render_the_same_picture_on_the_gpu() {
-    let Some(gpu) = gpu("specialised_kernels_render_the_same_picture_on_the_gpu") else {
+    let Some((gpu, mut r)) = renderer("specialised_kernels_render_the_same_picture_on_the_gpu") else {
         return;
     };
-    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
-    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
     let mut render = |p: &Prepared| {
         r.load(&p.data, &p.frame).expect("load");
         r.render(p.spp, true).expect("render");

@@ -2,7 +2,7 @@
 //! and GPU images agree, a furnace converges to its analytic radiance, and the error falls
 //! like 1/sqrt(spp).
 use glam::Vec3;
-use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu};
+use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu, renderer};
 use raytrace::bvh::MortonBits;
 use raytrace::cli::{compare, Prepared, SceneArgs};
 use raytrace::picture::{diff_stats, Picture};
@@ -57,11 +57,9 @@ fn closest_hit_through_the_bvh_equals_brute_force() {
     assert!(bunny_hits > 500, "only {bunny_hits} rays hit the bunny");
     assert_eq!(bvh, brute, "CPU: BVH and brute force disagree");
 
-    let Some(gpu) = gpu("closest_hit_through_the_bvh_equals_brute_force") else {
+    let Some((gpu, mut r)) = renderer("closest_hit_through_the_bvh_equals_brute_force") else {
         return;
     };
-    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
-    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
     r.load(&p.data, &bvh_frame).expect("load");
     r.render(0, true).expect("build");
     check_gpu_hits("bunny, GPU BVH", &r.cast(&rays).expect("cast"), &brute);
@@ -280,11 +278,9 @@ fn furnace_converges_to_its_analytic_radiance() {
 
 #[test]
 fn error_falls_like_one_over_the_square_root_of_samples() {
-    let Some(gpu) = gpu("error_falls_like_one_over_the_square_root_of_samples") else {
+    let Some((gpu, mut r)) = renderer("error_falls_like_one_over_the_square_root_of_samples") else {
         return;
     };
-    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
-    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
     let render = |r: &mut GpuRenderer, spp: u32, seed: &str| {
         let p = prepared("cornell", 24, spp, &["--seed", seed]);
         r.load(&p.data, &p.frame).expect("load");
@@ -356,11 +352,9 @@ fn bad_scene_input_names_the_file_and_the_problem() {
 /// dispatch and eight dispatches of one sample accumulate the same bits.
 #[test]
 fn samples_in_one_dispatch_equal_samples_one_at_a_time() {
-    let Some(gpu) = gpu("samples_in_one_dispatch_equal_samples_one_at_a_time") else {
+    let Some((gpu, mut r)) = renderer("samples_in_one_dispatch_equal_samples_one_at_a_time") else {
         return;
     };
-    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
-    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
     for scene in ["cornell", "spheres"] {
         let p = prepared(scene, 24, 8, &[]);
         r.load(&p.data, &p.frame).expect("load");
