@@ -289,6 +289,20 @@ struct Spawned {
     first: Option<String>,
 }
 
+/// The directions spawned from a hit with geometric normal `ng` by a ray along `d`: the
+/// mirror direction and two cosine-distributed ones on each side of the surface.
+fn spawned_dirs(d: Vec3, ng: Vec3, rnd: &mut Random) -> Vec<Vec3> {
+    let facing = if d.dot(ng) < 0.0 { ng } else { -ng };
+    let mut dirs = vec![reflect(d, facing)];
+    for _ in 0..2 {
+        let (u1, u2) = (rnd.f32(), rnd.f32());
+        dirs.push(sampling::cosine_hemisphere(facing, u1, u2));
+        let (u1, u2) = (rnd.f32(), rnd.f32());
+        dirs.push(sampling::cosine_hemisphere(-facing, u1, u2));
+    }
+    dirs
+}
+
 /// Spawns secondary rays from `primaries` random hits as the path tracer does: origin offset
 /// to the side the new ray leaves to, direction reflected, cosine-distributed on the side of
 /// the incoming ray, or cosine-distributed through the surface. Rays that cross a convex
@@ -310,15 +324,7 @@ fn spawn_from_hits(s: &Surface, primaries: usize, seed: u32) -> Spawned {
         let mut queue = vec![(from, d, h, 0)];
         while let Some((o, d, h, depth)) = queue.pop() {
             let (p, ng, scale) = traverse::surface(&scene, h.prim, o, d, &h);
-            let facing = if d.dot(ng) < 0.0 { ng } else { -ng };
-            let mut dirs = vec![reflect(d, facing)];
-            for _ in 0..2 {
-                let (u1, u2) = (rnd.f32(), rnd.f32());
-                dirs.push(sampling::cosine_hemisphere(facing, u1, u2));
-                let (u1, u2) = (rnd.f32(), rnd.f32());
-                dirs.push(sampling::cosine_hemisphere(-facing, u1, u2));
-            }
-            for d2 in dirs {
+            for d2 in spawned_dirs(d, ng, &mut rnd) {
                 let o2 = offset_origin(p, if d2.dot(ng) > 0.0 { ng } else { -ng }, scale);
                 for (how, h2) in [
                     ("brute force", traverse::closest_brute(&scene, o2, d2, INF)),
@@ -470,15 +476,7 @@ fn gpu_self_hits(g: &mut GpuWorld, s: &Surface, primaries: usize, seed: u32) -> 
             continue;
         }
         let (p, ng, _) = traverse::surface(&scene, h.prim, o, d, h);
-        let facing = if d.dot(ng) < 0.0 { ng } else { -ng };
-        let mut dirs = vec![reflect(d, facing)];
-        for _ in 0..2 {
-            let (u1, u2) = (rnd.f32(), rnd.f32());
-            dirs.push(sampling::cosine_hemisphere(facing, u1, u2));
-            let (u1, u2) = (rnd.f32(), rnd.f32());
-            dirs.push(sampling::cosine_hemisphere(-facing, u1, u2));
-        }
-        for d2 in dirs {
+        for d2 in spawned_dirs(d, ng, &mut rnd) {
             pairs.push(((o, d), d2));
             starts.push((*h, p, ng));
         }
