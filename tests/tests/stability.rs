@@ -661,15 +661,23 @@ fn floor(n: i32, z: f32) -> Mesh {
     Mesh { verts, faces }
 }
 
-#[test]
-fn axis_aligned_rays_hit_alike_through_bvh_and_brute_force() {
-    let coords = [-2.0, -1.0, -0.5, 0.0, 0.25, 0.5, 1.0, 2.0f32];
-    let dirs = signed_zero_directions();
-    let meshes = [
+/// Origin coordinates of the axis-aligned ray tests: on, between and beside the meshes'
+/// vertices and edges.
+const AXIS_RAY_COORDS: [f32; 8] = [-2.0, -1.0, -0.5, 0.0, 0.25, 0.5, 1.0, 2.0];
+
+/// The closed and open meshes the axis-aligned rays are shot at.
+fn axis_ray_meshes() -> [(&'static str, Vec<Triangle>); 3] {
+    [
         ("cube", cube(4).triangles(Vec3::ZERO)),
         ("octahedron", octahedron(4).triangles(Vec3::ZERO)),
         ("floor", floor(4, 0.25).triangles(Vec3::ZERO)),
-    ];
+    ]
+}
+
+#[test]
+fn axis_aligned_rays_hit_alike_through_bvh_and_brute_force() {
+    let (coords, dirs) = (AXIS_RAY_COORDS, signed_zero_directions());
+    let meshes = axis_ray_meshes();
     let (mut rays, mut hits, mut wrong) = (0, 0, Vec::new());
     for (name, tris) in meshes {
         let world = World::new(tris, vec![]);
@@ -866,13 +874,8 @@ fn axis_aligned_and_non_finite_rays_on_the_gpu() {
     let mut wrong = Vec::new();
     // Axis-aligned rays: GPU BVH == GPU brute force == the same ray with zeros flipped,
     // bit for bit; any-hit agrees; hits as on the CPU within a few ulps.
-    let coords = [-2.0, -1.0, -0.5, 0.0, 0.25, 0.5, 1.0, 2.0f32];
-    let dirs = signed_zero_directions();
-    let meshes = [
-        ("cube", cube(4).triangles(Vec3::ZERO)),
-        ("octahedron", octahedron(4).triangles(Vec3::ZERO)),
-        ("floor", floor(4, 0.25).triangles(Vec3::ZERO)),
-    ];
+    let (coords, dirs) = (AXIS_RAY_COORDS, signed_zero_directions());
+    let meshes = axis_ray_meshes();
     for (name, tris) in meshes {
         let world = World::new(tris, vec![]);
         let scene = world.scene();
