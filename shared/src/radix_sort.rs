@@ -6,7 +6,7 @@
 //!    table `counts[digit * tiles + tile]`, and adds them atomically into the super-tile
 //!    table `supers[digit * n_supers + tile / SUPER]` of this pass (zeroed before the sort).
 //! 2. [`scatter`]: each tile finds the output offset of every digit from the two tables,
-//!    reading at most `16 * (n_supers + SUPER)` words, ranks its keys stably and writes them.
+//!    reading at most `RADIX * (n_supers + SUPER)` words, ranks its keys stably and writes them.
 //!
 //! The offset of digit `d` for tile `t` in super-tile `s = t / SUPER`:
 //!
@@ -18,14 +18,21 @@
 //!
 //! In the scatter, lane `l` owns the `ITEMS` consecutive keys at `l * ITEMS`, so order
 //! within a tile is (lane, item) = input order: the pass is stable. The workgroup keeps one
-//! counter per (digit, lane), digit-major; an exclusive scan of the whole array gives, for
-//! lane `l`, (#keys of the tile with a smaller digit) + (#keys with digit d of lanes < l).
+//! 16-bit counter per (digit, lane), two to a word (CUB's packing): word (c, l) holds digit
+//! `c` in its low half and digit `c + HALF` in its high half, column-major. An exclusive scan
+//! of the words (no carry crosses the halves: a tile has 2048 keys) gives, in the half of
+//! digit `d` at (c, l), (#keys of the tile with a digit below `d` in the same half) +
+//! (#keys with digit `d` of lanes < l); subtracting its value at (c, 0) leaves the rank
+//! among the tile's keys of digit `d`.
 use crate::scan::{self, BlockScan};
 use crate::sync;
 use crate::types::{load4, BuildParams, GROUP, ITEMS, TILE, WORKGROUP};
 
-pub const RADIX_BITS: u32 = 4;
+pub const RADIX_BITS: u32 = 5;
 pub const RADIX: u32 = 1 << RADIX_BITS;
+/// Packed counter words per lane in the scatter: two 16-bit digit counters each.
+pub const HALF: u32 = RADIX / 2;
+const _: () = assert!(TILE < 1 << 16);
 /// Tiles per super-tile.
 pub const SUPER: u32 = 64;
 /// Lanes that share one digit when the scatter sums the tables.
@@ -43,7 +50,11 @@ pub trait SortKey: Copy + PartialEq + Default {
 impl SortKey for u32 {
     const BITS: u32 = 32;
     fn digit(self, shift: u32) -> u32 {
-        (self >> shift) & (RADIX - 1)
+        if shift >= Self::BITS {
+            0
+        } else {
+            (self >> shift) & (RADIX - 1)
+        }
     }
     fn clz_xor(self, other: Self) -> u32 {
         (self ^ other).leading_zeros()
@@ -53,7 +64,11 @@ impl SortKey for u32 {
 impl SortKey for u64 {
     const BITS: u32 = 64;
     fn digit(self, shift: u32) -> u32 {
-        ((self >> shift) as u32) & (RADIX - 1)
+        if shift >= Self::BITS {
+            0
+        } else {
+            ((self >> shift) as u32) & (RADIX - 1)
+        }
     }
     fn clz_xor(self, other: Self) -> u32 {
         let x = self ^ other;
@@ -77,7 +92,7 @@ pub fn supers_base(p: &BuildParams) -> u32 {
 }
 
 /// Number of digit passes for keys of `bits` significant bits (always even, so that the
-/// sorted pairs end in the input buffers).
+/// sorted pairs end in the input buffers; a last pass past the key's bits only copies).
 pub fn passes(bits: u32) -> u32 {
     let p = bits.div_ceil(RADIX_BITS);
     p + (p & 1)
@@ -128,19 +143,24 @@ pub fn histogram_store(
     }
 }
 
-/// Words of the scatter's (digit, lane) counters: one padding word after every `RADIX`, so
-/// that lanes reading `RADIX` consecutive counters hit different banks.
-pub const COUNTERS: usize = (RADIX * WORKGROUP + WORKGROUP) as usize;
+/// Words of the scatter's packed (digit pair, lane) counters: one padding word after every
+/// `HALF`, so that lanes reading `HALF` consecutive words hit different banks.
+pub const COUNTERS: usize = (HALF * WORKGROUP + WORKGROUP) as usize;
 
-/// Address of flat counter `f = digit * WORKGROUP + lane` in the padded array.
+/// Address of flat counter word `f = column * WORKGROUP + lane` in the padded array.
 fn slot(f: u32) -> usize {
-    (f + f / RADIX) as usize
+    (f + f / HALF) as usize
+}
+
+/// Digit `d`'s (column, bit shift of its half) in the packed counters.
+fn column(d: u32) -> (u32, u32) {
+    (d % HALF, 16 * (d / HALF))
 }
 
 /// Workgroup memory of the scatter kernel.
 pub struct ScatterState {
-    /// Per (digit, lane) key counts, digit-major and padded (see [`slot`]); then their
-    /// exclusive prefix sums.
+    /// Per (digit, lane) key counts, packed two to a word, column-major and padded (see
+    /// [`slot`] and [`column`]); then their exclusive prefix sums.
     pub counts: [u32; COUNTERS],
     /// Per lane: its share of the tables' sums (all of its digit; before this tile).
     pub total: [u32; WORKGROUP as usize],
@@ -165,7 +185,8 @@ const _: () = assert!(ITEMS == 2 * GROUP);
 /// Counts key `i` (if it exists) into lane's column.
 fn count_key<K: SortKey>(st: &mut ScatterState, lane: u32, p: &BuildParams, i: u32, key: K) {
     if i < p.n {
-        st.counts[slot(key.digit(p.shift) * WORKGROUP + lane)] += 1;
+        let (c, half) = column(key.digit(p.shift));
+        st.counts[slot(c * WORKGROUP + lane)] += 1 << half;
     }
 }
 
@@ -183,9 +204,11 @@ fn place_key<K: SortKey>(
 ) {
     if i < p.n {
         let d = key.digit(p.shift);
-        let at = slot(d * WORKGROUP + lane);
-        let dst = st.base[d as usize].wrapping_add(st.counts[at]);
-        st.counts[at] += 1;
+        let (c, half) = column(d);
+        let at = slot(c * WORKGROUP + lane);
+        let v = st.counts[at];
+        let dst = st.base[d as usize].wrapping_add((v >> half) & 0xffff);
+        st.counts[at] = v + (1 << half);
         keys_out[dst as usize] = key;
         vals_out[dst as usize] = val;
     }
@@ -203,8 +226,8 @@ pub fn scatter_count<K: SortKey>(
     counts: &[u32],
     supers: &[u32],
 ) {
-    for d in 0..RADIX {
-        st.counts[slot(d * WORKGROUP + lane)] = 0;
+    for c in 0..HALF {
+        st.counts[slot(c * WORKGROUP + lane)] = 0;
     }
     let start = owned(lane, group);
     let (a, b) = (load4(keys, start, 1, p.n), load4(keys, start + GROUP, 1, p.n));
@@ -242,12 +265,12 @@ pub fn scatter_count<K: SortKey>(
     st.before[lane as usize] = before;
 }
 
-/// Phase 2: lane sums its `RADIX` consecutive counters for the block scan; lanes below
+/// Phase 2: lane sums its `HALF` consecutive counter words for the block scan; lanes below
 /// `RADIX` also finish the table sums of their digit.
 pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
     let mut s = 0;
-    for k in 0..RADIX {
-        s += st.counts[slot(lane * RADIX + k)];
+    for k in 0..HALF {
+        s += st.counts[slot(lane * HALF + k)];
     }
     st.scan.sums[lane as usize] = s;
     if lane < RADIX {
@@ -265,15 +288,17 @@ pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
 /// below `RADIX` find the global offset of their digit for this tile (see the module docs).
 pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
     let mut run = scan::exclusive(lane, &st.scan);
-    for k in 0..RADIX {
-        let i = slot(lane * RADIX + k);
+    for k in 0..HALF {
+        let i = slot(lane * HALF + k);
         let c = st.counts[i];
         st.counts[i] = run;
         run += c;
     }
     if lane < RADIX {
-        // Keys of this tile with a smaller digit: the scan up to counter (lane, 0).
-        let smaller = scan::exclusive(lane * WORKGROUP / RADIX, &st.scan);
+        // The scan's value in this digit's half at word (column, lane 0); block-scan lane
+        // `column * WORKGROUP / HALF` starts with that word.
+        let (c, half) = column(lane);
+        let smaller = (scan::exclusive(c * WORKGROUP / HALF, &st.scan) >> half) & 0xffff;
         let mut offset = st.digit_before[lane as usize];
         for d in 0..lane {
             offset += st.digit_total[d as usize];
