@@ -8,7 +8,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let crate_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shader-crate");
     let mut builder = SpirvBuilder::new(crate_path, "spirv-unknown-vulkan1.2")
         .capability(Capability::VulkanMemoryModelDeviceScope)
-        .capability(Capability::Int64);
+        .capability(Capability::Int64)
+        .capability(Capability::Int64Atomics);
     builder.build_script.defaults = true;
     builder.build_script.env_shader_spv_path = Some(true);
     let result = builder.build()?;

@@ -132,10 +132,12 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     }
     lap("tree", &mut times);
 
-    let words: &mut [u32] = bytemuck::cast_slice_mut(&mut nodes);
+    // The refit sees the nodes as 64-bit words (`Node` is only 4-aligned: copy, not cast).
+    let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&nodes);
     for i in 0..n {
-        refit::refit::<true>(i, &p, &parents, &mut visits, words);
+        refit::refit::<true>(i, &p, &parents, &mut visits, &mut words);
     }
+    let nodes: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
     lap("refit", &mut times);
     out.nodes = nodes;
     out.parents = parents;

@@ -41,7 +41,7 @@ pub fn bounds_reduce(
 pub fn refit(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
 ) {
@@ -53,7 +53,7 @@ pub fn refit(
 pub fn refit_relaxed(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
 ) {

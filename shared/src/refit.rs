@@ -4,15 +4,22 @@
 //! and go on. Boxes are read and written through device-scope atomics, so no stale cache
 //! line of another workgroup's write can be seen.
 //!
-//! The kernel sees the node buffer as words, 8 per [`crate::types::Node`]:
-//! `[min.x, min.y, min.z, a, max.x, max.y, max.z, b]`.
+//! The kernel sees the node buffer as 64-bit words, 4 per [`crate::types::Node`]:
+//! `[min.x | min.y, min.z | a, max.x | max.y, max.z | b]` (low half first), so a box is read
+//! or written with four atomic operations instead of six.
 use crate::sync;
 use crate::types::{BuildParams, INVALID};
 
-const WORDS: u32 = 8;
+const WORDS: u32 = 4;
 
-fn load_f(words: &[u32], at: u32) -> f32 {
-    f32::from_bits(sync::atomic_load(&words[at as usize]))
+/// The two floats of a word.
+fn split(w: u64) -> (f32, f32) {
+    (f32::from_bits(w as u32), f32::from_bits((w >> 32) as u32))
+}
+
+/// A word of two 32-bit halves.
+fn join(lo: u32, hi: u32) -> u64 {
+    lo as u64 | (hi as u64) << 32
 }
 
 /// Climbs from leaf `i`, fitting every internal node this invocation arrives at second. The
@@ -23,48 +30,49 @@ fn load_f(words: &[u32], at: u32) -> f32 {
 /// (Debian 12, our CI device) loses the second arrival when any acquire/release semantics or
 /// memory barrier sits in this divergent loop (its coroutine barrier lowering); there the
 /// host runs the relaxed variant, which is sound on lavapipe's coherent x86 memory.
-pub fn refit<const ORDERED: bool>(i: u32, p: &BuildParams, parents: &[u32], visits: &mut [u32], words: &mut [u32]) {
+pub fn refit<const ORDERED: bool>(i: u32, p: &BuildParams, parents: &[u32], visits: &mut [u32], words: &mut [u64]) {
     let n = p.n;
     if i >= n {
         return;
     }
     let mut node = n - 1 + i;
-    let base = node * WORDS;
-    let mut lo = [
-        f32::from_bits(words[base as usize]),
-        f32::from_bits(words[(base + 1) as usize]),
-        f32::from_bits(words[(base + 2) as usize]),
-    ];
-    let mut hi = [
-        f32::from_bits(words[(base + 4) as usize]),
-        f32::from_bits(words[(base + 5) as usize]),
-        f32::from_bits(words[(base + 6) as usize]),
-    ];
+    let base = (node * WORDS) as usize;
+    let (x0, y0) = split(words[base]);
+    let (z0, _) = split(words[base + 1]);
+    let (x1, y1) = split(words[base + 2]);
+    let (z1, _) = split(words[base + 3]);
+    let mut lo = [x0, y0, z0];
+    let mut hi = [x1, y1, z1];
     let mut parent = parents[node as usize];
     while parent != INVALID {
         // Immutable during the refit, so loaded before the counter, in its shadow.
         let pb = parent * WORDS;
-        let left = words[(pb + 3) as usize];
-        let right = words[(pb + 7) as usize];
+        let left = (words[(pb + 1) as usize] >> 32) as u32;
+        let right = (words[(pb + 3) as usize] >> 32) as u32;
         let grandparent = parents[parent as usize];
         // The first arrival at a node stops; the second fits it and climbs on.
         if sync::atomic_add_device::<ORDERED>(&mut visits[parent as usize], 1) == 0 {
             return;
         }
         let sb = if left == node { right } else { left } * WORDS;
+        let (sx0, sy0) = split(sync::atomic_load_u64(&words[sb as usize]));
+        let (sz0, _) = split(sync::atomic_load_u64(&words[(sb + 1) as usize]));
+        let (sx1, sy1) = split(sync::atomic_load_u64(&words[(sb + 2) as usize]));
+        let (sz1, _) = split(sync::atomic_load_u64(&words[(sb + 3) as usize]));
+        let (s_lo, s_hi) = ([sx0, sy0, sz0], [sx1, sy1, sz1]);
         for k in 0..3 {
-            let s_lo = load_f(words, sb + k);
-            let s_hi = load_f(words, sb + 4 + k);
             let (l_lo, r_lo, l_hi, r_hi) = if left == node {
-                (lo[k as usize], s_lo, hi[k as usize], s_hi)
+                (lo[k], s_lo[k], hi[k], s_hi[k])
             } else {
-                (s_lo, lo[k as usize], s_hi, hi[k as usize])
+                (s_lo[k], lo[k], s_hi[k], hi[k])
             };
-            lo[k as usize] = l_lo.min(r_lo);
-            hi[k as usize] = l_hi.max(r_hi);
-            sync::atomic_store(&mut words[(pb + k) as usize], lo[k as usize].to_bits());
-            sync::atomic_store(&mut words[(pb + 4 + k) as usize], hi[k as usize].to_bits());
+            lo[k] = l_lo.min(r_lo);
+            hi[k] = l_hi.max(r_hi);
         }
+        sync::atomic_store_u64(&mut words[pb as usize], join(lo[0].to_bits(), lo[1].to_bits()));
+        sync::atomic_store_u64(&mut words[(pb + 1) as usize], join(lo[2].to_bits(), left));
+        sync::atomic_store_u64(&mut words[(pb + 2) as usize], join(hi[0].to_bits(), hi[1].to_bits()));
+        sync::atomic_store_u64(&mut words[(pb + 3) as usize], join(hi[2].to_bits(), right));
         node = parent;
         parent = grandparent;
     }

@@ -105,12 +105,12 @@ pub fn atomic_add_device<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
     }
 }
 
-/// Relaxed device-scope load: reads what another workgroup stored in this dispatch, past any
-/// non-coherent cache.
-pub fn atomic_load(p: &u32) -> u32 {
+/// Relaxed device-scope 64-bit load: two neighbouring words in one memory operation; reads
+/// what another workgroup stored in this dispatch, past any non-coherent cache.
+pub fn atomic_load_u64(p: &u64) -> u64 {
     #[cfg(target_arch = "spirv")]
     unsafe {
-        spirv_std::arch::atomic_load::<u32, DEVICE, RELAXED>(p)
+        spirv_std::arch::atomic_load::<u64, DEVICE, RELAXED>(p)
     }
     #[cfg(not(target_arch = "spirv"))]
     {
@@ -118,11 +118,11 @@ pub fn atomic_load(p: &u32) -> u32 {
     }
 }
 
-/// Relaxed device-scope store, the partner of [`atomic_load`].
-pub fn atomic_store(p: &mut u32, v: u32) {
+/// Relaxed device-scope 64-bit store, the partner of [`atomic_load_u64`].
+pub fn atomic_store_u64(p: &mut u64, v: u64) {
     #[cfg(target_arch = "spirv")]
     unsafe {
-        spirv_std::arch::atomic_store::<u32, DEVICE, RELAXED>(p, v)
+        spirv_std::arch::atomic_store::<u64, DEVICE, RELAXED>(p, v)
     }
     #[cfg(not(target_arch = "spirv"))]
     {

@@ -265,12 +265,17 @@ impl Gpu {
         // SAFETY: `pd` comes from this instance.
         unsafe { instance.get_physical_device_features2(pd, &mut f2) };
         let base = f2.features;
-        if f12.vulkan_memory_model == 0 || f12.vulkan_memory_model_device_scope == 0 || base.shader_int64 == 0 {
-            bail!("Vulkan device {name} lacks a feature the kernels need (vulkanMemoryModel, vulkanMemoryModelDeviceScope, shaderInt64)");
+        if f12.vulkan_memory_model == 0
+            || f12.vulkan_memory_model_device_scope == 0
+            || f12.shader_buffer_int64_atomics == 0
+            || base.shader_int64 == 0
+        {
+            bail!("Vulkan device {name} lacks a feature the kernels need (vulkanMemoryModel, vulkanMemoryModelDeviceScope, shaderBufferInt64Atomics, shaderInt64)");
         }
         let mut want12 = vk::PhysicalDeviceVulkan12Features::default()
             .vulkan_memory_model(true)
-            .vulkan_memory_model_device_scope(true);
+            .vulkan_memory_model_device_scope(true)
+            .shader_buffer_int64_atomics(true);
         let want = vk::PhysicalDeviceFeatures::default().shader_int64(true);
         // SAFETY: `pd` comes from this instance.
         let exts =
