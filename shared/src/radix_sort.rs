@@ -214,6 +214,27 @@ fn place_key<K: SortKey>(
     }
 }
 
+/// Super-tile `x`'s sum `v` as (its share of the digit's total, of the count before super-tile
+/// `s`); nothing past the last super-tile.
+fn super_share(x: u32, v: u32, n_supers: u32, s: u32) -> (u32, u32) {
+    if x >= n_supers {
+        (0, 0)
+    } else if x < s {
+        (v, v)
+    } else {
+        (v, 0)
+    }
+}
+
+/// Tile `t`'s count `v` if it comes before this tile (`group`), else 0.
+fn tile_share(t: u32, v: u32, group: u32) -> u32 {
+    if t < group {
+        v
+    } else {
+        0
+    }
+}
+
 /// Phase 1: lane counts the digits of the keys it owns into its column, and sums its share
 /// of the tables for the tile offsets.
 #[allow(clippy::too_many_arguments)]
@@ -245,21 +266,29 @@ pub fn scatter_count<K: SortKey>(
     let n_supers = super_count(p);
     let row = supers_base(p) + d * n_supers;
     let s = group / SUPER;
+    // Four table entries per round, loaded before any is used (see `load4`).
     let mut total = 0;
     let mut before = 0;
     let mut x = j;
     while x < n_supers {
-        let v = supers[(row + x) as usize];
-        total += v;
-        if x < s {
-            before += v;
-        }
-        x += LANES_PER_DIGIT;
+        let v = load4(supers, row + x, LANES_PER_DIGIT, row + n_supers);
+        let (t0, b0) = super_share(x, v[0], n_supers, s);
+        let (t1, b1) = super_share(x + LANES_PER_DIGIT, v[1], n_supers, s);
+        let (t2, b2) = super_share(x + 2 * LANES_PER_DIGIT, v[2], n_supers, s);
+        let (t3, b3) = super_share(x + 3 * LANES_PER_DIGIT, v[3], n_supers, s);
+        total += t0 + t1 + t2 + t3;
+        before += b0 + b1 + b2 + b3;
+        x += GROUP * LANES_PER_DIGIT;
     }
+    let row = d * p.tiles;
     let mut t = s * SUPER + j;
     while t < group {
-        before += counts[(d * p.tiles + t) as usize];
-        t += LANES_PER_DIGIT;
+        let v = load4(counts, row + t, LANES_PER_DIGIT, row + group);
+        before += tile_share(t, v[0], group)
+            + tile_share(t + LANES_PER_DIGIT, v[1], group)
+            + tile_share(t + 2 * LANES_PER_DIGIT, v[2], group)
+            + tile_share(t + 3 * LANES_PER_DIGIT, v[3], group);
+        t += GROUP * LANES_PER_DIGIT;
     }
     st.total[lane as usize] = total;
     st.before[lane as usize] = before;

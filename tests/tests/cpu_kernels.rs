@@ -6,13 +6,24 @@ use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
 use raytrace::validate::validate;
 use shared::karras::range_and_split;
+use shared::radix_sort::SUPER;
 use shared::types::{TILE, WORKGROUP};
 
 #[test]
 fn radix_sort_is_a_stable_sort_of_the_morton_codes() {
     for bits in [MortonBits::B30, MortonBits::B63] {
         for dist in Distribution::ALL {
-            for n in [0, 1, 2, 3, 257, TILE as usize + 1, 20_000] {
+            // The last size spans three super-tiles of the scatter's offset tables.
+            for n in [
+                0,
+                1,
+                2,
+                3,
+                257,
+                TILE as usize + 1,
+                20_000,
+                (2 * SUPER * TILE + 1) as usize,
+            ] {
                 let (t, s) = generate(n, dist, true, 3);
                 let (r, _) = cpu::build(&t, &s, bits);
                 let mut expected: Vec<u32> = (0..r.morton.len() as u32).collect();
