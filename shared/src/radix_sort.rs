@@ -168,8 +168,8 @@ pub struct ScatterState {
     /// Per digit: keys in all tiles; keys in the tiles before this one.
     pub digit_total: [u32; RADIX as usize],
     pub digit_before: [u32; RADIX as usize],
-    /// Per digit: global offset of this tile's first key with that digit, minus the tile-local
-    /// exclusive count of smaller digits.
+    /// Per digit: global offset of this tile's first key with that digit, minus the count of
+    /// the tile's keys with a smaller digit in the same half of the packed counters.
     pub base: [u32; RADIX as usize],
     pub scan: BlockScan,
 }
@@ -280,10 +280,10 @@ pub fn scatter_count<K: SortKey>(
         before += b0 + b1 + b2 + b3;
         x += GROUP * LANES_PER_DIGIT;
     }
-    let row = d * p.tiles;
+    let tile_row = d * p.tiles;
     let mut t = s * SUPER + j;
     while t < group {
-        let v = load4(counts, row + t, LANES_PER_DIGIT, row + group);
+        let v = load4(counts, tile_row + t, LANES_PER_DIGIT, tile_row + group);
         before += tile_share(t, v[0], group)
             + tile_share(t + LANES_PER_DIGIT, v[1], group)
             + tile_share(t + 2 * LANES_PER_DIGIT, v[2], group)
