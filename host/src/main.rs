@@ -6,7 +6,7 @@ use raytrace::bvh::MortonBits;
 use raytrace::cli::{compare_command, render_command, SceneArgs};
 use raytrace::render::Backend;
 use raytrace::view::ViewArgs;
-use raytrace::vk::{Gpu, GpuOptions};
+use raytrace::vk::{Gpu, GpuOptions, Kernel};
 use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
@@ -243,8 +243,18 @@ fn main() -> Result<()> {
                 if stats.is_empty() {
                     println!("the driver offers no pipeline statistics");
                 }
-                for (entry, lines) in stats {
+                for (entry, lines) in &stats {
                     println!("{entry}: {}", lines.join(", "));
+                }
+                // What the renders run: the path tracer specialised to each scene's features.
+                for scene in ["cornell", "bunny"].into_iter().filter(|_| !stats.is_empty()) {
+                    for nee in [false, true] {
+                        let args = ["raytrace", scene, if nee { "--spp=1" } else { "--no-nee" }];
+                        let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
+                        let lines = k.specialised_statistics(Kernel::PathTrace, p.frame.features)?;
+                        let nee = if nee { " (NEE)" } else { "" };
+                        println!("path_trace for {scene}{nee}: {}", lines.join(", "));
+                    }
                 }
             }
         }

@@ -223,38 +223,49 @@ impl Kernels {
         if !self.gpu.kernel_stats {
             return Ok(Vec::new());
         }
-        let ext = ash::khr::pipeline_executable_properties::Device::new(&self.gpu.instance, &self.gpu.device);
         let mut out = Vec::new();
         for (kernel, &pipeline) in Kernel::ALL.iter().zip(&self.pipelines) {
-            let info = vk::PipelineExecutableInfoKHR::default()
-                .pipeline(pipeline)
-                .executable_index(0);
-            // SAFETY: the pipeline was created with CAPTURE_STATISTICS on a device with the
-            // extension enabled.
-            let stats =
-                unsafe { ext.get_pipeline_executable_statistics(&info) }.context("reading pipeline statistics")?;
-            let lines = stats
-                .iter()
-                .map(|st| {
-                    let name = st
-                        .name_as_c_str()
-                        .map(|c| c.to_string_lossy().into_owned())
-                        .unwrap_or_default();
-                    // SAFETY: the union member read is the one `format` names.
-                    let value = unsafe {
-                        match st.format {
-                            vk::PipelineExecutableStatisticFormatKHR::BOOL32 => format!("{}", st.value.b32),
-                            vk::PipelineExecutableStatisticFormatKHR::INT64 => format!("{}", st.value.i64),
-                            vk::PipelineExecutableStatisticFormatKHR::UINT64 => format!("{}", st.value.u64),
-                            _ => format!("{}", st.value.f64),
-                        }
-                    };
-                    format!("{name}: {value}")
-                })
-                .collect();
-            out.push((kernel.entry(), lines));
+            out.push((kernel.entry(), self.pipeline_statistics(pipeline)?));
         }
         Ok(out)
+    }
+
+    /// The driver's statistics of `kernel` specialised to `constant` (see [`Self::specialised`]);
+    /// empty as for [`Self::statistics`].
+    pub fn specialised_statistics(&self, kernel: Kernel, constant: u32) -> Result<Vec<String>> {
+        if !self.gpu.kernel_stats {
+            return Ok(Vec::new());
+        }
+        self.pipeline_statistics(self.specialised(kernel, constant)?)
+    }
+
+    fn pipeline_statistics(&self, pipeline: vk::Pipeline) -> Result<Vec<String>> {
+        let ext = ash::khr::pipeline_executable_properties::Device::new(&self.gpu.instance, &self.gpu.device);
+        let info = vk::PipelineExecutableInfoKHR::default()
+            .pipeline(pipeline)
+            .executable_index(0);
+        // SAFETY: the pipeline was created with CAPTURE_STATISTICS on a device with the
+        // extension enabled.
+        let stats = unsafe { ext.get_pipeline_executable_statistics(&info) }.context("reading pipeline statistics")?;
+        Ok(stats
+            .iter()
+            .map(|st| {
+                let name = st
+                    .name_as_c_str()
+                    .map(|c| c.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                // SAFETY: the union member read is the one `format` names.
+                let value = unsafe {
+                    match st.format {
+                        vk::PipelineExecutableStatisticFormatKHR::BOOL32 => format!("{}", st.value.b32),
+                        vk::PipelineExecutableStatisticFormatKHR::INT64 => format!("{}", st.value.i64),
+                        vk::PipelineExecutableStatisticFormatKHR::UINT64 => format!("{}", st.value.u64),
+                        _ => format!("{}", st.value.f64),
+                    }
+                };
+                format!("{name}: {value}")
+            })
+            .collect())
     }
 
     pub fn pipeline(&self, k: Kernel) -> vk::Pipeline {
