@@ -145,8 +145,11 @@ where
 {
     let e = |e: DrawingAreaErrorKind<_>| anyhow!("{e}");
     root.fill(&WHITE).map_err(e)?;
+    // 24 px, smaller where a long title (a GPU's and driver's names) would not fit the width.
+    let width = root.dim_in_pixel().0 as f64;
+    let size = 24.0f64.min(1.6 * width / chart.title.chars().count().max(1) as f64);
     let mut cc = ChartBuilder::on(root)
-        .caption(chart.title, ("sans-serif", 24))
+        .caption(chart.title, ("sans-serif", size))
         .margin(16)
         .x_label_area_size(50)
         .y_label_area_size(80)
