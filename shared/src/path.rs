@@ -33,8 +33,10 @@ pub struct World<'a> {
 
 impl World<'_> {
     pub fn material(&self, prim: u32) -> Material {
-        let object = self.objects[self.prim_object[prim as usize] as usize];
-        self.materials[object.material as usize]
+        // Unchecked on the GPU (see `traverse::at`): primitives come from the traversal,
+        // objects and materials from the host's checked scene.
+        let object = traverse::at(self.objects, *traverse::at(self.prim_object, prim));
+        *traverse::at(self.materials, object.material)
     }
 
     fn bvh(&self) -> bool {

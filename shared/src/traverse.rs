@@ -157,13 +157,13 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
         let (near, far) = if tb < ta { (b, a) } else { (a, b) };
         if near != INVALID {
             if far != INVALID && sp < STACK {
-                stack[sp] = far;
+                *slot(&mut stack, sp) = far;
                 sp += 1;
             }
             node = near;
         } else if sp > 0 {
             sp -= 1;
-            node = stack[sp];
+            node = *slot(&mut stack, sp);
         } else {
             return best;
         }
@@ -204,14 +204,14 @@ fn visit(s: &Scene, r: &TriRay, child: u32, first_leaf: u32, limit: &mut f32, be
 /// geometric normal there, and the primitive's scale for [`intersect::offset_origin`].
 pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3, f32) {
     if s.is_triangle(prim) {
-        let t = &s.tris[prim as usize];
+        let t = at(s.tris, prim);
         (
             intersect::triangle_point(t, h.u, h.v),
             intersect::triangle_normal(t).normalize(),
             intersect::triangle_scale(t),
         )
     } else {
-        let sphere = &s.spheres[(prim - s.n_tris) as usize];
+        let sphere = at(s.spheres, prim - s.n_tris);
         let sp = sphere.center_radius;
         let c = xyz(sp);
         let n = (origin + h.t * dir - c).normalize();
@@ -225,7 +225,7 @@ pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3,
 /// checked on the CPU, where the tests run, so a bad index there still fails loudly. The
 /// checks cost the H100 2-5% of its frame time and 8 registers (`info --kernels`).
 #[inline(always)]
-fn at<T>(v: &[T], i: u32) -> &T {
+pub(crate) fn at<T>(v: &[T], i: u32) -> &T {
     #[cfg(target_arch = "spirv")]
     // SAFETY: see above.
     unsafe {
@@ -235,5 +235,21 @@ fn at<T>(v: &[T], i: u32) -> &T {
     #[cfg(not(target_arch = "spirv"))]
     {
         &v[i as usize]
+    }
+}
+
+/// Stack slot `i` (below [`STACK`]: pushes check, pops follow pushes): unchecked on the
+/// GPU, checked on the CPU, as [`at`].
+#[inline(always)]
+fn slot(stack: &mut [u32; STACK], i: usize) -> &mut u32 {
+    #[cfg(target_arch = "spirv")]
+    // SAFETY: see above.
+    unsafe {
+        use spirv_std::arch::IndexUnchecked;
+        stack.index_unchecked_mut(i)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        &mut stack[i]
     }
 }
