@@ -3,7 +3,16 @@
 //! Quantisation multiplies by a power of two chosen from the exponent of each axis's extent,
 //! so it is exact on every backend: the CPU and the GPU produce the same codes bit for bit.
 //! Each axis gets between half and all of its `2^bits` cells.
-use crate::types::{prim_centroid2, BuildParams, OrderedBounds, Sphere, Triangle};
+//!
+//! The codes are extended by one bit of primitive size (Vinkler, Bittner & Havran 2017,
+//! "Extended Morton codes for high performance bounding volume hierarchy construction"):
+//! below the first three bits (the first octree split) comes a bit saying whether the
+//! primitive is large (see [`large`]), then the Morton code's next bits, its last one
+//! dropped. Large primitives (a room's walls) then gather in subtrees of their own instead of
+//! widening the box of every subtree of small ones they fall among: on the CPU executor's
+//! count, rays in the bunny scene (the bunny in the Cornell box) visit 18.6 -> 12.5 inner
+//! nodes, in the Cornell box 11.0 -> 10.4, in Suzanne's 12.7 -> 9.6.
+use crate::types::{prim_box, prim_centroid2, BuildParams, OrderedBounds, Sphere, Triangle};
 use spirv_std::glam::Vec3;
 
 /// Spreads the low 10 bits of `v` so that bit `k` moves to bit `3k`:
@@ -68,7 +77,20 @@ fn cells(i: u32, p: &BuildParams, b: &OrderedBounds, tris: &[Triangle], spheres:
     ]
 }
 
-/// 30-bit code `..zyxzyx` of primitive `i`; also resets the sort value to `i`.
+/// Spatial bits of a code above its size bit: one octree level.
+pub const OCTREE_BITS: u32 = 3;
+
+/// Whether primitive `i` is large: its box's largest side exceeds half the largest side of
+/// the centroids' bounds (`b` holds doubled centroids, hence the 4). Exact on every backend
+/// (subtractions, a comparison and a multiplication by a power of two).
+pub fn large(i: u32, p: &BuildParams, b: &OrderedBounds, tris: &[Triangle], spheres: &[Sphere]) -> bool {
+    let (lo, hi) = prim_box(i, p.n_tris, tris, spheres);
+    let (d, e) = (hi - lo, b.max() - b.min());
+    4.0 * d.x.max(d.y).max(d.z) > e.x.max(e.y).max(e.z)
+}
+
+/// 30-bit code of primitive `i` (`zyx` bit triples, the size bit below the first; see the
+/// module); also resets the sort value to `i`.
 pub fn morton30(
     i: u32,
     p: &BuildParams,
@@ -82,11 +104,13 @@ pub fn morton30(
         return;
     }
     let q = cells(i, p, b, tris, spheres, 10);
-    keys[i as usize] = (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
+    let m = (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
+    let low = (1u32 << (30 - OCTREE_BITS)) - 1;
+    keys[i as usize] = (m & !low) | (large(i, p, b, tris, spheres) as u32) << (29 - OCTREE_BITS) | (m & low) >> 1;
     vals[i as usize] = i;
 }
 
-/// 63-bit code of primitive `i`; also resets the sort value to `i`.
+/// 63-bit code of primitive `i`, laid out as [`morton30`]; also resets the sort value to `i`.
 pub fn morton63(
     i: u32,
     p: &BuildParams,
@@ -100,8 +124,9 @@ pub fn morton63(
         return;
     }
     let q = cells(i, p, b, tris, spheres, 21);
-    keys[i as usize] =
-        (expand_bits_21(q[2] as u64) << 2) | (expand_bits_21(q[1] as u64) << 1) | expand_bits_21(q[0] as u64);
+    let m = (expand_bits_21(q[2] as u64) << 2) | (expand_bits_21(q[1] as u64) << 1) | expand_bits_21(q[0] as u64);
+    let low = (1u64 << (63 - OCTREE_BITS)) - 1;
+    keys[i as usize] = (m & !low) | (large(i, p, b, tris, spheres) as u64) << (62 - OCTREE_BITS) | (m & low) >> 1;
     vals[i as usize] = i;
 }
 
@@ -147,5 +172,51 @@ mod tests {
         assert_eq!(quantise(1e9, 0.0, 1.0, 10), 1023);
         assert_eq!(quantise(1e9, 0.0, 1.0, 21), (1 << 21) - 1);
         assert_eq!(quantise(7.9, 0.0, 1.0, 10), 7);
+    }
+
+    /// The size bit: set for a primitive whose box spans more than half of the centroids'
+    /// extent, clear for small ones, and below the first octree level: codes still order
+    /// by octant first, then small before large within one, then by position.
+    #[test]
+    fn large_primitives_get_the_size_bit_below_the_first_octant_bits() {
+        use crate::types::f32_to_ordered;
+        let tri = |c: [f32; 3], r: f32| Triangle {
+            v0: [c[0] - r, c[1] - r, c[2], 0.0],
+            v1: [c[0] + r, c[1] - r, c[2], 0.0],
+            v2: [c[0], c[1] + r, c[2], 0.0],
+        };
+        // Small triangles in the low octant and the high one, and a wall-sized one.
+        let tris = [
+            tri([0.1, 0.1, 0.1], 0.01),
+            tri([0.9, 0.9, 0.9], 0.01),
+            tri([0.2, 0.2, 0.2], 0.6),
+        ];
+        let mut b = OrderedBounds::EMPTY;
+        for i in 0..3 {
+            let c = prim_centroid2(i, 3, &tris, &[]);
+            for (k, v) in c.to_array().into_iter().enumerate() {
+                b.min[k] = b.min[k].min(f32_to_ordered(v));
+                b.max[k] = b.max[k].max(f32_to_ordered(v));
+            }
+        }
+        let p = BuildParams {
+            n_tris: 3,
+            n: 3,
+            shift: 0,
+            tiles: 0,
+        };
+        let (mut k30, mut k63, mut vals) = ([0u32; 3], [0u64; 3], [0u32; 3]);
+        for i in 0..3 {
+            morton30(i, &p, &b, &tris, &[], &mut k30, &mut vals);
+            morton63(i, &p, &b, &tris, &[], &mut k63, &mut vals);
+        }
+        let bit30 = |k: u32| k >> (29 - OCTREE_BITS) & 1;
+        let bit63 = |k: u64| k >> (62 - OCTREE_BITS) & 1;
+        assert_eq!([bit30(k30[0]), bit30(k30[1]), bit30(k30[2])], [0, 0, 1], "{k30:x?}");
+        assert_eq!([bit63(k63[0]), bit63(k63[1]), bit63(k63[2])], [0, 0, 1], "{k63:x?}");
+        // Same octant as the first (low), so after it; before the high octant's.
+        assert!(k30[0] < k30[2] && k30[2] < k30[1], "{k30:x?}");
+        assert!(k63[0] < k63[2] && k63[2] < k63[1], "{k63:x?}");
+        assert!(k30.iter().all(|&k| k < 1 << 30) && k63.iter().all(|&k| k < 1 << 63));
     }
 }
