@@ -247,7 +247,12 @@ fn main() -> Result<()> {
                     println!("{entry}: {}", lines.join(", "));
                 }
                 // What the renders run: the path tracer specialised to each scene's features.
-                for scene in ["cornell", "bunny"].into_iter().filter(|_| !stats.is_empty()) {
+                let scenes = if stats.is_empty() {
+                    &[][..]
+                } else {
+                    &["cornell", "bunny"][..]
+                };
+                for scene in scenes {
                     for nee in [false, true] {
                         let args = ["raytrace", scene, if nee { "--spp=1" } else { "--no-nee" }];
                         let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;

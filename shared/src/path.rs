@@ -9,6 +9,7 @@ use crate::material;
 use crate::math::{finite3, max3};
 use crate::rng::Rng;
 use crate::sampling;
+use crate::sync;
 use crate::traverse::{self, Scene};
 use crate::types::{
     xyz, Camera, Frame, Hit, Material, Object, Ray, RenderPush, CAST_ANY, CAST_SPAWN, FEATURE_NEE, FEATURE_THIN_LENS,
@@ -33,10 +34,8 @@ pub struct World<'a> {
 
 impl World<'_> {
     pub fn material(&self, prim: u32) -> Material {
-        // Unchecked on the GPU (see `traverse::at`): primitives come from the traversal,
-        // objects and materials from the host's checked scene.
-        let object = traverse::at(self.objects, *traverse::at(self.prim_object, prim));
-        *traverse::at(self.materials, object.material)
+        let object = sync::at(self.objects, *sync::at(self.prim_object, prim));
+        *sync::at(self.materials, object.material)
     }
 
     fn bvh(&self) -> bool {

@@ -1,6 +1,6 @@
 //! The seam between kernels and GPU-only intrinsics. On SPIR-V these are real atomics; on the
 //! CPU executor, which runs one invocation at a time, plain reads and writes have the same
-//! meaning.
+//! meaning. Also the hot loops' unchecked reads ([`at`], [`slot`]), checked on the CPU.
 #[cfg(target_arch = "spirv")]
 use spirv_std::memory::{Scope, Semantics};
 
@@ -127,5 +127,40 @@ pub fn atomic_store_u64(p: &mut u64, v: u64) {
     #[cfg(not(target_arch = "spirv"))]
     {
         *p = v;
+    }
+}
+
+/// Element `i` of a buffer read in a hot loop (the traversal, its hits' materials):
+/// unchecked on the GPU, where every such index is one the builder or the host's checked
+/// scene wrote (node links, primitive indices below `n`, object and material indices);
+/// checked on the CPU, where the tests run, so a bad index there still fails loudly. The
+/// checks cost the H100 2-5% of its frame time and 8 registers (`info --kernels`).
+#[inline(always)]
+pub fn at<T>(v: &[T], i: u32) -> &T {
+    #[cfg(target_arch = "spirv")]
+    // SAFETY: see above.
+    unsafe {
+        use spirv_std::arch::IndexUnchecked;
+        v.index_unchecked(i as usize)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        &v[i as usize]
+    }
+}
+
+/// Slot `i` of a fixed stack whose pushes check its size and whose pops follow pushes:
+/// unchecked on the GPU, checked on the CPU, as [`at`].
+#[inline(always)]
+pub fn slot<const N: usize>(stack: &mut [u32; N], i: usize) -> &mut u32 {
+    #[cfg(target_arch = "spirv")]
+    // SAFETY: see above.
+    unsafe {
+        use spirv_std::arch::IndexUnchecked;
+        stack.index_unchecked_mut(i)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        &mut stack[i]
     }
 }

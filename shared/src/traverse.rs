@@ -4,6 +4,7 @@
 //! direction miss.
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
+use crate::sync::{at, slot};
 use crate::types::{
     xyz, Hit, Node, Sphere, Triangle, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID, VARIANT_MOLLER_TRUMBORE,
     VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS,
@@ -217,39 +218,5 @@ pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3,
         let n = (origin + h.t * dir - c).normalize();
         // Re-projected onto the surface: the hit point's error no longer grows with t.
         (c + n * sp[3].abs(), n, intersect::sphere_scale(sphere))
-    }
-}
-
-/// Element `i` of a buffer the traversal reads in its inner loop: unchecked on the GPU,
-/// where every index is one the builder wrote (node links, primitive indices below `n`);
-/// checked on the CPU, where the tests run, so a bad index there still fails loudly. The
-/// checks cost the H100 2-5% of its frame time and 8 registers (`info --kernels`).
-#[inline(always)]
-pub(crate) fn at<T>(v: &[T], i: u32) -> &T {
-    #[cfg(target_arch = "spirv")]
-    // SAFETY: see above.
-    unsafe {
-        use spirv_std::arch::IndexUnchecked;
-        v.index_unchecked(i as usize)
-    }
-    #[cfg(not(target_arch = "spirv"))]
-    {
-        &v[i as usize]
-    }
-}
-
-/// Stack slot `i` (below [`STACK`]: pushes check, pops follow pushes): unchecked on the
-/// GPU, checked on the CPU, as [`at`].
-#[inline(always)]
-fn slot(stack: &mut [u32; STACK], i: usize) -> &mut u32 {
-    #[cfg(target_arch = "spirv")]
-    // SAFETY: see above.
-    unsafe {
-        use spirv_std::arch::IndexUnchecked;
-        stack.index_unchecked_mut(i)
-    }
-    #[cfg(not(target_arch = "spirv"))]
-    {
-        &mut stack[i]
     }
 }
