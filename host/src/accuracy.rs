@@ -11,7 +11,7 @@
 //!    robust slab test against the plain one (rays per second on the scene, and rays that
 //!    leak through closed meshes aimed at their shared vertices and edges).
 use crate::bench::percentile;
-use crate::bvh::MortonBits;
+use crate::bvh::{BuildOptions, MortonBits};
 use crate::cli::{Prepared, SceneArgs};
 use crate::hard_cases::{closed_meshes, rays_at_vertices_and_edges, scene_of, OFFSETS};
 use crate::picture::Picture;
@@ -253,11 +253,18 @@ fn rays_per_s(r: &mut GpuRenderer, f: &Frame, spp: u32, runs: usize) -> Result<f
 
 fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow>> {
     let mut rows = Vec::new();
-    for (name, bits) in [
-        ("LBVH, 30-bit Morton codes", MortonBits::B30),
-        ("LBVH, 63-bit Morton codes", MortonBits::B63),
+    for (name, build) in [
+        ("LBVH, 30-bit Morton codes", BuildOptions::lbvh(MortonBits::B30)),
+        ("LBVH, 63-bit Morton codes", BuildOptions::lbvh(MortonBits::B63)),
+        (
+            "LBVH + treelets, 30-bit",
+            BuildOptions {
+                bits: MortonBits::B30,
+                treelets: true,
+            },
+        ),
     ] {
-        r.set_bits(bits);
+        r.set_build(build);
         r.load(&p.data, &p.frame)?;
         let mut ms = Vec::new();
         for _ in 0..o.runs.max(1) + 1 {
@@ -278,7 +285,7 @@ fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow
             rays_per_s: rays_per_s(r, &p.frame, o.speed_spp, o.runs)?,
         });
     }
-    r.set_bits(MortonBits::B30);
+    r.set_build(BuildOptions::lbvh(MortonBits::B30));
     r.load(&p.data, &p.frame)?;
     let brute = with_flags(&p.frame, 0, FLAG_BVH);
     rows.push(BvhRow {

@@ -2,7 +2,7 @@
 //! discarded, median of many runs), primitives per second, BVH bytes per primitive, and the
 //! CPU executor's time on the same input; the GPU result is checked against the CPU's after
 //! timing. Writes Markdown and JSON.
-use crate::bvh::{MortonBits, STAGES};
+use crate::bvh::{BuildOptions, MortonBits, STAGES};
 
 /// Reported columns: the stages, and the sort's two kernels (summed over its passes).
 const COLUMNS: [&str; 7] = [
@@ -38,6 +38,8 @@ pub struct BuildRow {
     pub input: String,
     pub primitives: usize,
     pub bits: MortonBits,
+    /// Whether the refit restructured treelets (its time is in the `refit` column).
+    pub treelets: bool,
     pub runs: usize,
     /// Median GPU microseconds per column of `COLUMNS`.
     pub stage_us: Vec<(String, f64)>,
@@ -119,7 +121,7 @@ pub fn standard_inputs(sizes: &[usize]) -> Result<Vec<Input>> {
 pub fn bench_build(
     gpu: &Arc<Gpu>,
     inputs: &[Input],
-    bits: MortonBits,
+    opts: BuildOptions,
     runs: usize,
     warmup: usize,
 ) -> Result<Vec<BuildRow>> {
@@ -128,20 +130,20 @@ pub fn bench_build(
     let mut rows = Vec::new();
     for input in inputs {
         let n = input.tris.len() + input.spheres.len();
-        eprintln!("bench build: {} ({n} primitives, {bits:?})", input.name);
+        eprintln!("bench build: {} ({n} primitives, {opts:?})", input.name);
         lbvh.upload(&input.tris, &input.spheres)?;
         // Warm up for at least `warmup` builds and half a second: after the CPU executor's
         // idle stretches the GPU needs that long to return to full clocks.
         let warm_start = std::time::Instant::now();
         let mut warmed = 0;
         while warmed < warmup || warm_start.elapsed() < std::time::Duration::from_millis(500) {
-            lbvh.build(bits, false)?;
+            lbvh.build(opts, false)?;
             warmed += 1;
         }
         let mut per_column: Vec<Vec<f64>> = vec![Vec::new(); COLUMNS.len()];
         let mut totals = Vec::new();
         for _ in 0..runs {
-            let t = lbvh.build(bits, false)?;
+            let t = lbvh.build(opts, false)?;
             for (c, name) in COLUMNS.iter().enumerate() {
                 per_column[c].push(column_ns(&t, name) / 1e3);
             }
@@ -151,14 +153,14 @@ pub fn bench_build(
         let total_us = percentile(&totals, 0.5);
 
         // Check after timing: the GPU's output must equal the CPU executor's, and be valid.
-        lbvh.build(bits, true)?;
-        let gpu_result = lbvh.result(bits)?;
+        lbvh.build(opts, true)?;
+        let gpu_result = lbvh.result(opts.bits)?;
         let cpu_runs = if n >= 1_000_000 { 1 } else { 3 };
         let mut cpu_times = Vec::new();
         let mut cpu_result = None;
         for _ in 0..cpu_runs {
             let t = std::time::Instant::now();
-            let (r, _) = cpu::build(&input.tris, &input.spheres, bits);
+            let (r, _) = cpu::build(&input.tris, &input.spheres, opts);
             cpu_times.push(t.elapsed().as_secs_f64() * 1e3);
             cpu_result = Some(r);
         }
@@ -172,7 +174,8 @@ pub fn bench_build(
         rows.push(BuildRow {
             input: input.name.clone(),
             primitives: n,
-            bits,
+            bits: opts.bits,
+            treelets: opts.treelets,
             runs,
             stage_us: COLUMNS
                 .iter()
@@ -219,8 +222,12 @@ pub fn markdown(r: &BuildReport) -> String {
     for row in &r.rows {
         let _ = write!(
             s,
-            "| {} | {} | {:?} | {} |",
-            row.input, row.primitives, row.bits, row.runs
+            "| {} | {} | {:?}{} | {} |",
+            row.input,
+            row.primitives,
+            row.bits,
+            if row.treelets { " + treelets" } else { "" },
+            row.runs
         );
         for (_, us) in &row.stage_us {
             let _ = write!(s, " {us:.1} |");

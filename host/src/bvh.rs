@@ -17,6 +17,22 @@ impl MortonBits {
     }
 }
 
+/// How a BVH is built: the Morton code width, and whether the refit also restructures
+/// treelets for surface-area cost (`shared::treelet`; Karras & Aila 2013), which makes the
+/// build slower and the tree cheaper to trace.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct BuildOptions {
+    pub bits: MortonBits,
+    pub treelets: bool,
+}
+
+impl BuildOptions {
+    /// The thesis's build: Karras 2012 and a plain refit.
+    pub fn lbvh(bits: MortonBits) -> BuildOptions {
+        BuildOptions { bits, treelets: false }
+    }
+}
+
 /// Every stage's output of one build, for comparing backends and validating.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct BuildResult {

@@ -1,6 +1,6 @@
 //! The `render` and `compare` commands: scene options shared by both, progress and summary
 //! lines, and the side-by-side comparison of the CPU and GPU backends.
-use crate::bvh::MortonBits;
+use crate::bvh::{BuildOptions, MortonBits};
 use crate::features::{self, Features, Forced};
 use crate::picture::{self, Picture};
 use crate::render::{self, render_cpu, Backend, GpuRenderer};
@@ -54,6 +54,10 @@ pub struct SceneArgs {
     /// Morton code width of the BVH.
     #[arg(long, value_enum, default_value = "b30")]
     pub bits: Bits,
+    /// Restructure BVH treelets for surface-area cost: a slower build, a faster trace. `auto`
+    /// does when a frame has at least 16 samples per pixel.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub treelets: Treelets,
     /// Kernel features beyond what the scene needs: `all`, or +NAME / -NAME for triangles,
     /// spheres, nee, metal, dielectric, thin-lens (comma-separated).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
@@ -61,6 +65,39 @@ pub struct SceneArgs {
     /// Print which kernel features run and why.
     #[arg(long)]
     pub explain: bool,
+}
+
+/// Whether the BVH build restructures treelets (see `BuildOptions`).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Treelets {
+    Auto,
+    On,
+    Off,
+}
+
+impl Treelets {
+    /// Samples per pixel in one frame from which `Auto` restructures. Below it the slower
+    /// build costs more than the faster trace saves (H100, 5-leaf treelets: the bunny at
+    /// 1920x1080 breaks even near 9 samples, the Cornell box at 800x800 near 7).
+    pub const AUTO_FROM_SPP: u32 = 16;
+
+    /// The choice for frames of `spp` samples per pixel.
+    pub fn resolve(self, spp: u32) -> bool {
+        match self {
+            Treelets::Auto => spp >= Self::AUTO_FROM_SPP,
+            Treelets::On => true,
+            Treelets::Off => false,
+        }
+    }
+
+    /// The command-line value.
+    pub fn arg(self) -> &'static str {
+        match self {
+            Treelets::Auto => "auto",
+            Treelets::On => "on",
+            Treelets::Off => "off",
+        }
+    }
 }
 
 #[derive(Copy, Clone, Debug, clap::ValueEnum)]
@@ -98,6 +135,7 @@ pub struct Prepared {
     pub frame: Frame,
     pub spp: u32,
     pub bits: MortonBits,
+    pub treelets: Treelets,
     /// The kernel features the frame runs with, and why.
     pub features: Features,
 }
@@ -146,7 +184,18 @@ impl SceneArgs {
             data,
             frame,
             bits: self.bits.into(),
+            treelets: self.treelets,
         })
+    }
+}
+
+impl Prepared {
+    /// How to build the BVH for frames of `spp` samples per pixel.
+    pub fn build(&self, spp: u32) -> BuildOptions {
+        BuildOptions {
+            bits: self.bits,
+            treelets: self.treelets.resolve(spp),
+        }
     }
 }
 
@@ -179,7 +228,7 @@ pub struct Rendered {
 /// Renders on the GPU in submissions of growing size, with a progress bar when it takes
 /// long.
 pub fn render_gpu(r: &mut GpuRenderer, p: &Prepared, quiet: bool) -> Result<Rendered> {
-    r.set_bits(p.bits);
+    r.set_build(p.build(p.spp));
     r.load(&p.data, &p.frame)?;
     let start = Instant::now();
     let mut timings = r.render(1.min(p.spp), true)?;
@@ -214,7 +263,7 @@ pub fn render_gpu(r: &mut GpuRenderer, p: &Prepared, quiet: bool) -> Result<Rend
 /// Renders on the CPU executor with a progress bar over rows.
 pub fn render_on_cpu(p: &Prepared, quiet: bool) -> (Rendered, render::CpuRender) {
     let bar = (!quiet).then(|| progress_bar(p.frame.height as u64, "rows"));
-    let out = render_cpu(&p.data, &p.frame, p.spp, p.bits, &|rows| {
+    let out = render_cpu(&p.data, &p.frame, p.spp, p.build(p.spp), &|rows| {
         if let Some(b) = &bar {
             b.set_position(rows as u64);
         }
@@ -309,7 +358,7 @@ pub struct Comparison {
 pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool) -> Result<Comparison> {
     let mut r = GpuRenderer::new(gpu, kernels)?;
     // One submission: every sample sees the BVH built in it.
-    r.set_bits(p.bits);
+    r.set_build(p.build(p.spp));
     r.load(&p.data, &p.frame)?;
     let timings = r.render(p.spp, true)?;
     let g = Rendered {

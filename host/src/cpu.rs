@@ -1,7 +1,7 @@
 //! The CPU executor: runs the very kernels of `shared` that the GPU runs. Per-item steps run
 //! for every index in turn; workgroup kernels run each phase for every lane before the next
 //! phase (a barrier), with workgroup memory as a plain struct per group.
-use crate::bvh::{BuildResult, MortonBits};
+use crate::bvh::{BuildOptions, BuildResult, MortonBits};
 use bytemuck::Pod;
 use shared::bounds::{self, BoundsState};
 use shared::radix_sort::{self as sort, HistogramState, ScatterState, SortKey, RADIX};
@@ -20,10 +20,10 @@ fn lanes(mut phase: impl FnMut(u32)) {
 }
 
 /// Builds the BVH on the CPU; returns every stage's output and each stage's seconds.
-pub fn build(tris: &[Triangle], spheres: &[Sphere], bits: MortonBits) -> (BuildResult, Vec<(&'static str, f64)>) {
-    match bits {
-        MortonBits::B30 => build_keyed::<u32>(tris, spheres, bits, morton::morton30),
-        MortonBits::B63 => build_keyed::<u64>(tris, spheres, bits, morton::morton63),
+pub fn build(tris: &[Triangle], spheres: &[Sphere], opts: BuildOptions) -> (BuildResult, Vec<(&'static str, f64)>) {
+    match opts.bits {
+        MortonBits::B30 => build_keyed::<u32>(tris, spheres, opts, morton::morton30),
+        MortonBits::B63 => build_keyed::<u64>(tris, spheres, opts, morton::morton63),
     }
 }
 
@@ -32,7 +32,7 @@ type MortonFn<K> = fn(u32, &BuildParams, &OrderedBounds, &[Triangle], &[Sphere],
 fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     tris: &[Triangle],
     spheres: &[Sphere],
-    bits: MortonBits,
+    opts: BuildOptions,
     morton_fn: MortonFn<K>,
 ) -> (BuildResult, Vec<(&'static str, f64)>) {
     let n = (tris.len() + spheres.len()) as u32;
@@ -75,8 +75,8 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let mut keys_b = keys.clone();
     let mut vals_b = vals.clone();
     let mut counts = vec![0u32; (RADIX * tiles) as usize];
-    let mut supers = vec![0u32; (sort::passes(bits.key_bits()) * RADIX * sort::super_count(&p)) as usize];
-    for pass in 0..sort::passes(bits.key_bits()) {
+    let mut supers = vec![0u32; (sort::passes(opts.bits.key_bits()) * RADIX * sort::super_count(&p)) as usize];
+    for pass in 0..sort::passes(opts.bits.key_bits()) {
         p.shift = pass * sort::RADIX_BITS;
         for g in 0..tiles {
             let mut st = HistogramState {
@@ -135,7 +135,11 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     // The refit sees the nodes as 64-bit words (`Node` is only 4-aligned: copy, not cast).
     let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&nodes);
     for i in 0..n {
-        refit::refit::<true>(i, &p, &parents, &mut visits, &mut words);
+        if opts.treelets {
+            refit::refit::<true, true>(i, &p, &mut parents, &mut visits, &mut words);
+        } else {
+            refit::refit::<true, false>(i, &p, &mut parents, &mut visits, &mut words);
+        }
     }
     let nodes: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
     lap("refit", &mut times);

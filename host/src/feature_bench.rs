@@ -50,7 +50,7 @@ fn prepare(scene: &str, size: (u32, u32), spp: u32, all: bool) -> Result<Prepare
 
 /// Median trace milliseconds of `runs` frames of `p.spp` samples, and the last picture.
 fn time(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, Picture)> {
-    r.set_bits(p.bits);
+    r.set_build(p.build(p.spp));
     r.load(&p.data, &p.frame)?;
     let mut ms = Vec::new();
     for i in 0..runs + 1 {

@@ -1,7 +1,7 @@
 //! The GPU LBVH build: bounds, Morton codes, multi-workgroup radix sort, Karras tree and
 //! refit, recorded into one command buffer with a timestamp after every stage. Buffers grow
 //! to the largest input seen and are reused by every later build.
-use crate::bvh::{BuildResult, MortonBits, STAGES};
+use crate::bvh::{BuildOptions, BuildResult, MortonBits, STAGES};
 use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels, BINDINGS};
 use anyhow::{Context, Result};
 use bytemuck::Pod;
@@ -183,7 +183,8 @@ impl GpuLbvh {
 
     /// Records the whole build into `cmds` (which must be recording), with a timestamp
     /// before the first stage and after each stage.
-    pub fn record(&self, cmds: &mut Commands, bits: MortonBits, capture: bool) -> Result<()> {
+    pub fn record(&self, cmds: &mut Commands, opts: BuildOptions, capture: bool) -> Result<()> {
+        let bits = opts.bits;
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         let n = self.n;
         let tiles = n.div_ceil(TILE);
@@ -244,18 +245,18 @@ impl GpuLbvh {
         cmds.dispatch(k, set_ab, build, &p, items);
         cmds.barrier();
         cmds.timestamp(STAGES[3]);
-        cmds.dispatch(k, set_ab, self.gpu.refit_kernel(), &p, items);
+        cmds.dispatch(k, set_ab, self.gpu.refit_kernel(opts.treelets), &p, items);
         cmds.barrier();
         cmds.timestamp(STAGES[4]);
         Ok(())
     }
 
     /// Builds the BVH of the uploaded primitives; returns each stage's GPU nanoseconds.
-    pub fn build(&mut self, bits: MortonBits, capture: bool) -> Result<Vec<(&'static str, f64)>> {
+    pub fn build(&mut self, opts: BuildOptions, capture: bool) -> Result<Vec<(&'static str, f64)>> {
         let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
         let r = (|| {
             cmds.begin()?;
-            self.record(&mut cmds, bits, capture)?;
+            self.record(&mut cmds, opts, capture)?;
             cmds.submit_wait().context("running the BVH build")?;
             cmds.timings()
         })();

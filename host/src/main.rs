@@ -2,7 +2,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
 use raytrace::bench::{bench_build, slug, standard_inputs, write_report, BuildReport};
-use raytrace::bvh::MortonBits;
+use raytrace::bvh::{BuildOptions, MortonBits};
 use raytrace::cli::{compare_command, render_command, SceneArgs};
 use raytrace::render::Backend;
 use raytrace::view::ViewArgs;
@@ -87,6 +87,9 @@ enum Bench {
         /// Samples per pixel actually rendered by the CPU executor (scaled to 32).
         #[arg(long, default_value_t = 4)]
         cpu_spp: u32,
+        /// Build the plain Karras tree (no treelet restructuring).
+        #[arg(long)]
+        no_treelets: bool,
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
@@ -140,6 +143,9 @@ enum Bench {
         /// Morton code widths to run.
         #[arg(long, value_delimiter = ',', default_value = "b30,b63")]
         bits: Vec<Bits>,
+        /// Also time builds that restructure treelets for surface-area cost.
+        #[arg(long)]
+        treelets: bool,
         /// Folder for the Markdown and JSON reports.
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
@@ -269,11 +275,12 @@ fn main() -> Result<()> {
                     runs,
                     brute_spp,
                     cpu_spp,
+                    no_treelets,
                     out,
                 },
         } => {
             let gpu = Gpu::new(&opts)?;
-            let report = raytrace::table2::run(&gpu, runs, brute_spp.max(1), cpu_spp.max(1))?;
+            let report = raytrace::table2::run(&gpu, runs, brute_spp.max(1), cpu_spp.max(1), !no_treelets)?;
             let md = raytrace::table2::write(&report, &out, &format!("table2-{}-{}", report.date, slug(&gpu.name)))?;
             println!("{}", raytrace::table2::markdown(&report));
             println!("wrote {}", md.display());
@@ -285,6 +292,7 @@ fn main() -> Result<()> {
                     warmup,
                     millions,
                     bits,
+                    treelets,
                     out,
                 },
         } => {
@@ -297,7 +305,14 @@ fn main() -> Result<()> {
                     Bits::B30 => MortonBits::B30,
                     Bits::B63 => MortonBits::B63,
                 };
-                rows.extend(bench_build(&gpu, &inputs, b, runs, warmup)?);
+                rows.extend(bench_build(&gpu, &inputs, BuildOptions::lbvh(b), runs, warmup)?);
+                if treelets {
+                    let opts = BuildOptions {
+                        bits: b,
+                        treelets: true,
+                    };
+                    rows.extend(bench_build(&gpu, &inputs, opts, runs, warmup)?);
+                }
             }
             let date = chrono::Local::now().format("%Y-%m-%d").to_string();
             let report = BuildReport {

@@ -89,6 +89,9 @@ pub struct Options {
     /// Also run every scene with next-event estimation on.
     #[arg(long = "nee")]
     pub both_nee: bool,
+    /// Treelet restructuring of every frame's BVH (`auto`: from 16 samples per frame).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub treelets: crate::cli::Treelets,
 }
 
 /// Runs every scene of `o` and returns the report.
@@ -106,9 +109,10 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             if !nee {
                 args.push("--no-nee");
             }
+            args.extend(["--treelets", o.treelets.arg()]);
             let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
             let mut r = GpuRenderer::new(gpu, &kernels)?;
-            r.set_bits(p.bits);
+            r.set_build(p.build(o.spf));
             let mut live = LiveScene::new(p.scene);
             rows.push(run_scene(gpu, &mut r, &mut live, o, nee).with_context(|| format!("scene {scene}"))?);
             eprintln!("{}", row_line(rows.last().context("no row")?));

@@ -48,10 +48,11 @@ pub struct Report {
     pub speedup: Vec<(u32, f64, f64)>,
 }
 
-fn prepare(scene: &str, spp: u32, extra: &[&str]) -> Result<Prepared> {
+fn prepare(scene: &str, spp: u32, treelets: bool, extra: &[&str]) -> Result<Prepared> {
     let spp = spp.to_string();
     let mut args = vec!["raytrace", scene, "--size", "800x800", "--depth", "16", "--spp", &spp];
     args.extend_from_slice(extra);
+    args.extend(["--treelets", if treelets { "on" } else { "off" }]);
     <SceneArgs as clap::Parser>::parse_from(args).prepare()
 }
 
@@ -62,7 +63,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 /// Median total GPU seconds and median build seconds of `runs` full frames.
 fn gpu_frame(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, f64, u64)> {
-    r.set_bits(p.bits);
+    r.set_build(p.build(p.spp));
     r.load(&p.data, &p.frame)?;
     let (mut totals, mut builds) = (Vec::new(), Vec::new());
     let mut rays = 0;
@@ -89,25 +90,26 @@ fn gpu_frame(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, f64
 
 fn cpu_seconds(p: &Prepared) -> f64 {
     let t = Instant::now();
-    let _ = render_cpu(&p.data, &p.frame, p.spp, p.bits, &|_| {});
+    let _ = render_cpu(&p.data, &p.frame, p.spp, p.build(p.spp), &|_| {});
     t.elapsed().as_secs_f64()
 }
 
 /// Runs the benchmark.
-pub fn run(gpu: &Arc<Gpu>, runs: usize, brute_spp: u32, cpu_spp: u32) -> Result<Report> {
+/// Runs the benchmark; `treelets` picks the BVH build (see `BuildOptions`).
+pub fn run(gpu: &Arc<Gpu>, runs: usize, brute_spp: u32, cpu_spp: u32, treelets: bool) -> Result<Report> {
     let kernels = Arc::new(Kernels::new(gpu)?);
     let mut r = GpuRenderer::new(gpu, &kernels)?;
     let mut rows = Vec::new();
     for scene in ["cornell", "suzanne", "bunny"] {
         eprintln!("table2: {scene}");
-        let p = prepare(scene, 32, &["--no-nee"])?;
+        let p = prepare(scene, 32, treelets, &["--no-nee"])?;
         let (gpu_bvh, build, rays) = gpu_frame(&mut r, &p, runs)?;
-        let (gpu_nee, _, _) = gpu_frame(&mut r, &prepare(scene, 32, &[])?, runs)?;
-        let brute = prepare(scene, brute_spp, &["--no-nee", "--no-bvh"])?;
+        let (gpu_nee, _, _) = gpu_frame(&mut r, &prepare(scene, 32, treelets, &[])?, runs)?;
+        let brute = prepare(scene, brute_spp, treelets, &["--no-nee", "--no-bvh"])?;
         r.load(&brute.data, &brute.frame)?;
         let t = r.render(brute_spp, true)?;
         let gpu_brute = t.iter().map(|x| x.1).sum::<f64>() * 32.0 / brute_spp as f64;
-        let cpu = cpu_seconds(&prepare(scene, cpu_spp, &["--no-nee"])?) * 32.0 / cpu_spp as f64;
+        let cpu = cpu_seconds(&prepare(scene, cpu_spp, treelets, &["--no-nee"])?) * 32.0 / cpu_spp as f64;
         rows.push(Row {
             scene: scene.into(),
             primitives: p.frame.n_prims,
@@ -124,7 +126,7 @@ pub fn run(gpu: &Arc<Gpu>, runs: usize, brute_spp: u32, cpu_spp: u32) -> Result<
     let mut speedup = Vec::new();
     for spp in [1u32, 2, 4, 8, 16, 32] {
         eprintln!("table2: Cornell box speed-up at {spp} rays per pixel");
-        let p = prepare("cornell", spp, &["--no-nee"])?;
+        let p = prepare("cornell", spp, treelets, &["--no-nee"])?;
         let (gpu_s, _, _) = gpu_frame(&mut r, &p, runs)?;
         speedup.push((spp, cpu_seconds(&p) * 1e3, gpu_s * 1e3));
     }

@@ -42,10 +42,10 @@ pub fn refit(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
 ) {
-    refit::refit::<true>(flat_index(id.x, id.y), p, parents, visits, node_words);
+    refit::refit::<true, false>(flat_index(id.x, id.y), p, parents, visits, node_words);
 }
 
 /// `refit` with a relaxed visit counter, for lavapipe only (see `shared::refit`).
@@ -54,10 +54,34 @@ pub fn refit_relaxed(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
 ) {
-    refit::refit::<false>(flat_index(id.x, id.y), p, parents, visits, node_words);
+    refit::refit::<false, false>(flat_index(id.x, id.y), p, parents, visits, node_words);
+}
+
+/// `refit` restructuring treelets (see `shared::treelet`).
+#[spirv(compute(threads(256)))]
+pub fn refit_treelets(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+) {
+    refit::refit::<true, true>(flat_index(id.x, id.y), p, parents, visits, node_words);
+}
+
+/// `refit_treelets` with a relaxed visit counter, for lavapipe only.
+#[spirv(compute(threads(256)))]
+pub fn refit_treelets_relaxed(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+) {
+    refit::refit::<false, true>(flat_index(id.x, id.y), p, parents, visits, node_words);
 }
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).

@@ -24,6 +24,7 @@ pub mod scan;
 pub mod sync;
 pub mod transform;
 pub mod traverse;
+pub mod treelet;
 pub mod types;
 
 pub use spirv_std::glam;

@@ -7,8 +7,8 @@
 //! The kernel sees the node buffer as 64-bit words, 4 per [`crate::types::Node`]:
 //! `[min.x | min.y, min.z | a, max.x | max.y, max.z | b]` (low half first), so a box is read
 //! or written with four atomic operations instead of six.
-use crate::sync;
 use crate::types::{BuildParams, INVALID};
+use crate::{sync, treelet};
 
 const WORDS: u32 = 4;
 
@@ -30,7 +30,16 @@ fn join(lo: u32, hi: u32) -> u64 {
 /// (Debian 12, our CI device) loses the second arrival when any acquire/release semantics or
 /// memory barrier sits in this divergent loop (its coroutine barrier lowering); there the
 /// host runs the relaxed variant, which is sound on lavapipe's coherent x86 memory.
-pub fn refit<const ORDERED: bool>(i: u32, p: &BuildParams, parents: &[u32], visits: &mut [u32], words: &mut [u64]) {
+///
+/// With `TREELETS`, every node fitted becomes the root of a treelet restructured for the
+/// least surface-area cost (see [`crate::treelet`]).
+pub fn refit<const ORDERED: bool, const TREELETS: bool>(
+    i: u32,
+    p: &BuildParams,
+    parents: &mut [u32],
+    visits: &mut [u32],
+    words: &mut [u64],
+) {
     let n = p.n;
     if i >= n {
         return;
@@ -73,6 +82,9 @@ pub fn refit<const ORDERED: bool>(i: u32, p: &BuildParams, parents: &[u32], visi
         sync::atomic_store_u64(&mut words[(pb + 1) as usize], join(lo[2].to_bits(), left));
         sync::atomic_store_u64(&mut words[(pb + 2) as usize], join(hi[0].to_bits(), hi[1].to_bits()));
         sync::atomic_store_u64(&mut words[(pb + 3) as usize], join(hi[2].to_bits(), right));
+        if TREELETS {
+            treelet::restructure(parent, n - 1, parents, words);
+        }
         node = parent;
         parent = grandparent;
     }

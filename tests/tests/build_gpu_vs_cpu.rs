@@ -1,9 +1,9 @@
 //! The BVH build on the Vulkan device equals the CPU executor's bit for bit, stage by stage,
 //! and both trees pass the validator: sizes around workgroup and tile edges, 100,000 and the
 //! bunny; random, all-equal, far-outlier, collinear and duplicate-heavy inputs; 30- and
-//! 63-bit codes.
+//! 63-bit codes, and treelet restructuring.
 use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu};
-use raytrace::bvh::{BuildResult, MortonBits};
+use raytrace::bvh::{BuildOptions, BuildResult, MortonBits};
 use raytrace::cpu;
 use raytrace::inputs::{assets_dir, generate, load_obj, Distribution};
 use raytrace::lbvh::GpuLbvh;
@@ -24,11 +24,34 @@ fn builder(test: &str) -> Option<(Arc<Gpu>, GpuLbvh)> {
 /// The bytes of one stage's output.
 type StageBytes = fn(&BuildResult) -> Vec<u8>;
 
-fn check(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[Sphere], bits: MortonBits) {
+/// The builds every input is checked with: both code widths, and 30-bit codes with treelet
+/// restructuring.
+const BUILDS: [BuildOptions; 3] = [
+    BuildOptions {
+        bits: MortonBits::B30,
+        treelets: false,
+    },
+    BuildOptions {
+        bits: MortonBits::B63,
+        treelets: false,
+    },
+    BuildOptions {
+        bits: MortonBits::B30,
+        treelets: true,
+    },
+];
+
+fn check(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[Sphere], opts: BuildOptions) {
     lbvh.upload(tris, spheres).unwrap();
-    lbvh.build(bits, true).unwrap();
-    let g = lbvh.result(bits).unwrap();
-    let (c, _) = cpu::build(tris, spheres, bits);
+    lbvh.build(opts, true).unwrap();
+    let g = lbvh.result(opts.bits).unwrap();
+    let (c, _) = cpu::build(tris, spheres, opts);
+    let name = if opts.treelets {
+        format!("{name}-treelets")
+    } else {
+        name.to_string()
+    };
+    let bits = opts.bits;
     let stages: [(&str, StageBytes); 6] = [
         ("bounds", |r| bytemuck::bytes_of(&r.bounds).to_vec()),
         ("morton", |r| bytemuck::cast_slice(&r.morton).to_vec()),
@@ -78,17 +101,17 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
     ];
     for (d, dist) in Distribution::ALL.into_iter().enumerate() {
         for &n in &sizes {
-            for bits in [MortonBits::B30, MortonBits::B63] {
+            for opts in BUILDS {
                 let (t, s) = generate(n, dist, n % 2 == 1, 1000 + d as u64);
-                check(&mut lbvh, &format!("{dist:?}-{n}"), &t, &s, bits);
+                check(&mut lbvh, &format!("{dist:?}-{n}"), &t, &s, opts);
             }
         }
     }
     // More than one super-tile of the sort's offset tables.
     let n = (2 * SUPER * TILE + 1) as usize;
-    for bits in [MortonBits::B30, MortonBits::B63] {
+    for opts in BUILDS {
         let (t, s) = generate(n, Distribution::Random, true, 77);
-        check(&mut lbvh, &format!("Random-{n}"), &t, &s, bits);
+        check(&mut lbvh, &format!("Random-{n}"), &t, &s, opts);
     }
     assert_no_validation_errors(&gpu);
 }
@@ -100,8 +123,8 @@ fn bunny_builds_identically_on_gpu_and_cpu() {
     };
     let bunny = load_obj(&assets_dir().join("bunny.obj")).unwrap();
     assert_eq!(bunny.len(), 69_666);
-    for bits in [MortonBits::B30, MortonBits::B63] {
-        check(&mut lbvh, "bunny", &bunny, &[], bits);
+    for opts in BUILDS {
+        check(&mut lbvh, "bunny", &bunny, &[], opts);
     }
     assert_no_validation_errors(&gpu);
 }
@@ -116,7 +139,7 @@ fn buffers_are_reused_across_builds() {
     let before = lbvh.memory();
     for n in [4000, 5000, 10] {
         lbvh.upload(&t[..n.min(t.len())], &s[..n.min(s.len()) / 5]).unwrap();
-        lbvh.build(MortonBits::B30, false).unwrap();
+        lbvh.build(BuildOptions::lbvh(MortonBits::B30), false).unwrap();
         assert_eq!(lbvh.memory(), before, "buffers were reallocated for {n} primitives");
     }
     assert_no_validation_errors(&gpu);

@@ -1,13 +1,13 @@
 //! The build kernels run by the CPU executor: sort order and stability, Karras's worked
 //! example, valid trees on every input shape, a validator that catches broken trees, and
 //! clear errors for bad mesh files.
-use raytrace::bvh::MortonBits;
+use raytrace::bvh::{BuildOptions, MortonBits};
 use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
 use raytrace::validate::validate;
 use shared::karras::range_and_split;
 use shared::radix_sort::SUPER;
-use shared::types::{TILE, WORKGROUP};
+use shared::types::{Node, TILE, WORKGROUP};
 
 #[test]
 fn radix_sort_is_a_stable_sort_of_the_morton_codes() {
@@ -25,7 +25,7 @@ fn radix_sort_is_a_stable_sort_of_the_morton_codes() {
                 (2 * SUPER * TILE + 1) as usize,
             ] {
                 let (t, s) = generate(n, dist, true, 3);
-                let (r, _) = cpu::build(&t, &s, bits);
+                let (r, _) = cpu::build(&t, &s, BuildOptions::lbvh(bits));
                 let mut expected: Vec<u32> = (0..r.morton.len() as u32).collect();
                 expected.sort_by_key(|&i| r.morton[i as usize]);
                 assert_eq!(r.sorted_prims, expected, "{dist:?} n={n} {bits:?}");
@@ -53,15 +53,19 @@ fn karras_splits_match_the_papers_figure() {
 #[test]
 fn every_input_shape_gives_a_valid_tree() {
     let wg = WORKGROUP as usize;
-    for bits in [MortonBits::B30, MortonBits::B63] {
+    for (bits, treelets) in [
+        (MortonBits::B30, false),
+        (MortonBits::B63, false),
+        (MortonBits::B30, true),
+    ] {
         for dist in Distribution::ALL {
-            for n in [0, 1, 2, 3, wg - 1, wg, wg + 1, 5000] {
+            for n in [0, 1, 2, 3, 4, 7, 8, wg - 1, wg, wg + 1, 5000] {
                 let (t, s) = generate(n, dist, n % 2 == 0, 9);
-                let (r, _) = cpu::build(&t, &s, bits);
-                let stats =
-                    validate(&r.nodes, &r.parents, &t, &s).unwrap_or_else(|e| panic!("{dist:?} n={n} {bits:?}: {e}"));
+                let (r, _) = cpu::build(&t, &s, BuildOptions { bits, treelets });
+                let stats = validate(&r.nodes, &r.parents, &t, &s)
+                    .unwrap_or_else(|e| panic!("{dist:?} n={n} {bits:?} treelets {treelets}: {e}"));
                 assert_eq!(stats.leaves, n);
-                if dist == Distribution::AllEqual && n % 2 == 1 {
+                if dist == Distribution::AllEqual && n % 2 == 1 && !treelets {
                     // Only identical triangles (odd n has no spheres): every code is equal, and
                     // the index tie-break keeps the tree balanced.
                     assert!(
@@ -78,7 +82,7 @@ fn every_input_shape_gives_a_valid_tree() {
 #[test]
 fn the_validator_catches_broken_trees() {
     let (t, s) = generate(100, Distribution::Random, true, 5);
-    let (r, _) = cpu::build(&t, &s, MortonBits::B30);
+    let (r, _) = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30));
     validate(&r.nodes, &r.parents, &t, &s).unwrap();
 
     let mut shrunk = r.nodes.clone();
@@ -131,4 +135,97 @@ fn bad_mesh_files_get_errors_naming_file_and_problem() {
 
     let garbage = obj_error("garbage.obj", "v 0 zero 0\nf 1 2 3\n");
     assert!(garbage.contains("garbage.obj"), "{garbage}");
+}
+
+/// Summed half-areas of the internal nodes (`treelet`'s cost: leaves cost the same in every
+/// topology), in f64.
+fn internal_area(nodes: &[Node]) -> f64 {
+    let n = nodes.len().div_ceil(2);
+    nodes[..n - 1]
+        .iter()
+        .map(|c| {
+            let d: Vec<f64> = (0..3).map(|k| c.max[k] as f64 - c.min[k] as f64).collect();
+            d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+        })
+        .sum()
+}
+
+/// The least summed internal half-area of any binary tree over the boxes in `set`, by trying
+/// every split recursively (no memo, no shared code with the kernel's dynamic program).
+fn best_tree(set: u32, boxes: &[([f64; 3], [f64; 3])]) -> f64 {
+    if set.count_ones() < 2 {
+        return 0.0;
+    }
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for (j, (l, h)) in boxes.iter().enumerate() {
+        if set >> j & 1 != 0 {
+            for k in 0..3 {
+                lo[k] = lo[k].min(l[k]);
+                hi[k] = hi[k].max(h[k]);
+            }
+        }
+    }
+    let d = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+    let mut best = f64::INFINITY;
+    for part in 1..set {
+        if part & set == part && part & set.wrapping_neg() & set != 0 {
+            best = best.min(best_tree(part, boxes) + best_tree(set ^ part, boxes));
+        }
+    }
+    d[0] * d[1] + d[1] * d[2] + d[2] * d[0] + best
+}
+
+#[test]
+fn treelets_give_the_optimal_tree_of_few_primitives() {
+    // With at most `LEAVES` primitives the root's treelet is the whole tree, restructured last.
+    for n in 3..=shared::treelet::LEAVES {
+        for seed in 0..20 {
+            let (t, s) = generate(n, Distribution::Random, seed % 2 == 0, 100 + seed);
+            let (plain, _) = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30));
+            let opts = BuildOptions {
+                bits: MortonBits::B30,
+                treelets: true,
+            };
+            let (r, _) = cpu::build(&t, &s, opts);
+            validate(&r.nodes, &r.parents, &t, &s).unwrap();
+            let boxes: Vec<_> = r.nodes[n - 1..]
+                .iter()
+                .map(|c| (c.min.map(f64::from), c.max.map(f64::from)))
+                .collect();
+            let optimum = best_tree((1 << n) - 1, &boxes);
+            let got = internal_area(&r.nodes);
+            assert!(
+                (got - optimum).abs() <= 1e-5 * optimum,
+                "n={n} seed={seed}: restructured {got}, optimum {optimum}"
+            );
+            assert!(got <= internal_area(&plain.nodes) * (1.0 + 1e-6));
+        }
+    }
+}
+
+#[test]
+fn treelets_lower_the_surface_area_cost_of_every_input() {
+    let bunny = load_obj(&raytrace::inputs::assets_dir().join("bunny.obj")).unwrap();
+    let mut inputs = vec![("bunny".to_string(), bunny, Vec::new())];
+    for dist in Distribution::ALL {
+        let (t, s) = generate(20_000, dist, true, 11);
+        inputs.push((format!("{dist:?}"), t, s));
+    }
+    for (name, t, s) in inputs {
+        let (plain, _) = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30));
+        let opts = BuildOptions {
+            bits: MortonBits::B30,
+            treelets: true,
+        };
+        let (r, _) = cpu::build(&t, &s, opts);
+        let stats = validate(&r.nodes, &r.parents, &t, &s).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(stats.leaves, t.len() + s.len());
+        assert_eq!(r.nodes[0].min, plain.nodes[0].min, "{name}: the root box changed");
+        assert_eq!(r.nodes[0].max, plain.nodes[0].max, "{name}: the root box changed");
+        let (before, after) = (internal_area(&plain.nodes), internal_area(&r.nodes));
+        assert!(after <= before, "{name}: {before} -> {after}");
+        if name == "bunny" || name == "Random" {
+            assert!(after < 0.95 * before, "{name}: only {before} -> {after}");
+        }
+    }
 }

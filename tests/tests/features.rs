@@ -1,7 +1,6 @@
 //! Kernels specialised to the scene render what the all-features kernel renders, on both
 //! backends, and leaving a feature out really removes it.
 use integration_tests::{assert_no_validation_errors, renderer};
-use raytrace::bvh::MortonBits;
 use raytrace::cli::{Prepared, SceneArgs};
 use raytrace::picture::{diff_stats, max_display_diff, Picture};
 use raytrace::render::render_cpu;
@@ -16,7 +15,7 @@ fn prepared(scene: &str, features: &str) -> Prepared {
 }
 
 fn cpu(p: &Prepared) -> Picture {
-    render_cpu(&p.data, &p.frame, p.spp, MortonBits::B30, &|_| {}).picture
+    render_cpu(&p.data, &p.frame, p.spp, p.build(p.spp), &|_| {}).picture
 }
 
 const SCENES: [&str; 3] = ["cornell", "suzanne", "spheres"];

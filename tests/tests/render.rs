@@ -3,7 +3,7 @@
 //! like 1/sqrt(spp).
 use glam::Vec3;
 use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu, renderer};
-use raytrace::bvh::MortonBits;
+use raytrace::bvh::{BuildOptions, MortonBits};
 use raytrace::cli::{compare, Prepared, SceneArgs};
 use raytrace::picture::{diff_stats, Picture};
 use raytrace::render::{render_cpu, with_bvh, CpuRender, GpuRenderer};
@@ -45,8 +45,9 @@ fn rays(n: usize) -> Vec<Ray> {
 
 #[test]
 fn closest_hit_through_the_bvh_equals_brute_force() {
-    let p = prepared("bunny", 4, 1, &[]);
-    let cpu = render_cpu(&p.data, &p.frame, 1, MortonBits::B30, &|_| {});
+    // Through the restructured tree (the plain one is checked on the hard inputs).
+    let p = prepared("bunny", 4, 1, &["--treelets", "on"]);
+    let cpu = render_cpu(&p.data, &p.frame, 1, p.build(1), &|_| {});
     let rays = rays(4000);
     let (bvh_frame, brute_frame) = (with_bvh(p.frame, true), with_bvh(p.frame, false));
     let (bvh, brute) = (
@@ -60,12 +61,13 @@ fn closest_hit_through_the_bvh_equals_brute_force() {
     let Some((gpu, mut r)) = renderer("closest_hit_through_the_bvh_equals_brute_force") else {
         return;
     };
+    r.set_build(p.build(1));
     r.load(&p.data, &bvh_frame).expect("load");
     r.render(0, true).expect("build");
     check_gpu_hits("bunny, GPU BVH", &r.cast(&rays).expect("cast"), &brute);
     // Brute force on the GPU over a smaller mesh: llvmpipe ends loops after 65535 iterations.
     let q = prepared("suzanne", 4, 1, &["--no-bvh"]);
-    let cpu = render_cpu(&q.data, &q.frame, 1, MortonBits::B30, &|_| {});
+    let cpu = render_cpu(&q.data, &q.frame, 1, q.build(1), &|_| {});
     let brute = cpu_hits(&q, &cpu, &q.frame, &rays);
     r.load(&q.data, &q.frame).expect("load");
     r.render(0, true).expect("build");
@@ -254,7 +256,7 @@ fn furnace_converges_to_its_analytic_radiance() {
         let scene = furnace(a, e, depth, mode);
         let data = scene.gpu_data(0.0);
         let frame = scene.frame(&data);
-        let cpu = render_cpu(&data, &frame, 64, MortonBits::B30, &|_| {});
+        let cpu = render_cpu(&data, &frame, 64, BuildOptions::lbvh(MortonBits::B30), &|_| {});
         let got = mean_radiance(&cpu.picture);
         assert!(
             (got - expected).abs() < 0.01 * expected,

@@ -1686,7 +1686,12 @@ fn lbvh_edge_cases_trace_like_brute_force() {
     let mut g = GpuWorld::open("lbvh_edge_cases_trace_like_brute_force");
     let mut wrong = Vec::new();
     for (name, world, zero_area) in lbvh_edge_cases() {
-        let bvh = raytrace::cpu::build(&world.tris, &world.spheres, raytrace::bvh::MortonBits::B30).0;
+        let bvh = raytrace::cpu::build(
+            &world.tris,
+            &world.spheres,
+            raytrace::bvh::BuildOptions::lbvh(raytrace::bvh::MortonBits::B30),
+        )
+        .0;
         if let Err(e) = raytrace::validate::validate(&bvh.nodes, &bvh.parents, &world.tris, &world.spheres) {
             wrong.push(format!("{name}: CPU BVH invalid: {e}"));
             continue;
@@ -1701,13 +1706,38 @@ fn lbvh_edge_cases_trace_like_brute_force() {
         if hits < 20 {
             wrong.push(format!("{name}: only {hits} rays hit"));
         }
-        let mut backends = vec![(
-            "CPU",
-            rays.iter()
-                .map(|&(o, d, t)| traverse::closest(&scene, o, d, t))
-                .collect::<Vec<_>>(),
-        )];
-        let mut brutes = vec![brute];
+        // The restructured tree too (on the CPU: the GPU builds it bit for bit alike,
+        // `build_gpu_vs_cpu`).
+        let opts = raytrace::bvh::BuildOptions {
+            bits: raytrace::bvh::MortonBits::B30,
+            treelets: true,
+        };
+        let restructured = raytrace::cpu::build(&world.tris, &world.spheres, opts).0;
+        if let Err(e) =
+            raytrace::validate::validate(&restructured.nodes, &restructured.parents, &world.tris, &world.spheres)
+        {
+            wrong.push(format!("{name}: CPU BVH with treelets invalid: {e}"));
+            continue;
+        }
+        let treelet_scene = traverse::Scene {
+            nodes: &restructured.nodes,
+            ..scene
+        };
+        let mut backends = vec![
+            (
+                "CPU",
+                rays.iter()
+                    .map(|&(o, d, t)| traverse::closest(&scene, o, d, t))
+                    .collect::<Vec<_>>(),
+            ),
+            (
+                "CPU, treelets",
+                rays.iter()
+                    .map(|&(o, d, t)| traverse::closest(&treelet_scene, o, d, t))
+                    .collect::<Vec<_>>(),
+            ),
+        ];
+        let mut brutes = vec![brute.clone(), brute];
         if let Some(g) = g.as_mut() {
             // Against the GPU's own brute force: its division rounds differently, so rays
             // grazing a lone triangle's edge (the outlier's) may hit there and miss here.

@@ -1,6 +1,6 @@
 //! The CPU renderer: the transform, BVH build, path tracing and display kernels of `shared`
 //! run by the CPU executor (pixels in parallel with rayon: each writes only its own sum).
-use crate::bvh::{BuildResult, MortonBits};
+use crate::bvh::{BuildOptions, BuildResult};
 use crate::picture::Picture;
 use crate::scene::SceneGpu;
 use rayon::prelude::*;
@@ -24,7 +24,7 @@ pub fn render_cpu(
     scene: &SceneGpu,
     frame: &Frame,
     samples: u32,
-    bits: MortonBits,
+    build: BuildOptions,
     progress: &(dyn Fn(u32) + Sync),
 ) -> CpuRender {
     let mut timings = Vec::new();
@@ -51,7 +51,7 @@ pub fn render_cpu(
         );
     }
     timings.push(("transform", t.elapsed().as_secs_f64()));
-    let (bvh, build_times) = crate::cpu::build(&tris, &spheres, bits);
+    let (bvh, build_times) = crate::cpu::build(&tris, &spheres, build);
     timings.extend(build_times);
 
     let t = Instant::now();

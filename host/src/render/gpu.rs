@@ -1,7 +1,7 @@
 //! The GPU renderer. One command buffer per frame: transform every primitive to world space,
 //! rebuild the BVH (the LBVH of `crate::lbvh`), trace samples into the float accumulation
 //! image, and run the display pass; a timestamp after each stage.
-use crate::bvh::{BuildResult, MortonBits};
+use crate::bvh::{BuildOptions, BuildResult, MortonBits};
 use crate::lbvh::GpuLbvh;
 use crate::picture::{swap_red_blue, Picture};
 use crate::scene::SceneGpu;
@@ -91,7 +91,7 @@ pub struct GpuRenderer {
     frame: Frame,
     /// Samples per pixel accumulated so far.
     samples: u32,
-    bits: MortonBits,
+    build: BuildOptions,
     /// `DISPLAY_*` flags of the display pass.
     display_flags: u32,
 }
@@ -106,7 +106,7 @@ impl GpuRenderer {
             bufs: None,
             frame: Frame::default(),
             samples: 0,
-            bits: MortonBits::B30,
+            build: BuildOptions::lbvh(MortonBits::B30),
             display_flags: 0,
         })
     }
@@ -135,9 +135,9 @@ impl GpuRenderer {
         Ok(&self.bufs.as_ref().context("no scene loaded")?.image)
     }
 
-    /// Morton code width of the BVH builds.
-    pub fn set_bits(&mut self, bits: MortonBits) {
-        self.bits = bits;
+    /// How the BVH is built every frame.
+    pub fn set_build(&mut self, build: BuildOptions) {
+        self.build = build;
     }
 
     /// Uploads a scene and its frame; accumulation starts again.
@@ -267,7 +267,7 @@ impl GpuRenderer {
             cmds.dispatch_sets(k, &sets, Kernel::Transform, bytemuck::bytes_of(&p), x, y);
             cmds.barrier();
             cmds.timestamp("transform");
-            self.lbvh.record(cmds, self.bits, false)?;
+            self.lbvh.record(cmds, self.build, false)?;
         }
         let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));
         let trace = k.specialised(Kernel::PathTrace, f.features)?;
@@ -331,7 +331,7 @@ impl GpuRenderer {
 
     /// The BVH of the last build, every stage's output.
     pub fn bvh(&mut self) -> Result<BuildResult> {
-        self.lbvh.result(self.bits)
+        self.lbvh.result(self.build.bits)
     }
 
     /// World-space primitives of the last transform stage.

@@ -153,7 +153,7 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
     let gpu = Gpu::new(&opts)?;
     let kernels = Arc::new(Kernels::new(&gpu)?);
     let mut renderer = GpuRenderer::new(&gpu, &kernels)?;
-    renderer.set_bits(prepared.bits);
+    renderer.set_build(prepared.build(1));
     let mut live = LiveScene::new(prepared.scene);
     live.bvh = !args.scene.no_bvh;
     live.time = args.scene.time;

@@ -323,13 +323,15 @@ impl Gpu {
         self.driver_id == vk::DriverId::MESA_LLVMPIPE
     }
 
-    /// The refit entry point for this device: lavapipe needs the relaxed variant (see
-    /// `shared::refit`).
-    pub fn refit_kernel(&self) -> super::Kernel {
-        if self.is_lavapipe() {
-            super::Kernel::RefitRelaxed
-        } else {
-            super::Kernel::Refit
+    /// The refit entry point for this device, with or without treelet restructuring:
+    /// lavapipe needs the relaxed variants (see `shared::refit`).
+    pub fn refit_kernel(&self, treelets: bool) -> super::Kernel {
+        use super::Kernel::*;
+        match (treelets, self.is_lavapipe()) {
+            (false, false) => Refit,
+            (false, true) => RefitRelaxed,
+            (true, false) => RefitTreelets,
+            (true, true) => RefitTreeletsRelaxed,
         }
     }
 

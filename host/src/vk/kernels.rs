@@ -28,6 +28,8 @@ pub enum Kernel {
     KarrasBuildU64,
     Refit,
     RefitRelaxed,
+    RefitTreelets,
+    RefitTreeletsRelaxed,
     Transform,
     PathTrace,
     DisplayImage,
@@ -36,7 +38,7 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    pub const ALL: [Kernel; 16] = [
+    pub const ALL: [Kernel; 18] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -48,6 +50,8 @@ impl Kernel {
         Kernel::KarrasBuildU64,
         Kernel::Refit,
         Kernel::RefitRelaxed,
+        Kernel::RefitTreelets,
+        Kernel::RefitTreeletsRelaxed,
         Kernel::Transform,
         Kernel::PathTrace,
         Kernel::DisplayImage,
@@ -69,6 +73,8 @@ impl Kernel {
             Kernel::KarrasBuildU64 => "karras_build_u64",
             Kernel::Refit => "refit",
             Kernel::RefitRelaxed => "refit_relaxed",
+            Kernel::RefitTreelets => "refit_treelets",
+            Kernel::RefitTreeletsRelaxed => "refit_treelets_relaxed",
             Kernel::Transform => "transform",
             Kernel::PathTrace => "path_trace",
             Kernel::DisplayImage => "display_image",

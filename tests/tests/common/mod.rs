@@ -3,7 +3,7 @@
 //! last place; and a chi-square critical value.
 #![allow(dead_code)]
 
-use raytrace::bvh::MortonBits;
+use raytrace::bvh::{BuildOptions, MortonBits};
 pub use raytrace::hard_cases::{cube, icosphere, octahedron, rays_at_vertices_and_edges, Mesh, OFFSETS};
 use shared::glam::Vec3;
 use shared::rng::Rng;
@@ -20,7 +20,9 @@ pub struct World {
 impl World {
     /// The primitives with the 30-bit LBVH of the CPU executor (the kernels the GPU runs).
     pub fn new(tris: Vec<Triangle>, spheres: Vec<Sphere>) -> World {
-        let nodes = raytrace::cpu::build(&tris, &spheres, MortonBits::B30).0.nodes;
+        let nodes = raytrace::cpu::build(&tris, &spheres, BuildOptions::lbvh(MortonBits::B30))
+            .0
+            .nodes;
         World { tris, spheres, nodes }
     }
 

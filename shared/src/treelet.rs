@@ -1,0 +1,250 @@
+//! Treelet restructuring (Karras & Aila 2013, "Fast Parallel Construction of High-Quality
+//! Bounding Volume Hierarchies", sec. 4): during the bottom-up refit, every internal node
+//! that an invocation fits becomes the root of a treelet of up to [`LEAVES`] leaves (its
+//! children, then repeatedly the largest-area internal leaf opened into its two children),
+//! whose topology is replaced by the one of least surface-area cost, found by dynamic
+//! programming over the leaves' subsets.
+//!
+//! Treelet leaves keep their subtrees, so the sum of their costs is the same for every
+//! topology: the optimum minimises the summed surface area of the treelet's internal
+//! nodes, which is all the program compares. The treelet root keeps its node, its box and
+//! its parent; the other internal nodes are reused, leaves stay leaves, so the node layout
+//! (internal `0..n-1`, leaves `n-1..2n-1`, root 0) holds.
+//!
+//! Every node read or written goes through device-scope atomics (see `refit`): treelets of
+//! later roots read what other workgroups restructured earlier in the same dispatch.
+use crate::sync;
+
+/// Leaves of a full treelet. The paper's 7 (127 subsets, ~1100 splits) cut a Cornell-box
+/// ray's inner-node steps 10.7 -> 8.6 and the bunny's 12.9 -> 11.4 (CPU count), 5 (31
+/// subsets, 90 splits) to 8.7 and 11.9, 4 only a little on the Cornell box; on the H100 one
+/// invocation per treelet made 7 leaves cost the bunny's build 6.3 ms, 5 leaves 1.2 ms.
+pub const LEAVES: usize = 5;
+const SUBSETS: usize = 1 << LEAVES;
+/// 64-bit words per node (see `refit`).
+const WORDS: u32 = 4;
+
+/// A node's box and children, through atomic loads: `(lo, hi, a, b)`.
+fn load(words: &[u64], node: u32) -> ([f32; 3], [f32; 3], u32, u32) {
+    let base = (node * WORDS) as usize;
+    let w0 = sync::atomic_load_u64(&words[base]);
+    let w1 = sync::atomic_load_u64(&words[base + 1]);
+    let w2 = sync::atomic_load_u64(&words[base + 2]);
+    let w3 = sync::atomic_load_u64(&words[base + 3]);
+    (
+        [
+            f32::from_bits(w0 as u32),
+            f32::from_bits((w0 >> 32) as u32),
+            f32::from_bits(w1 as u32),
+        ],
+        [
+            f32::from_bits(w2 as u32),
+            f32::from_bits((w2 >> 32) as u32),
+            f32::from_bits(w3 as u32),
+        ],
+        (w1 >> 32) as u32,
+        (w3 >> 32) as u32,
+    )
+}
+
+/// Writes internal node `node` through atomic stores.
+fn store(words: &mut [u64], node: u32, lo: [f32; 3], hi: [f32; 3], a: u32, b: u32) {
+    let base = (node * WORDS) as usize;
+    let join = |x: u32, y: u32| x as u64 | (y as u64) << 32;
+    sync::atomic_store_u64(&mut words[base], join(lo[0].to_bits(), lo[1].to_bits()));
+    sync::atomic_store_u64(&mut words[base + 1], join(lo[2].to_bits(), a));
+    sync::atomic_store_u64(&mut words[base + 2], join(hi[0].to_bits(), hi[1].to_bits()));
+    sync::atomic_store_u64(&mut words[base + 3], join(hi[2].to_bits(), b));
+}
+
+/// Half the surface area of a box (the factor 2 is the same for all and left out).
+pub fn half_area(lo: [f32; 3], hi: [f32; 3]) -> f32 {
+    let (x, y, z) = (hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
+    x * y + y * z + z * x
+}
+
+/// Whether area `a` is below area `b`, both non-negative: compared as bit patterns
+/// (ordered like the numbers).
+#[inline(always)]
+fn below(a: f32, b: f32) -> bool {
+    a.to_bits() < b.to_bits()
+}
+
+/// A half-area as an integer number of units of `2^(e - 167)`, where `e` is the biased
+/// exponent of the treelet root's half-area: exact shifts of the mantissa (no rounding that a
+/// driver could do differently), at least 17 bits finer than the root's leading bit. The
+/// program's sums are then exact, so ties (duplicate primitives) stay ties on every backend;
+/// in floats Mesa's lavapipe broke them differently from the CPU.
+pub fn fixed(area: f32, root_exp: u32) -> u64 {
+    let bits = area.to_bits();
+    let e = (bits >> 23 & 0xff) as i32;
+    if e == 0 {
+        return 0;
+    }
+    let m = (bits & 0x7f_ffff | 0x80_0000) as u64;
+    let shift = e - root_exp as i32 + 17;
+    if shift >= 0 {
+        m << shift as u32
+    } else if shift > -32 {
+        m >> (-shift) as u32
+    } else {
+        0
+    }
+}
+
+/// Considers splitting a subset into part `p` and the rest (`s ^ p`), keeping the cheaper.
+#[inline(always)]
+fn consider(cost: &[u64; SUBSETS], s: u32, p: u32, best: &mut u64, best_part: &mut u32) {
+    let c = cost[p as usize] + cost[(s ^ p) as usize];
+    if c < *best {
+        *best = c;
+        *best_part = p;
+    }
+}
+
+/// Restructures the treelet rooted at internal node `root` of a tree whose first leaf is
+/// `first_leaf`; the subtree under `root` must be complete (fitted and restructured).
+pub fn restructure(root: u32, first_leaf: u32, parents: &mut [u32], words: &mut [u64]) {
+    // Form the treelet: open the largest-area internal leaf until there are LEAVES leaves.
+    let mut leaf = [0u32; LEAVES];
+    let mut lo = [[0f32; 3]; LEAVES];
+    let mut hi = [[0f32; 3]; LEAVES];
+    let mut inner = [0u32; LEAVES];
+    let (root_lo, root_hi, a, b) = load(words, root);
+    let (a_lo, a_hi, _, _) = load(words, a);
+    let (b_lo, b_hi, _, _) = load(words, b);
+    leaf[0] = a;
+    lo[0] = a_lo;
+    hi[0] = a_hi;
+    leaf[1] = b;
+    lo[1] = b_lo;
+    hi[1] = b_hi;
+    let mut k = 2;
+    let mut m = 0;
+    while k < LEAVES {
+        let mut pick = LEAVES;
+        let mut largest = 0.0;
+        let mut j = 0;
+        while j < k {
+            let area = half_area(lo[j], hi[j]);
+            if leaf[j] < first_leaf && (pick == LEAVES || below(largest, area)) {
+                largest = area;
+                pick = j;
+            }
+            j += 1;
+        }
+        if pick == LEAVES {
+            break;
+        }
+        inner[m] = leaf[pick];
+        m += 1;
+        let (_, _, c, d) = load(words, leaf[pick]);
+        let (c_lo, c_hi, _, _) = load(words, c);
+        let (d_lo, d_hi, _, _) = load(words, d);
+        leaf[pick] = c;
+        lo[pick] = c_lo;
+        hi[pick] = c_hi;
+        leaf[k] = d;
+        lo[k] = d_lo;
+        hi[k] = d_hi;
+        k += 1;
+    }
+    if k < 3 {
+        return;
+    }
+
+    // cost[s]: least summed half-area (in `fixed` units) of the internal nodes of a tree over the leaves in s
+    // (s itself included); split[s]: the part holding s's lowest leaf in that tree. Every
+    // proper subset of s is a smaller number, so one ascending sweep sees parts first. A
+    // subset's box is its lowest leaf's box grown by the box of the others. (The loops are
+    // written to take few iterations: llvmpipe, our CI's device, stops an invocation's loops
+    // after 65535 iterations in all.)
+    let full = (1u32 << k) - 1;
+    let root_exp = half_area(root_lo, root_hi).to_bits() >> 23 & 0xff;
+    let mut cost = [0u64; SUBSETS];
+    let mut split = [0u32; SUBSETS];
+    let mut s_lo = [[0f32; 3]; SUBSETS];
+    let mut s_hi = [[0f32; 3]; SUBSETS];
+    let mut s = 1u32;
+    while s <= full {
+        let low = s.isolate_lowest_one();
+        let j = low.trailing_zeros() as usize;
+        let rest = s ^ low;
+        if rest == 0 {
+            s_lo[s as usize] = lo[j];
+            s_hi[s as usize] = hi[j];
+        } else {
+            let (r_lo, r_hi) = (s_lo[rest as usize], s_hi[rest as usize]);
+            let u_lo = [lo[j][0].min(r_lo[0]), lo[j][1].min(r_lo[1]), lo[j][2].min(r_lo[2])];
+            let u_hi = [hi[j][0].max(r_hi[0]), hi[j][1].max(r_hi[1]), hi[j][2].max(r_hi[2])];
+            s_lo[s as usize] = u_lo;
+            s_hi[s as usize] = u_hi;
+            // Every part p = low | q, q a proper submask of rest, in descending order; four
+            // per iteration.
+            let mut best = u64::MAX;
+            let mut best_part = low;
+            let mut q = rest;
+            loop {
+                q = (q - 1) & rest;
+                consider(&cost, s, low | q, &mut best, &mut best_part);
+                if q == 0 {
+                    break;
+                }
+                q = (q - 1) & rest;
+                consider(&cost, s, low | q, &mut best, &mut best_part);
+                if q == 0 {
+                    break;
+                }
+                q = (q - 1) & rest;
+                consider(&cost, s, low | q, &mut best, &mut best_part);
+                if q == 0 {
+                    break;
+                }
+                q = (q - 1) & rest;
+                consider(&cost, s, low | q, &mut best, &mut best_part);
+                if q == 0 {
+                    break;
+                }
+            }
+            cost[s as usize] = fixed(half_area(u_lo, u_hi), root_exp) + best;
+            split[s as usize] = best_part;
+        }
+        s += 1;
+    }
+
+    // Rebuild: the root keeps its node (and box); the opened nodes take the inner subsets in
+    // the order they are reached.
+    let mut todo_node = [0u32; LEAVES];
+    let mut todo_set = [0u32; LEAVES];
+    todo_node[0] = root;
+    todo_set[0] = full;
+    let mut sp = 1;
+    let mut next = 0;
+    while sp > 0 {
+        sp -= 1;
+        let (node, set) = (todo_node[sp], todo_set[sp]);
+        let p = split[set as usize];
+        let mut child = [0u32; 2];
+        let parts = [p, set ^ p];
+        for c in 0..2 {
+            let part = parts[c];
+            if part & (part - 1) == 0 {
+                child[c] = leaf[part.trailing_zeros() as usize];
+            } else {
+                child[c] = inner[next];
+                next += 1;
+                todo_node[sp] = child[c];
+                todo_set[sp] = part;
+                sp += 1;
+            }
+            parents[child[c] as usize] = node;
+        }
+        // The root keeps its box exactly (the refit combined it in its own order).
+        let (u_lo, u_hi) = if node == root {
+            (root_lo, root_hi)
+        } else {
+            (s_lo[set as usize], s_hi[set as usize])
+        };
+        store(words, node, u_lo, u_hi, child[0], child[1]);
+    }
+}
