@@ -7,8 +7,9 @@
 //! The kernel sees the node buffer as 64-bit words, 4 per [`crate::types::Node`]:
 //! `[min.x | min.y, min.z | a, max.x | max.y, max.z | b]` (low half first), so a box is read
 //! or written with four atomic operations instead of six.
+use crate::sync;
+use crate::treelet::{self, Boxed};
 use crate::types::{BuildParams, INVALID};
-use crate::{sync, treelet};
 
 const WORDS: u32 = 4;
 
@@ -69,6 +70,7 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         let (sx1, sy1) = split(sync::atomic_load_u64(&words[(sb + 2) as usize]));
         let (sz1, _) = split(sync::atomic_load_u64(&words[(sb + 3) as usize]));
         let (s_lo, s_hi) = ([sx0, sy0, sz0], [sx1, sy1, sz1]);
+        let (c_lo, c_hi) = (lo, hi);
         for k in 0..3 {
             let (l_lo, r_lo, l_hi, r_hi) = if left == node {
                 (lo[k], s_lo[k], hi[k], s_hi[k])
@@ -83,7 +85,20 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         sync::atomic_store_u64(&mut words[(pb + 2) as usize], join(hi[0].to_bits(), hi[1].to_bits()));
         sync::atomic_store_u64(&mut words[(pb + 3) as usize], join(hi[2].to_bits(), right));
         if TREELETS {
-            treelet::restructure(parent, n - 1, parents, words);
+            let sibling = if left == node { right } else { left };
+            let here = Boxed {
+                node,
+                lo: c_lo,
+                hi: c_hi,
+            };
+            let there = Boxed {
+                node: sibling,
+                lo: s_lo,
+                hi: s_hi,
+            };
+            let (l, r) = if left == node { (here, there) } else { (there, here) };
+            let root = Boxed { node: parent, lo, hi };
+            treelet::restructure(root, l, r, n - 1, parents, words);
         }
         node = parent;
         parent = grandparent;

@@ -24,27 +24,49 @@ const SUBSETS: usize = 1 << LEAVES;
 /// 64-bit words per node (see `refit`).
 const WORDS: u32 = 4;
 
-/// A node's box and children, through atomic loads: `(lo, hi, a, b)`.
-fn load(words: &[u64], node: u32) -> ([f32; 3], [f32; 3], u32, u32) {
+/// A node and its box.
+#[derive(Copy, Clone)]
+pub struct Boxed {
+    pub node: u32,
+    pub lo: [f32; 3],
+    pub hi: [f32; 3],
+}
+
+/// The two floats of a word.
+fn split2(w: u64) -> (f32, f32) {
+    (f32::from_bits(w as u32), f32::from_bits((w >> 32) as u32))
+}
+
+/// Internal node `node`'s children, through atomic loads (an earlier treelet in this
+/// dispatch may have rewritten them).
+fn children(words: &[u64], node: u32) -> (u32, u32) {
     let base = (node * WORDS) as usize;
-    let w0 = sync::atomic_load_u64(&words[base]);
     let w1 = sync::atomic_load_u64(&words[base + 1]);
-    let w2 = sync::atomic_load_u64(&words[base + 2]);
     let w3 = sync::atomic_load_u64(&words[base + 3]);
-    (
-        [
-            f32::from_bits(w0 as u32),
-            f32::from_bits((w0 >> 32) as u32),
-            f32::from_bits(w1 as u32),
-        ],
-        [
-            f32::from_bits(w2 as u32),
-            f32::from_bits((w2 >> 32) as u32),
-            f32::from_bits(w3 as u32),
-        ],
-        (w1 >> 32) as u32,
-        (w3 >> 32) as u32,
-    )
+    ((w1 >> 32) as u32, (w3 >> 32) as u32)
+}
+
+/// Node `node` with its box: a leaf's with plain loads (written by the previous dispatch,
+/// never changed by this one), an internal node's with atomic loads.
+fn boxed(words: &[u64], node: u32, first_leaf: u32) -> Boxed {
+    let base = (node * WORDS) as usize;
+    let (w0, w1, w2, w3) = if node >= first_leaf {
+        (words[base], words[base + 1], words[base + 2], words[base + 3])
+    } else {
+        (
+            sync::atomic_load_u64(&words[base]),
+            sync::atomic_load_u64(&words[base + 1]),
+            sync::atomic_load_u64(&words[base + 2]),
+            sync::atomic_load_u64(&words[base + 3]),
+        )
+    };
+    let ((x0, y0), (z0, _)) = (split2(w0), split2(w1));
+    let ((x1, y1), (z1, _)) = (split2(w2), split2(w3));
+    Boxed {
+        node,
+        lo: [x0, y0, z0],
+        hi: [x1, y1, z1],
+    }
 }
 
 /// Writes internal node `node` through atomic stores.
@@ -102,23 +124,22 @@ fn consider(cost: &[u64; SUBSETS], s: u32, p: u32, best: &mut u64, best_part: &m
     }
 }
 
-/// Restructures the treelet rooted at internal node `root` of a tree whose first leaf is
-/// `first_leaf`; the subtree under `root` must be complete (fitted and restructured).
-pub fn restructure(root: u32, first_leaf: u32, parents: &mut [u32], words: &mut [u64]) {
+/// Restructures the treelet rooted at internal node `root.node`, whose children are `left`
+/// and `right` (the refit has all three boxes at hand), in a tree whose first leaf is
+/// `first_leaf`; the subtree under the root must be complete (fitted and restructured).
+pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, parents: &mut [u32], words: &mut [u64]) {
     // Form the treelet: open the largest-area internal leaf until there are LEAVES leaves.
     let mut leaf = [0u32; LEAVES];
     let mut lo = [[0f32; 3]; LEAVES];
     let mut hi = [[0f32; 3]; LEAVES];
     let mut inner = [0u32; LEAVES];
-    let (root_lo, root_hi, a, b) = load(words, root);
-    let (a_lo, a_hi, _, _) = load(words, a);
-    let (b_lo, b_hi, _, _) = load(words, b);
-    leaf[0] = a;
-    lo[0] = a_lo;
-    hi[0] = a_hi;
-    leaf[1] = b;
-    lo[1] = b_lo;
-    hi[1] = b_hi;
+    let (root_lo, root_hi) = (root.lo, root.hi);
+    leaf[0] = left.node;
+    lo[0] = left.lo;
+    hi[0] = left.hi;
+    leaf[1] = right.node;
+    lo[1] = right.lo;
+    hi[1] = right.hi;
     let mut k = 2;
     let mut m = 0;
     while k < LEAVES {
@@ -138,15 +159,14 @@ pub fn restructure(root: u32, first_leaf: u32, parents: &mut [u32], words: &mut 
         }
         inner[m] = leaf[pick];
         m += 1;
-        let (_, _, c, d) = load(words, leaf[pick]);
-        let (c_lo, c_hi, _, _) = load(words, c);
-        let (d_lo, d_hi, _, _) = load(words, d);
-        leaf[pick] = c;
-        lo[pick] = c_lo;
-        hi[pick] = c_hi;
-        leaf[k] = d;
-        lo[k] = d_lo;
-        hi[k] = d_hi;
+        let (c, d) = children(words, leaf[pick]);
+        let (c, d) = (boxed(words, c, first_leaf), boxed(words, d, first_leaf));
+        leaf[pick] = c.node;
+        lo[pick] = c.lo;
+        hi[pick] = c.hi;
+        leaf[k] = d.node;
+        lo[k] = d.lo;
+        hi[k] = d.hi;
         k += 1;
     }
     if k < 3 {
@@ -216,7 +236,7 @@ pub fn restructure(root: u32, first_leaf: u32, parents: &mut [u32], words: &mut 
     // the order they are reached.
     let mut todo_node = [0u32; LEAVES];
     let mut todo_set = [0u32; LEAVES];
-    todo_node[0] = root;
+    todo_node[0] = root.node;
     todo_set[0] = full;
     let mut sp = 1;
     let mut next = 0;
@@ -240,7 +260,7 @@ pub fn restructure(root: u32, first_leaf: u32, parents: &mut [u32], words: &mut 
             parents[child[c] as usize] = node;
         }
         // The root keeps its box exactly (the refit combined it in its own order).
-        let (u_lo, u_hi) = if node == root {
+        let (u_lo, u_hi) = if node == root.node {
             (root_lo, root_hi)
         } else {
             (s_lo[set as usize], s_hi[set as usize])
