@@ -72,42 +72,50 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     out.morton = keys.iter().map(|&k| k.into()).collect();
     lap("morton", &mut times);
 
-    let mut keys_b = keys.clone();
-    let mut vals_b = vals.clone();
-    let mut counts = vec![0u32; (RADIX * tiles) as usize];
-    let mut supers = vec![0u32; (sort::passes(opts.bits.key_bits()) * RADIX * sort::super_count(&p)) as usize];
-    for pass in 0..sort::passes(opts.bits.key_bits()) {
-        p.shift = pass * sort::RADIX_BITS;
-        for g in 0..tiles {
-            let mut st = HistogramState {
-                counts: [0; RADIX as usize],
-            };
-            lanes(|l| sort::histogram_clear(l, &mut st));
-            lanes(|l| sort::histogram_count(l, g, &mut st, &p, &keys));
-            lanes(|l| sort::histogram_store(l, g, &st, &p, &mut counts, &mut supers));
+    if n <= sort::RANK_MAX {
+        // One workgroup ranks every key, then (after a barrier) writes them in place.
+        let ranked: Vec<_> = (0..WORKGROUP).map(|l| sort::rank(l, &p, &keys, &vals)).collect();
+        for (l, r) in (0..WORKGROUP).zip(&ranked) {
+            sort::place(l, &p, r, &mut keys, &mut vals);
         }
-        let mut st = Box::new(ScatterState {
-            counts: [0; sort::COUNTERS],
-            total: [0; WG],
-            before: [0; WG],
-            digit_total: [0; RADIX as usize],
-            digit_before: [0; RADIX as usize],
-            base: [0; RADIX as usize],
-            scan: BlockScan {
-                sums: [0; WG],
-                totals: [0; scan::RAKES as usize],
-            },
-        });
-        for g in 0..tiles {
-            lanes(|l| sort::scatter_count(l, g, &mut st, &p, &keys, &counts, &supers));
-            lanes(|l| sort::scatter_sums(l, &mut st));
-            lanes(|l| scan::rake(l, &mut st.scan));
-            lanes(|l| scan::rake_totals(l, &mut st.scan));
-            lanes(|l| sort::scatter_offsets(l, &mut st));
-            lanes(|l| sort::scatter_write(l, g, &mut st, &p, &keys, &vals, &mut keys_b, &mut vals_b));
+    } else {
+        let mut keys_b = keys.clone();
+        let mut vals_b = vals.clone();
+        let mut counts = vec![0u32; (RADIX * tiles) as usize];
+        let mut supers = vec![0u32; (sort::passes(opts.bits.key_bits()) * RADIX * sort::super_count(&p)) as usize];
+        for pass in 0..sort::passes(opts.bits.key_bits()) {
+            p.shift = pass * sort::RADIX_BITS;
+            for g in 0..tiles {
+                let mut st = HistogramState {
+                    counts: [0; RADIX as usize],
+                };
+                lanes(|l| sort::histogram_clear(l, &mut st));
+                lanes(|l| sort::histogram_count(l, g, &mut st, &p, &keys));
+                lanes(|l| sort::histogram_store(l, g, &st, &p, &mut counts, &mut supers));
+            }
+            let mut st = Box::new(ScatterState {
+                counts: [0; sort::COUNTERS],
+                total: [0; WG],
+                before: [0; WG],
+                digit_total: [0; RADIX as usize],
+                digit_before: [0; RADIX as usize],
+                base: [0; RADIX as usize],
+                scan: BlockScan {
+                    sums: [0; WG],
+                    totals: [0; scan::RAKES as usize],
+                },
+            });
+            for g in 0..tiles {
+                lanes(|l| sort::scatter_count(l, g, &mut st, &p, &keys, &counts, &supers));
+                lanes(|l| sort::scatter_sums(l, &mut st));
+                lanes(|l| scan::rake(l, &mut st.scan));
+                lanes(|l| scan::rake_totals(l, &mut st.scan));
+                lanes(|l| sort::scatter_offsets(l, &mut st));
+                lanes(|l| sort::scatter_write(l, g, &mut st, &p, &keys, &vals, &mut keys_b, &mut vals_b));
+            }
+            std::mem::swap(&mut keys, &mut keys_b);
+            std::mem::swap(&mut vals, &mut vals_b);
         }
-        std::mem::swap(&mut keys, &mut keys_b);
-        std::mem::swap(&mut vals, &mut vals_b);
     }
     out.sorted_keys = keys.iter().map(|&k| k.into()).collect();
     out.sorted_prims = vals.clone();

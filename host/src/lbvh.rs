@@ -197,17 +197,19 @@ impl GpuLbvh {
             tiles,
         };
         let (set_ab, set_ba) = (b.sets.sets[0], b.sets.sets[1]);
-        let (morton, histogram, scatter, build) = match bits {
+        let (morton, histogram, scatter, rank, build) = match bits {
             MortonBits::B30 => (
                 Kernel::Morton30,
                 Kernel::SortHistogramU32,
                 Kernel::SortScatterU32,
+                Kernel::SortRankU32,
                 Kernel::KarrasBuildU32,
             ),
             MortonBits::B63 => (
                 Kernel::Morton63,
                 Kernel::SortHistogramU64,
                 Kernel::SortScatterU64,
+                Kernel::SortRankU64,
                 Kernel::KarrasBuildU64,
             ),
         };
@@ -232,15 +234,21 @@ impl GpuLbvh {
             cmds.barrier();
         }
         cmds.timestamp(STAGES[1]);
-        for pass in 0..sort::passes(bits.key_bits()) {
-            p.shift = pass * sort::RADIX_BITS;
-            let set = if pass % 2 == 0 { set_ab } else { set_ba };
-            cmds.dispatch(k, set, histogram, &p, tiles);
+        if n <= sort::RANK_MAX {
+            cmds.dispatch(k, set_ab, rank, &p, 1);
             cmds.barrier();
-            cmds.timestamp("sort.histogram");
-            cmds.dispatch(k, set, scatter, &p, tiles);
-            cmds.barrier();
-            cmds.timestamp("sort.scatter");
+            cmds.timestamp("sort.rank");
+        } else {
+            for pass in 0..sort::passes(bits.key_bits()) {
+                p.shift = pass * sort::RADIX_BITS;
+                let set = if pass % 2 == 0 { set_ab } else { set_ba };
+                cmds.dispatch(k, set, histogram, &p, tiles);
+                cmds.barrier();
+                cmds.timestamp("sort.histogram");
+                cmds.dispatch(k, set, scatter, &p, tiles);
+                cmds.barrier();
+                cmds.timestamp("sort.scatter");
+            }
         }
         cmds.dispatch(k, set_ab, build, &p, items);
         cmds.barrier();

@@ -86,7 +86,7 @@ pub fn refit_treelets_relaxed(
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
-    ($k:ty, $morton:ident, $histogram:ident, $scatter:ident, $build:ident) => {
+    ($k:ty, $morton:ident, $histogram:ident, $scatter:ident, $rank:ident, $build:ident) => {
         #[spirv(compute(threads(256)))]
         pub fn $morton(
             #[spirv(global_invocation_id)] id: UVec3,
@@ -153,6 +153,20 @@ macro_rules! key_kernels {
             );
         }
 
+        /// The sort of at most `RANK_MAX` keys, in place, by one workgroup (see
+        /// `shared::radix_sort::RANK_MAX`).
+        #[spirv(compute(threads(256)))]
+        pub fn $rank(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
+        ) {
+            let ranked = sort::rank(lid.x, p, keys, vals);
+            storage_barrier();
+            sort::place(lid.x, p, &ranked, keys, vals);
+        }
+
         #[spirv(compute(threads(256)))]
         #[allow(clippy::too_many_arguments)]
         pub fn $build(
@@ -181,8 +195,32 @@ macro_rules! key_kernels {
     };
 }
 
-key_kernels!(u32, morton30, sort_histogram_u32, sort_scatter_u32, karras_build_u32);
-key_kernels!(u64, morton63, sort_histogram_u64, sort_scatter_u64, karras_build_u64);
+key_kernels!(
+    u32,
+    morton30,
+    sort_histogram_u32,
+    sort_scatter_u32,
+    sort_rank_u32,
+    karras_build_u32
+);
+key_kernels!(
+    u64,
+    morton63,
+    sort_histogram_u64,
+    sort_scatter_u64,
+    sort_rank_u64,
+    karras_build_u64
+);
+
+/// A workgroup barrier that also orders this workgroup's storage-buffer accesses (the rank
+/// sort writes in place what other lanes read before).
+fn storage_barrier() {
+    use spirv_std::memory::{Scope, Semantics};
+    const WG: u32 = Scope::Workgroup as u32;
+    const SEMANTICS: u32 =
+        Semantics::ACQUIRE_RELEASE.bits() | Semantics::UNIFORM_MEMORY.bits() | Semantics::WORKGROUP_MEMORY.bits();
+    spirv_std::arch::control_barrier::<WG, WG, SEMANTICS>();
+}
 
 #[spirv(compute(threads(256)))]
 #[allow(clippy::too_many_arguments)]

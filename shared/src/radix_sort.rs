@@ -45,6 +45,7 @@ pub trait SortKey: Copy + PartialEq + Default {
     fn digit(self, shift: u32) -> u32;
     /// Leading zeros of `self ^ other`.
     fn clz_xor(self, other: Self) -> u32;
+    fn less(self, other: Self) -> bool;
 }
 
 impl SortKey for u32 {
@@ -58,6 +59,9 @@ impl SortKey for u32 {
     }
     fn clz_xor(self, other: Self) -> u32 {
         (self ^ other).leading_zeros()
+    }
+    fn less(self, other: Self) -> bool {
+        self < other
     }
 }
 
@@ -78,6 +82,9 @@ impl SortKey for u64 {
         } else {
             32 + (x as u32).leading_zeros()
         }
+    }
+    fn less(self, other: Self) -> bool {
+        self < other
     }
 }
 
@@ -359,4 +366,61 @@ pub fn scatter_write<K: SortKey>(
     place_key(st, lane, p, start + 5, kb[1], vb[1], keys_out, vals_out);
     place_key(st, lane, p, start + 6, kb[2], vb[2], keys_out, vals_out);
     place_key(st, lane, p, start + 7, kb[3], vb[3], keys_out, vals_out);
+}
+
+/// Inputs of at most `RANK_MAX` keys (one tile) skip the radix passes: one workgroup of one
+/// dispatch gives every key its stable rank, the number of keys that are smaller or equal and
+/// earlier ([`rank`]), and after a barrier writes it there ([`place`]). The same order as the
+/// radix passes (a stable sort's output is unique) for one dispatch instead of
+/// `2 * passes(bits)`: the fixed cost that dominates small scenes' builds.
+pub const RANK_MAX: u32 = TILE;
+
+/// The keys a lane owns in the rank sort (`lane + k * WORKGROUP`), their values and ranks.
+pub struct Ranked<K> {
+    pub keys: [K; ITEMS as usize],
+    pub vals: [u32; ITEMS as usize],
+    pub ranks: [u32; ITEMS as usize],
+}
+
+/// Rank sort, phase 1: ranks the keys lane owns against all `p.n` keys, each rank counted in
+/// a register over one sweep of the keys.
+pub fn rank<K: SortKey>(lane: u32, p: &BuildParams, keys: &[K], vals: &[u32]) -> Ranked<K> {
+    let mut r = Ranked {
+        keys: [K::default(); ITEMS as usize],
+        vals: [0; ITEMS as usize],
+        ranks: [0; ITEMS as usize],
+    };
+    let items = p.n.div_ceil(WORKGROUP);
+    let mut k = 0;
+    while k < items {
+        let i = lane + k * WORKGROUP;
+        if i < p.n {
+            let own = keys[i as usize];
+            let mut rank = 0;
+            let mut j = 0;
+            while j < p.n {
+                let key = keys[j as usize];
+                if key.less(own) || key == own && j < i {
+                    rank += 1;
+                }
+                j += 1;
+            }
+            r.keys[k as usize] = own;
+            r.vals[k as usize] = vals[i as usize];
+            r.ranks[k as usize] = rank;
+        }
+        k += 1;
+    }
+    r
+}
+
+/// Rank sort, phase 2 (after every lane's phase 1): writes the lane's keys to their ranks.
+pub fn place<K: SortKey>(lane: u32, p: &BuildParams, r: &Ranked<K>, keys: &mut [K], vals: &mut [u32]) {
+    for k in 0..ITEMS {
+        if lane + k * WORKGROUP < p.n {
+            let at = r.ranks[k as usize] as usize;
+            keys[at] = r.keys[k as usize];
+            vals[at] = r.vals[k as usize];
+        }
+    }
 }

@@ -10,7 +10,8 @@ use shared::radix_sort::SUPER;
 use shared::types::{Node, TILE, WORKGROUP};
 
 #[test]
-fn radix_sort_is_a_stable_sort_of_the_morton_codes() {
+fn the_sort_is_a_stable_sort_of_the_morton_codes() {
+    // Up to `RANK_MAX` keys the rank sort, above the radix passes.
     for bits in [MortonBits::B30, MortonBits::B63] {
         for dist in Distribution::ALL {
             // The last size spans three super-tiles of the scatter's offset tables.
@@ -20,6 +21,7 @@ fn radix_sort_is_a_stable_sort_of_the_morton_codes() {
                 2,
                 3,
                 257,
+                TILE as usize,
                 TILE as usize + 1,
                 20_000,
                 (2 * SUPER * TILE + 1) as usize,

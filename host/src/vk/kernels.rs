@@ -24,6 +24,8 @@ pub enum Kernel {
     SortHistogramU64,
     SortScatterU32,
     SortScatterU64,
+    SortRankU32,
+    SortRankU64,
     KarrasBuildU32,
     KarrasBuildU64,
     Refit,
@@ -38,7 +40,7 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    pub const ALL: [Kernel; 18] = [
+    pub const ALL: [Kernel; 20] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -46,6 +48,8 @@ impl Kernel {
         Kernel::SortHistogramU64,
         Kernel::SortScatterU32,
         Kernel::SortScatterU64,
+        Kernel::SortRankU32,
+        Kernel::SortRankU64,
         Kernel::KarrasBuildU32,
         Kernel::KarrasBuildU64,
         Kernel::Refit,
@@ -69,6 +73,8 @@ impl Kernel {
             Kernel::SortHistogramU64 => "sort_histogram_u64",
             Kernel::SortScatterU32 => "sort_scatter_u32",
             Kernel::SortScatterU64 => "sort_scatter_u64",
+            Kernel::SortRankU32 => "sort_rank_u32",
+            Kernel::SortRankU64 => "sort_rank_u64",
             Kernel::KarrasBuildU32 => "karras_build_u32",
             Kernel::KarrasBuildU64 => "karras_build_u64",
             Kernel::Refit => "refit",
