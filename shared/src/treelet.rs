@@ -118,14 +118,24 @@ pub fn fixed(area: f32, root_exp: u32) -> u64 {
     }
 }
 
-/// Considers splitting a subset into part `p` and the rest (`s ^ p`), keeping the cheaper.
+/// The best split of subset `s` found so far: its cost and the part holding `s`'s lowest leaf.
+struct Best {
+    cost: u64,
+    part: u32,
+}
+
+/// Steps `q` to the next smaller submask of `rest` and considers splitting `s` into part
+/// `low | q` and the rest, keeping the cheaper; true once `q` reached 0 (the last part).
 #[inline(always)]
-fn consider(cost: &[u64; SUBSETS], s: u32, p: u32, best: &mut u64, best_part: &mut u32) {
+fn next_split(cost: &[u64; SUBSETS], s: u32, low: u32, rest: u32, q: &mut u32, best: &mut Best) -> bool {
+    *q = (*q - 1) & rest;
+    let p = low | *q;
     let c = cost[p as usize] + cost[(s ^ p) as usize];
-    if c < *best {
-        *best = c;
-        *best_part = p;
+    if c < best.cost {
+        best.cost = c;
+        best.part = p;
     }
+    *q == 0
 }
 
 /// Restructures the treelet rooted at internal node `root.node`, whose children are `left`
@@ -205,33 +215,18 @@ pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, pare
             s_hi[s as usize] = u_hi;
             // Every part p = low | q, q a proper submask of rest, in descending order; four
             // per iteration.
-            let mut best = u64::MAX;
-            let mut best_part = low;
+            let mut best = Best {
+                cost: u64::MAX,
+                part: low,
+            };
             let mut q = rest;
-            loop {
-                q = (q - 1) & rest;
-                consider(&cost, s, low | q, &mut best, &mut best_part);
-                if q == 0 {
-                    break;
-                }
-                q = (q - 1) & rest;
-                consider(&cost, s, low | q, &mut best, &mut best_part);
-                if q == 0 {
-                    break;
-                }
-                q = (q - 1) & rest;
-                consider(&cost, s, low | q, &mut best, &mut best_part);
-                if q == 0 {
-                    break;
-                }
-                q = (q - 1) & rest;
-                consider(&cost, s, low | q, &mut best, &mut best_part);
-                if q == 0 {
-                    break;
-                }
-            }
-            cost[s as usize] = fixed(half_area(u_lo, u_hi), root_exp) + best;
-            split[s as usize] = best_part;
+            while !(next_split(&cost, s, low, rest, &mut q, &mut best)
+                || next_split(&cost, s, low, rest, &mut q, &mut best)
+                || next_split(&cost, s, low, rest, &mut q, &mut best)
+                || next_split(&cost, s, low, rest, &mut q, &mut best))
+            {}
+            cost[s as usize] = fixed(half_area(u_lo, u_hi), root_exp) + best.cost;
+            split[s as usize] = best.part;
         }
         s += 1;
     }
