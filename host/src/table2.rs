@@ -43,6 +43,8 @@ pub struct Report {
     pub device: String,
     pub cpu: String,
     pub command: String,
+    /// Whether every frame's BVH build restructured treelets (`BuildOptions::treelets`).
+    pub treelets: bool,
     pub rows: Vec<Row>,
     /// (rays per pixel, CPU ms, GPU ms) for the Cornell box.
     pub speedup: Vec<(u32, f64, f64)>,
@@ -135,6 +137,7 @@ pub fn run(gpu: &Arc<Gpu>, runs: usize, brute_spp: u32, cpu_spp: u32, treelets: 
         device: gpu.describe(),
         cpu: format!("CPU executor, {} threads", rayon::current_num_threads()),
         command: std::env::args().collect::<Vec<_>>().join(" "),
+        treelets,
         rows,
         speedup,
     })
@@ -154,6 +157,18 @@ pub fn markdown(r: &Report) -> String {
          time of the runs (timestamp queries). Brute force and CPU are measured at fewer samples \
          and scaled linearly to 32 (column `at spp`). The thesis's figures are those the brief \
          states (bunny only); `-`: not at hand.\n"
+    );
+    let _ = writeln!(
+        s,
+        "BVH: Karras 2012 LBVH{}, rebuilt every frame.\n",
+        if r.treelets {
+            format!(
+                " with {}-leaf treelets restructured for surface-area cost (Karras & Aila 2013)",
+                shared::treelet::LEAVES
+            )
+        } else {
+            ", no treelet restructuring".into()
+        }
     );
     let _ = writeln!(
         s,
@@ -236,6 +251,7 @@ mod tests {
             device: "test GPU".into(),
             cpu: "test CPU".into(),
             command: "raytrace bench table2".into(),
+            treelets: true,
             rows: vec![],
             speedup: vec![(1, 100.0, 1.0), (2, 190.0, 1.5), (4, 380.0, 2.9)],
         };
@@ -243,6 +259,7 @@ mod tests {
         let md = write(&r, &dir, "t").unwrap();
         let text = std::fs::read_to_string(&md).unwrap();
         assert!(text.contains("![speed-up](t-speedup.png)"), "{text}");
+        assert!(text.contains("LBVH with 5-leaf treelets"), "{text}");
         assert!(text.contains("| 4 | 380.0 | 2.900 | 131x |"), "{text}");
         let png = image::open(dir.join("t-speedup.png")).unwrap();
         assert_eq!((png.width(), png.height()), (900, 600));
