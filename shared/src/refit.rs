@@ -23,6 +23,50 @@ fn join(lo: u32, hi: u32) -> u64 {
     lo as u64 | (hi as u64) << 32
 }
 
+/// A node's box `(lo, hi)` from its four words.
+fn unpack(w: [u64; 4]) -> ([f32; 3], [f32; 3]) {
+    let ((x0, y0), (z0, _)) = (split(w[0]), split(w[1]));
+    let ((x1, y1), (z1, _)) = (split(w[2]), split(w[3]));
+    ([x0, y0, z0], [x1, y1, z1])
+}
+
+/// Internal node `node`'s box through atomic loads (another invocation may have written it
+/// in this dispatch).
+pub fn load_box(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
+    let b = (node * WORDS) as usize;
+    unpack([
+        sync::atomic_load_u64(&words[b]),
+        sync::atomic_load_u64(&words[b + 1]),
+        sync::atomic_load_u64(&words[b + 2]),
+        sync::atomic_load_u64(&words[b + 3]),
+    ])
+}
+
+/// Leaf `node`'s box through plain loads (written by the previous dispatch, never by this one).
+pub fn leaf_box(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
+    let b = (node * WORDS) as usize;
+    unpack([words[b], words[b + 1], words[b + 2], words[b + 3]])
+}
+
+/// Internal node `node`'s children `(a, b)` through atomic loads.
+pub fn load_children(words: &[u64], node: u32) -> (u32, u32) {
+    let b = (node * WORDS) as usize;
+    let (w1, w3) = (
+        sync::atomic_load_u64(&words[b + 1]),
+        sync::atomic_load_u64(&words[b + 3]),
+    );
+    ((w1 >> 32) as u32, (w3 >> 32) as u32)
+}
+
+/// Writes internal node `node` (box and children) through atomic stores.
+pub fn store(words: &mut [u64], node: u32, lo: [f32; 3], hi: [f32; 3], a: u32, b: u32) {
+    let w = (node * WORDS) as usize;
+    sync::atomic_store_u64(&mut words[w], join(lo[0].to_bits(), lo[1].to_bits()));
+    sync::atomic_store_u64(&mut words[w + 1], join(lo[2].to_bits(), a));
+    sync::atomic_store_u64(&mut words[w + 2], join(hi[0].to_bits(), hi[1].to_bits()));
+    sync::atomic_store_u64(&mut words[w + 3], join(hi[2].to_bits(), b));
+}
+
 /// Climbs from leaf `i`, fitting every internal node this invocation arrives at second. The
 /// invocation carries the box it just fitted and reads only the sibling's; children are
 /// combined in (left, right) order so that `min(-0.0, +0.0)` is the same on every backend.
@@ -46,13 +90,7 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         return;
     }
     let mut node = n - 1 + i;
-    let base = (node * WORDS) as usize;
-    let (x0, y0) = split(words[base]);
-    let (z0, _) = split(words[base + 1]);
-    let (x1, y1) = split(words[base + 2]);
-    let (z1, _) = split(words[base + 3]);
-    let mut lo = [x0, y0, z0];
-    let mut hi = [x1, y1, z1];
+    let (mut lo, mut hi) = leaf_box(words, node);
     let mut parent = parents[node as usize];
     while parent != INVALID {
         // Immutable during the refit, so loaded before the counter, in its shadow.
@@ -64,12 +102,8 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         if sync::atomic_add_device::<ORDERED>(&mut visits[parent as usize], 1) == 0 {
             return;
         }
-        let sb = if left == node { right } else { left } * WORDS;
-        let (sx0, sy0) = split(sync::atomic_load_u64(&words[sb as usize]));
-        let (sz0, _) = split(sync::atomic_load_u64(&words[(sb + 1) as usize]));
-        let (sx1, sy1) = split(sync::atomic_load_u64(&words[(sb + 2) as usize]));
-        let (sz1, _) = split(sync::atomic_load_u64(&words[(sb + 3) as usize]));
-        let (s_lo, s_hi) = ([sx0, sy0, sz0], [sx1, sy1, sz1]);
+        let sibling = if left == node { right } else { left };
+        let (s_lo, s_hi) = load_box(words, sibling);
         let (c_lo, c_hi) = (lo, hi);
         for k in 0..3 {
             let (l_lo, r_lo, l_hi, r_hi) = if left == node {
@@ -80,12 +114,8 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
             lo[k] = l_lo.min(r_lo);
             hi[k] = l_hi.max(r_hi);
         }
-        sync::atomic_store_u64(&mut words[pb as usize], join(lo[0].to_bits(), lo[1].to_bits()));
-        sync::atomic_store_u64(&mut words[(pb + 1) as usize], join(lo[2].to_bits(), left));
-        sync::atomic_store_u64(&mut words[(pb + 2) as usize], join(hi[0].to_bits(), hi[1].to_bits()));
-        sync::atomic_store_u64(&mut words[(pb + 3) as usize], join(hi[2].to_bits(), right));
+        store(words, parent, lo, hi, left, right);
         if TREELETS {
-            let sibling = if left == node { right } else { left };
             let here = Boxed {
                 node,
                 lo: c_lo,

@@ -11,9 +11,10 @@
 //! its parent; the other internal nodes are reused, leaves stay leaves, so the node layout
 //! (internal `0..n-1`, leaves `n-1..2n-1`, root 0) holds.
 //!
-//! Every node read or written goes through device-scope atomics (see `refit`): treelets of
-//! later roots read what other workgroups restructured earlier in the same dispatch.
-use crate::sync;
+//! Internal nodes are read and written through device-scope atomics (the helpers of
+//! [`refit`]): treelets of later roots read what other workgroups restructured earlier in the
+//! same dispatch. Leaves, which no treelet changes, are read plainly.
+use crate::refit;
 
 /// Leaves of a full treelet. The paper's 7 (127 subsets, ~1100 splits) cut a Cornell-box
 /// ray's inner-node steps 10.7 -> 8.6 and the bunny's 12.9 -> 11.4 (CPU count), 5 (31
@@ -21,9 +22,6 @@ use crate::sync;
 /// invocation per treelet made 7 leaves cost the bunny's build 6.3 ms, 5 leaves 1.2 ms.
 pub const LEAVES: usize = 5;
 const SUBSETS: usize = 1 << LEAVES;
-/// 64-bit words per node (see `refit`).
-const WORDS: u32 = 4;
-
 /// A node and its box.
 #[derive(Copy, Clone)]
 pub struct Boxed {
@@ -32,51 +30,15 @@ pub struct Boxed {
     pub hi: [f32; 3],
 }
 
-/// The two floats of a word.
-fn split2(w: u64) -> (f32, f32) {
-    (f32::from_bits(w as u32), f32::from_bits((w >> 32) as u32))
-}
-
-/// Internal node `node`'s children, through atomic loads (an earlier treelet in this
-/// dispatch may have rewritten them).
-fn children(words: &[u64], node: u32) -> (u32, u32) {
-    let base = (node * WORDS) as usize;
-    let w1 = sync::atomic_load_u64(&words[base + 1]);
-    let w3 = sync::atomic_load_u64(&words[base + 3]);
-    ((w1 >> 32) as u32, (w3 >> 32) as u32)
-}
-
-/// Node `node` with its box: a leaf's with plain loads (written by the previous dispatch,
-/// never changed by this one), an internal node's with atomic loads.
+/// Node `node` with its box, read as [`refit`] reads them: a leaf's plainly, an internal
+/// node's through atomics (an earlier treelet in this dispatch may have rewritten it).
 fn boxed(words: &[u64], node: u32, first_leaf: u32) -> Boxed {
-    let base = (node * WORDS) as usize;
-    let (w0, w1, w2, w3) = if node >= first_leaf {
-        (words[base], words[base + 1], words[base + 2], words[base + 3])
+    let (lo, hi) = if node >= first_leaf {
+        refit::leaf_box(words, node)
     } else {
-        (
-            sync::atomic_load_u64(&words[base]),
-            sync::atomic_load_u64(&words[base + 1]),
-            sync::atomic_load_u64(&words[base + 2]),
-            sync::atomic_load_u64(&words[base + 3]),
-        )
+        refit::load_box(words, node)
     };
-    let ((x0, y0), (z0, _)) = (split2(w0), split2(w1));
-    let ((x1, y1), (z1, _)) = (split2(w2), split2(w3));
-    Boxed {
-        node,
-        lo: [x0, y0, z0],
-        hi: [x1, y1, z1],
-    }
-}
-
-/// Writes internal node `node` through atomic stores.
-fn store(words: &mut [u64], node: u32, lo: [f32; 3], hi: [f32; 3], a: u32, b: u32) {
-    let base = (node * WORDS) as usize;
-    let join = |x: u32, y: u32| x as u64 | (y as u64) << 32;
-    sync::atomic_store_u64(&mut words[base], join(lo[0].to_bits(), lo[1].to_bits()));
-    sync::atomic_store_u64(&mut words[base + 1], join(lo[2].to_bits(), a));
-    sync::atomic_store_u64(&mut words[base + 2], join(hi[0].to_bits(), hi[1].to_bits()));
-    sync::atomic_store_u64(&mut words[base + 3], join(hi[2].to_bits(), b));
+    Boxed { node, lo, hi }
 }
 
 /// Half the surface area of a box (the factor 2 is the same for all and left out). The
@@ -87,13 +49,6 @@ fn store(words: &mut [u64], node: u32, lo: [f32; 3], hi: [f32; 3], a: u32, b: u3
 pub fn half_area(lo: [f32; 3], hi: [f32; 3]) -> f32 {
     let (x, y, z) = (hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
     (x * y).max(0.0) + (y * z).max(0.0) + (z * x).max(0.0)
-}
-
-/// Whether area `a` is below area `b`, both non-negative: compared as bit patterns
-/// (ordered like the numbers).
-#[inline(always)]
-fn below(a: f32, b: f32) -> bool {
-    a.to_bits() < b.to_bits()
 }
 
 /// A half-area as an integer number of units of `2^(e - 167)`, where `e` is the biased
@@ -143,26 +98,18 @@ fn next_split(cost: &[u64; SUBSETS], s: u32, low: u32, rest: u32, q: &mut u32, b
 /// `first_leaf`; the subtree under the root must be complete (fitted and restructured).
 pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, parents: &mut [u32], words: &mut [u64]) {
     // Form the treelet: open the largest-area internal leaf until there are LEAVES leaves.
-    let mut leaf = [0u32; LEAVES];
-    let mut lo = [[0f32; 3]; LEAVES];
-    let mut hi = [[0f32; 3]; LEAVES];
+    let mut leaf = [left; LEAVES];
+    leaf[1] = right;
     let mut inner = [0u32; LEAVES];
-    let (root_lo, root_hi) = (root.lo, root.hi);
-    leaf[0] = left.node;
-    lo[0] = left.lo;
-    hi[0] = left.hi;
-    leaf[1] = right.node;
-    lo[1] = right.lo;
-    hi[1] = right.hi;
     let mut k = 2;
     let mut m = 0;
     while k < LEAVES {
         let mut pick = LEAVES;
-        let mut largest = 0.0;
+        let mut largest = -1.0;
         let mut j = 0;
         while j < k {
-            let area = half_area(lo[j], hi[j]);
-            if leaf[j] < first_leaf && (pick == LEAVES || below(largest, area)) {
+            let area = half_area(leaf[j].lo, leaf[j].hi);
+            if leaf[j].node < first_leaf && area > largest {
                 largest = area;
                 pick = j;
             }
@@ -171,16 +118,11 @@ pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, pare
         if pick == LEAVES {
             break;
         }
-        inner[m] = leaf[pick];
+        inner[m] = leaf[pick].node;
         m += 1;
-        let (c, d) = children(words, leaf[pick]);
-        let (c, d) = (boxed(words, c, first_leaf), boxed(words, d, first_leaf));
-        leaf[pick] = c.node;
-        lo[pick] = c.lo;
-        hi[pick] = c.hi;
-        leaf[k] = d.node;
-        lo[k] = d.lo;
-        hi[k] = d.hi;
+        let (c, d) = refit::load_children(words, leaf[pick].node);
+        leaf[pick] = boxed(words, c, first_leaf);
+        leaf[k] = boxed(words, d, first_leaf);
         k += 1;
     }
     if k < 3 {
@@ -194,7 +136,7 @@ pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, pare
     // written to take few iterations: llvmpipe, our CI's device, stops an invocation's loops
     // after 65535 iterations in all.)
     let full = (1u32 << k) - 1;
-    let root_exp = half_area(root_lo, root_hi).to_bits() >> 23 & 0xff;
+    let root_exp = half_area(root.lo, root.hi).to_bits() >> 23 & 0xff;
     let mut cost = [0u64; SUBSETS];
     let mut split = [0u32; SUBSETS];
     let mut s_lo = [[0f32; 3]; SUBSETS];
@@ -204,13 +146,14 @@ pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, pare
         let low = s.isolate_lowest_one();
         let j = low.trailing_zeros() as usize;
         let rest = s ^ low;
+        let (lo, hi) = (leaf[j].lo, leaf[j].hi);
         if rest == 0 {
-            s_lo[s as usize] = lo[j];
-            s_hi[s as usize] = hi[j];
+            s_lo[s as usize] = lo;
+            s_hi[s as usize] = hi;
         } else {
             let (r_lo, r_hi) = (s_lo[rest as usize], s_hi[rest as usize]);
-            let u_lo = [lo[j][0].min(r_lo[0]), lo[j][1].min(r_lo[1]), lo[j][2].min(r_lo[2])];
-            let u_hi = [hi[j][0].max(r_hi[0]), hi[j][1].max(r_hi[1]), hi[j][2].max(r_hi[2])];
+            let u_lo = [lo[0].min(r_lo[0]), lo[1].min(r_lo[1]), lo[2].min(r_lo[2])];
+            let u_hi = [hi[0].max(r_hi[0]), hi[1].max(r_hi[1]), hi[2].max(r_hi[2])];
             s_lo[s as usize] = u_lo;
             s_hi[s as usize] = u_hi;
             // Every part p = low | q, q a proper submask of rest, in descending order; four
@@ -248,7 +191,7 @@ pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, pare
         for c in 0..2 {
             let part = parts[c];
             if part & (part - 1) == 0 {
-                child[c] = leaf[part.trailing_zeros() as usize];
+                child[c] = leaf[part.trailing_zeros() as usize].node;
             } else {
                 child[c] = inner[next];
                 next += 1;
@@ -260,10 +203,10 @@ pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, pare
         }
         // The root keeps its box exactly (the refit combined it in its own order).
         let (u_lo, u_hi) = if node == root.node {
-            (root_lo, root_hi)
+            (root.lo, root.hi)
         } else {
             (s_lo[set as usize], s_hi[set as usize])
         };
-        store(words, node, u_lo, u_hi, child[0], child[1]);
+        refit::store(words, node, u_lo, u_hi, child[0], child[1]);
     }
 }
