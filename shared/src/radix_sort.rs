@@ -40,12 +40,11 @@ const LANES_PER_DIGIT: u32 = WORKGROUP / RADIX;
 const _: () = assert!(RADIX * LANES_PER_DIGIT == WORKGROUP);
 
 /// A key the sort can take apart into digits.
-pub trait SortKey: Copy + PartialEq + Default {
+pub trait SortKey: Copy + PartialOrd + Default {
     const BITS: u32;
     fn digit(self, shift: u32) -> u32;
     /// Leading zeros of `self ^ other`.
     fn clz_xor(self, other: Self) -> u32;
-    fn less(self, other: Self) -> bool;
 }
 
 impl SortKey for u32 {
@@ -59,9 +58,6 @@ impl SortKey for u32 {
     }
     fn clz_xor(self, other: Self) -> u32 {
         (self ^ other).leading_zeros()
-    }
-    fn less(self, other: Self) -> bool {
-        self < other
     }
 }
 
@@ -82,9 +78,6 @@ impl SortKey for u64 {
         } else {
             32 + (x as u32).leading_zeros()
         }
-    }
-    fn less(self, other: Self) -> bool {
-        self < other
     }
 }
 
@@ -400,7 +393,7 @@ pub fn rank<K: SortKey>(lane: u32, p: &BuildParams, keys: &[K], vals: &[u32]) ->
             let mut j = 0;
             while j < p.n {
                 let key = keys[j as usize];
-                if key.less(own) || key == own && j < i {
+                if key < own || key == own && j < i {
                     rank += 1;
                 }
                 j += 1;
