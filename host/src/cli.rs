@@ -89,15 +89,6 @@ impl Treelets {
             Treelets::Off => false,
         }
     }
-
-    /// The command-line value.
-    pub fn arg(self) -> &'static str {
-        match self {
-            Treelets::Auto => "auto",
-            Treelets::On => "on",
-            Treelets::Off => "off",
-        }
-    }
 }
 
 #[derive(Copy, Clone, Debug, clap::ValueEnum)]

@@ -109,8 +109,8 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             if !nee {
                 args.push("--no-nee");
             }
-            args.extend(["--treelets", o.treelets.arg()]);
-            let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
+            let mut p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
+            p.treelets = o.treelets;
             let mut r = GpuRenderer::new(gpu, &kernels)?;
             r.set_build(p.build(o.spf));
             let mut live = LiveScene::new(p.scene);
