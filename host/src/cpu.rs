@@ -124,7 +124,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let total_nodes = (2 * n).saturating_sub(1) as usize;
     let mut nodes = vec![Node::default(); total_nodes];
     let mut parents = vec![0u32; total_nodes];
-    let mut visits = vec![0u32; n.saturating_sub(1) as usize];
+    let mut visits = vec![0u32; 2 * n as usize];
     for i in 0..n {
         karras::build(
             i,
@@ -142,12 +142,18 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     // The refit sees the nodes as 64-bit words (`Node` is only 4-aligned: copy, not cast).
     let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&nodes);
-    for i in 0..n {
-        if opts.treelets {
-            refit::refit::<true, true>(i, &p, &mut parents, &mut visits, &mut words);
-        } else {
-            refit::refit::<true, false>(i, &p, &mut parents, &mut visits, &mut words);
-        }
+    for g in 0..n.div_ceil(refit::BLOCK) {
+        let mut st = refit::RefitState {
+            visits: [0; refit::BLOCK as usize],
+        };
+        lanes(|l| refit::clear(l, &mut st));
+        lanes(|l| {
+            if opts.treelets {
+                refit::refit::<true, true>(l, g, &mut st, &p, &mut parents, &mut visits, &mut words);
+            } else {
+                refit::refit::<true, false>(l, g, &mut st, &p, &mut parents, &mut visits, &mut words);
+            }
+        });
     }
     let nodes: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
     lap("refit", &mut times);

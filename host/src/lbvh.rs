@@ -56,7 +56,7 @@ impl Buffers {
         let supers = dev("super-tile sums", Self::supers_bytes(n))?;
         let nodes = dev("nodes", (2 * n - 1) * size_of::<Node>() as u64)?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
-        let visits = dev("visit counters", n * 4)?;
+        let visits = dev("visit counters and node ranges", 2 * n * 4)?;
         let capture = dev("captured codes", n * 8)?;
         let staging_bytes = (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
         let staging = Buffer::new(gpu, "staging", staging_bytes, MemoryLocation::CpuToGpu)?;

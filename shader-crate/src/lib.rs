@@ -6,6 +6,7 @@
 use shared::bounds::{self, BoundsState};
 use shared::path::{self, World};
 use shared::radix_sort::{self as sort, HistogramState, ScatterState};
+use shared::refit::RefitState;
 use shared::scan;
 use shared::traverse::Scene;
 use shared::types::{
@@ -38,50 +39,70 @@ pub fn bounds_reduce(
 }
 
 #[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
 pub fn refit(
-    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+    #[spirv(workgroup)] st: &mut RefitState,
 ) {
-    refit::refit::<true, false>(flat_index(id.x, id.y), p, parents, visits, node_words);
+    refit::clear(lid.x, st);
+    barrier();
+    refit::refit::<true, false>(lid.x, flat_group(gid.x, gid.y), st, p, parents, visits, node_words);
 }
 
 /// `refit` with a relaxed visit counter, for lavapipe only (see `shared::refit`).
 #[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
 pub fn refit_relaxed(
-    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+    #[spirv(workgroup)] st: &mut RefitState,
 ) {
-    refit::refit::<false, false>(flat_index(id.x, id.y), p, parents, visits, node_words);
+    refit::clear(lid.x, st);
+    barrier();
+    refit::refit::<false, false>(lid.x, flat_group(gid.x, gid.y), st, p, parents, visits, node_words);
 }
 
 /// `refit` restructuring treelets (see `shared::treelet`).
 #[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
 pub fn refit_treelets(
-    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+    #[spirv(workgroup)] st: &mut RefitState,
 ) {
-    refit::refit::<true, true>(flat_index(id.x, id.y), p, parents, visits, node_words);
+    refit::clear(lid.x, st);
+    barrier();
+    refit::refit::<true, true>(lid.x, flat_group(gid.x, gid.y), st, p, parents, visits, node_words);
 }
 
 /// `refit_treelets` with a relaxed visit counter, for lavapipe only.
 #[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
 pub fn refit_treelets_relaxed(
-    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+    #[spirv(workgroup)] st: &mut RefitState,
 ) {
-    refit::refit::<false, true>(flat_index(id.x, id.y), p, parents, visits, node_words);
+    refit::clear(lid.x, st);
+    barrier();
+    refit::refit::<false, true>(lid.x, flat_group(gid.x, gid.y), st, p, parents, visits, node_words);
 }
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).

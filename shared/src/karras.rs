@@ -63,7 +63,9 @@ pub fn range_and_split<K: SortKey>(keys: &[K], n: u32, i: u32) -> (u32, u32, u32
     (ii.min(j) as u32, ii.max(j) as u32, gamma as u32)
 }
 
-/// Builds internal node `i` and leaf `i`, records parents, and clears the visit counter.
+/// Builds internal node `i` and leaf `i`, records parents, clears the visit counter and
+/// records the far end of node `i`'s leaf range (`i` is one end) in `visits[n + i]` for
+/// the refit (see [`crate::refit::refit`]).
 #[allow(clippy::too_many_arguments)]
 pub fn build<K: SortKey>(
     i: u32,
@@ -105,5 +107,6 @@ pub fn build<K: SortKey>(
         parents[left as usize] = i;
         parents[right as usize] = i;
         visits[i as usize] = 0;
+        visits[(n + i) as usize] = if first == i { last } else { first };
     }
 }

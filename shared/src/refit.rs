@@ -4,12 +4,31 @@
 //! and go on. Boxes are read and written through device-scope atomics, so no stale cache
 //! line of another workgroup's write can be seen.
 //!
+//! A workgroup climbs the leaves `BLOCK * group..` (one per lane). Nodes whose leaves all lie
+//! in that block are met only by its lanes: their counters live in workgroup memory, with
+//! workgroup-scope ordering, cheaper than a device-scope counter in the
+//! storage buffer (`visits`), kept for the nodes above the blocks.
+//!
 //! The kernel sees the node buffer as 64-bit words, 4 per [`crate::types::Node`]:
 //! `[min.x | min.y, min.z | a, max.x | max.y, max.z | b]` (low half first), so a box is read
 //! or written with four atomic operations instead of six.
 use crate::sync;
 use crate::treelet::{self, Boxed};
-use crate::types::{BuildParams, INVALID};
+use crate::types::{BuildParams, INVALID, WORKGROUP};
+
+/// Leaves per workgroup, one per lane.
+pub const BLOCK: u32 = WORKGROUP;
+
+/// Workgroup memory: the visit counters of internal nodes `BLOCK * group..` (used for those
+/// whose leaves all lie in the block).
+pub struct RefitState {
+    pub visits: [u32; BLOCK as usize],
+}
+
+/// Phase 1: clears the block's counters.
+pub fn clear(lane: u32, st: &mut RefitState) {
+    st.visits[lane as usize] = 0;
+}
 
 const WORDS: u32 = 4;
 
@@ -67,9 +86,12 @@ pub fn store(words: &mut [u64], node: u32, lo: [f32; 3], hi: [f32; 3], a: u32, b
     sync::atomic_store_u64(&mut words[w + 3], join(hi[2].to_bits(), b));
 }
 
-/// Climbs from leaf `i`, fitting every internal node this invocation arrives at second. The
-/// invocation carries the box it just fitted and reads only the sibling's; children are
-/// combined in (left, right) order so that `min(-0.0, +0.0)` is the same on every backend.
+/// Phase 2: climbs from leaf `BLOCK * group + lane`, fitting every internal node this
+/// invocation arrives at second. The invocation carries the box it just fitted and reads only
+/// the sibling's; children are combined in (left, right) order so that `min(-0.0, +0.0)` is
+/// the same on every backend. A node's leaf range is `[node, visits[n + node]]` or the
+/// reverse (recorded by [`crate::karras::build`]): when it lies in the block, the node's
+/// counter is the workgroup's.
 ///
 /// `ORDERED` selects the acquire-release counter that real GPUs need. Mesa 22.3's lavapipe
 /// (Debian 12, our CI device) loses the second arrival when any acquire/release semantics or
@@ -79,13 +101,17 @@ pub fn store(words: &mut [u64], node: u32, lo: [f32; 3], hi: [f32; 3], a: u32, b
 /// With `TREELETS`, every node fitted becomes the root of a treelet restructured for the
 /// least surface-area cost (see [`crate::treelet`]).
 pub fn refit<const ORDERED: bool, const TREELETS: bool>(
-    i: u32,
+    lane: u32,
+    group: u32,
+    st: &mut RefitState,
     p: &BuildParams,
     parents: &mut [u32],
     visits: &mut [u32],
     words: &mut [u64],
 ) {
     let n = p.n;
+    let base = group * BLOCK;
+    let i = base + lane;
     if i >= n {
         return;
     }
@@ -98,8 +124,15 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         let left = (words[(pb + 1) as usize] >> 32) as u32;
         let right = (words[(pb + 3) as usize] >> 32) as u32;
         let grandparent = parents[parent as usize];
+        let far = visits[(n + parent) as usize];
+        let local = parent.wrapping_sub(base) < BLOCK && far.wrapping_sub(base) < BLOCK;
         // The first arrival at a node stops; the second fits it and climbs on.
-        if sync::atomic_add_device::<ORDERED>(&mut visits[parent as usize], 1) == 0 {
+        let earlier = if local {
+            sync::workgroup_add_ordered::<ORDERED>(&mut st.visits[(parent - base) as usize], 1)
+        } else {
+            sync::atomic_add_device::<ORDERED>(&mut visits[parent as usize], 1)
+        };
+        if earlier == 0 {
             return;
         }
         let sibling = if left == node { right } else { left };

@@ -15,6 +15,9 @@ const RELAXED: u32 = Semantics::NONE.bits();
 /// visibility operations: everything the counter publishes is itself accessed atomically.)
 #[cfg(target_arch = "spirv")]
 const ACQ_REL: u32 = Semantics::ACQUIRE_RELEASE.bits() | Semantics::UNIFORM_MEMORY.bits();
+/// [`ACQ_REL`] for a counter in workgroup memory that publishes storage-buffer writes.
+#[cfg(target_arch = "spirv")]
+const WG_ACQ_REL: u32 = ACQ_REL | Semantics::WORKGROUP_MEMORY.bits();
 
 /// Relaxed device-scope `min`; returns the old value.
 pub fn atomic_min(p: &mut u32, v: u32) -> u32 {
@@ -68,6 +71,26 @@ pub fn workgroup_max(p: &mut u32, v: u32) -> u32 {
     {
         let old = *p;
         *p = old.max(v);
+        old
+    }
+}
+
+/// Workgroup-scope add on workgroup memory; returns the old value. With `ORDERED` it is
+/// acquire-release on workgroup and storage-buffer memory (it orders this workgroup's
+/// accesses to both around it); without, relaxed.
+pub fn workgroup_add_ordered<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        if ORDERED {
+            spirv_std::arch::atomic_i_add::<u32, WORKGROUP, WG_ACQ_REL>(p, v)
+        } else {
+            spirv_std::arch::atomic_i_add::<u32, WORKGROUP, RELAXED>(p, v)
+        }
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        let old = *p;
+        *p = old.wrapping_add(v);
         old
     }
 }
