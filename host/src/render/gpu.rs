@@ -267,7 +267,7 @@ impl GpuRenderer {
             cmds.dispatch_sets(k, &sets, Kernel::Transform, bytemuck::bytes_of(&p), x, y);
             cmds.barrier();
             cmds.timestamp("transform");
-            self.lbvh.record(cmds, self.build, false)?;
+            self.lbvh.record(cmds, self.build, false, false)?;
         }
         let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));
         let trace = k.specialised(Kernel::PathTrace, f.features)?;
