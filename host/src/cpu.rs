@@ -111,7 +111,17 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
                 lanes(|l| scan::rake(l, &mut st.scan));
                 lanes(|l| scan::rake_totals(l, &mut st.scan));
                 lanes(|l| sort::scatter_offsets(l, &mut st));
-                lanes(|l| sort::scatter_write(l, g, &mut st, &p, &keys, &vals, &mut keys_b, &mut vals_b));
+                let staged: Vec<_> = (0..WORKGROUP)
+                    .map(|l| sort::scatter_rank(l, g, &mut st, &p, &keys, &vals))
+                    .collect();
+                staged.iter().for_each(|s| sort::scatter_stage_keys(&mut st, s));
+                let at: Vec<_> = (0..WORKGROUP)
+                    .map(|l| sort::scatter_write_keys(l, g, &st, &p, &mut keys_b))
+                    .collect();
+                staged.iter().for_each(|s| sort::scatter_stage_vals(&mut st, s));
+                for (l, at) in (0..WORKGROUP).zip(&at) {
+                    sort::scatter_write_vals(l, &st, at, &mut vals_b);
+                }
             }
             std::mem::swap(&mut keys, &mut keys_b);
             std::mem::swap(&mut vals, &mut vals_b);

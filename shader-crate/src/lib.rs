@@ -162,16 +162,16 @@ macro_rules! key_kernels {
             barrier();
             sort::scatter_offsets(lid.x, st);
             barrier();
-            sort::scatter_write(
-                lid.x,
-                flat_group(gid.x, gid.y),
-                st,
-                p,
-                keys_in,
-                vals_in,
-                keys_out,
-                vals_out,
-            );
+            let group = flat_group(gid.x, gid.y);
+            let staged = sort::scatter_rank(lid.x, group, st, p, keys_in, vals_in);
+            barrier();
+            sort::scatter_stage_keys(st, &staged);
+            barrier();
+            let at = sort::scatter_write_keys(lid.x, group, st, p, keys_out);
+            barrier();
+            sort::scatter_stage_vals(st, &staged);
+            barrier();
+            sort::scatter_write_vals(lid.x, st, &at, vals_out);
         }
 
         /// The sort of at most `RANK_MAX` keys, in place, by one workgroup (see

@@ -17,7 +17,10 @@
 //! ```
 //!
 //! In the scatter, lane `l` owns the `ITEMS` consecutive keys at `l * ITEMS`, so order
-//! within a tile is (lane, item) = input order: the pass is stable. The workgroup keeps one
+//! within a tile is (lane, item) = input order: the pass is stable. The tile's keys are put
+//! in their sorted order in workgroup memory first and written out from there, lane `l`
+//! taking places `l + k * WORKGROUP`: neighbouring lanes write neighbouring words of a
+//! digit's run instead of words of 32 different runs. The workgroup keeps one
 //! 16-bit counter per (digit, lane), two to a word (CUB's packing): word (c, l) holds digit
 //! `c` in its low half and digit `c + HALF` in its high half, column-major. An exclusive scan
 //! of the words (no carry crosses the halves: a tile has 2048 keys) gives, in the half of
@@ -33,6 +36,8 @@ pub const RADIX: u32 = 1 << RADIX_BITS;
 /// Packed counter words per lane in the scatter: two 16-bit digit counters each.
 pub const HALF: u32 = RADIX / 2;
 const _: () = assert!(TILE < 1 << 16);
+// The scatter stages a tile of 64-bit keys in the counters' memory.
+const _: () = assert!(2 * TILE as usize <= COUNTERS);
 /// Tiles per super-tile.
 pub const SUPER: u32 = 64;
 /// Lanes that share one digit when the scatter sums the tables.
@@ -42,6 +47,11 @@ const _: () = assert!(RADIX * LANES_PER_DIGIT == WORKGROUP);
 /// A key the sort can take apart into digits.
 pub trait SortKey: Copy + PartialOrd + Default {
     const BITS: u32;
+    /// 32-bit words per key.
+    const WORDS: u32;
+    /// Word `i` of the key (low first).
+    fn word(self, i: u32) -> u32;
+    fn from_words(lo: u32, hi: u32) -> Self;
     fn digit(self, shift: u32) -> u32;
     /// Leading zeros of `self ^ other`.
     fn clz_xor(self, other: Self) -> u32;
@@ -49,6 +59,13 @@ pub trait SortKey: Copy + PartialOrd + Default {
 
 impl SortKey for u32 {
     const BITS: u32 = 32;
+    const WORDS: u32 = 1;
+    fn word(self, _: u32) -> u32 {
+        self
+    }
+    fn from_words(lo: u32, _: u32) -> u32 {
+        lo
+    }
     fn digit(self, shift: u32) -> u32 {
         if shift >= Self::BITS {
             0
@@ -63,6 +80,13 @@ impl SortKey for u32 {
 
 impl SortKey for u64 {
     const BITS: u32 = 64;
+    const WORDS: u32 = 2;
+    fn word(self, i: u32) -> u32 {
+        (self >> (32 * i)) as u32
+    }
+    fn from_words(lo: u32, hi: u32) -> u64 {
+        lo as u64 | (hi as u64) << 32
+    }
     fn digit(self, shift: u32) -> u32 {
         if shift >= Self::BITS {
             0
@@ -168,8 +192,8 @@ pub struct ScatterState {
     /// Per digit: keys in all tiles; keys in the tiles before this one.
     pub digit_total: [u32; RADIX as usize],
     pub digit_before: [u32; RADIX as usize],
-    /// Per digit: global offset of this tile's first key with that digit, minus the count of
-    /// the tile's keys with a smaller digit in the same half of the packed counters.
+    /// Per digit: global offset of this tile's first key with that digit, minus the tile's
+    /// count of keys with a smaller digit (the digit's first place in the tile's order).
     pub base: [u32; RADIX as usize],
     pub scan: BlockScan,
 }
@@ -190,27 +214,26 @@ fn count_key<K: SortKey>(st: &mut ScatterState, lane: u32, p: &BuildParams, i: u
     }
 }
 
-/// Writes key `i` (if it exists) and its value to the next free place of its digit.
-#[allow(clippy::too_many_arguments)]
-fn place_key<K: SortKey>(
-    st: &mut ScatterState,
-    lane: u32,
-    p: &BuildParams,
-    i: u32,
-    key: K,
-    val: u32,
-    keys_out: &mut [K],
-    vals_out: &mut [u32],
-) {
+/// Keys of the tile whose digit is in the low half of the packed counters, added to the
+/// place of every key in the high half (`half` is 16 there).
+fn lower_half(st: &ScatterState, half: u32) -> u32 {
+    if half == 0 {
+        0
+    } else {
+        scan::total(&st.scan) & 0xffff
+    }
+}
+
+/// Key `i`'s place in the tile's sorted order (if it exists; `TILE` if not), counting it.
+fn rank_key<K: SortKey>(st: &mut ScatterState, lane: u32, p: &BuildParams, i: u32, key: K) -> u32 {
     if i < p.n {
-        let d = key.digit(p.shift);
-        let (c, half) = column(d);
+        let (c, half) = column(key.digit(p.shift));
         let at = slot(c * WORKGROUP + lane);
         let v = st.counts[at];
-        let dst = st.base[d as usize].wrapping_add((v >> half) & 0xffff);
         st.counts[at] = v + (1 << half);
-        keys_out[dst as usize] = key;
-        vals_out[dst as usize] = val;
+        ((v >> half) & 0xffff) + lower_half(st, half)
+    } else {
+        TILE
     }
 }
 
@@ -332,33 +355,139 @@ pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
         for d in 0..lane {
             offset += st.digit_total[d as usize];
         }
-        st.base[lane as usize] = offset.wrapping_sub(smaller);
+        st.base[lane as usize] = offset.wrapping_sub(smaller + lower_half(st, half));
     }
 }
 
-/// Phase 4: lane writes its keys, in order, to their sorted places.
-#[allow(clippy::too_many_arguments)]
-pub fn scatter_write<K: SortKey>(
+/// The keys a lane owns, their values and their places in the tile's sorted order.
+pub struct Staged<K> {
+    pub keys: [K; ITEMS as usize],
+    pub vals: [u32; ITEMS as usize],
+    pub places: [u32; ITEMS as usize],
+}
+
+/// Phase 4: lane ranks its keys within the tile (stably: in order).
+pub fn scatter_rank<K: SortKey>(
     lane: u32,
     group: u32,
     st: &mut ScatterState,
     p: &BuildParams,
     keys_in: &[K],
     vals_in: &[u32],
-    keys_out: &mut [K],
-    vals_out: &mut [u32],
-) {
+) -> Staged<K> {
     let start = owned(lane, group);
     let (ka, kb) = (load4(keys_in, start, 1, p.n), load4(keys_in, start + GROUP, 1, p.n));
     let (va, vb) = (load4(vals_in, start, 1, p.n), load4(vals_in, start + GROUP, 1, p.n));
-    place_key(st, lane, p, start, ka[0], va[0], keys_out, vals_out);
-    place_key(st, lane, p, start + 1, ka[1], va[1], keys_out, vals_out);
-    place_key(st, lane, p, start + 2, ka[2], va[2], keys_out, vals_out);
-    place_key(st, lane, p, start + 3, ka[3], va[3], keys_out, vals_out);
-    place_key(st, lane, p, start + 4, kb[0], vb[0], keys_out, vals_out);
-    place_key(st, lane, p, start + 5, kb[1], vb[1], keys_out, vals_out);
-    place_key(st, lane, p, start + 6, kb[2], vb[2], keys_out, vals_out);
-    place_key(st, lane, p, start + 7, kb[3], vb[3], keys_out, vals_out);
+    let places = [
+        rank_key(st, lane, p, start, ka[0]),
+        rank_key(st, lane, p, start + 1, ka[1]),
+        rank_key(st, lane, p, start + 2, ka[2]),
+        rank_key(st, lane, p, start + 3, ka[3]),
+        rank_key(st, lane, p, start + 4, kb[0]),
+        rank_key(st, lane, p, start + 5, kb[1]),
+        rank_key(st, lane, p, start + 6, kb[2]),
+        rank_key(st, lane, p, start + 7, kb[3]),
+    ];
+    Staged {
+        keys: [ka[0], ka[1], ka[2], ka[3], kb[0], kb[1], kb[2], kb[3]],
+        vals: [va[0], va[1], va[2], va[3], vb[0], vb[1], vb[2], vb[3]],
+        places,
+    }
+}
+
+/// Stages one key in the counters' memory (free once every lane has ranked its keys).
+fn stage_key<K: SortKey>(st: &mut ScatterState, place: u32, key: K) {
+    if place < TILE {
+        for w in 0..K::WORDS {
+            st.counts[(place * K::WORDS + w) as usize] = key.word(w);
+        }
+    }
+}
+
+/// Phase 5 (after a barrier): the lane puts its keys at their places in workgroup memory.
+pub fn scatter_stage_keys<K: SortKey>(st: &mut ScatterState, s: &Staged<K>) {
+    stage_key(st, s.places[0], s.keys[0]);
+    stage_key(st, s.places[1], s.keys[1]);
+    stage_key(st, s.places[2], s.keys[2]);
+    stage_key(st, s.places[3], s.keys[3]);
+    stage_key(st, s.places[4], s.keys[4]);
+    stage_key(st, s.places[5], s.keys[5]);
+    stage_key(st, s.places[6], s.keys[6]);
+    stage_key(st, s.places[7], s.keys[7]);
+}
+
+/// Writes the staged key at `place` (if the tile has one there) to its global place, which
+/// it returns (`u32::MAX` if none).
+fn write_key<K: SortKey>(st: &ScatterState, p: &BuildParams, group: u32, place: u32, keys_out: &mut [K]) -> u32 {
+    if group * TILE + place >= p.n {
+        return u32::MAX;
+    }
+    let hi = if K::WORDS == 2 {
+        st.counts[(2 * place + 1) as usize]
+    } else {
+        0
+    };
+    let key = K::from_words(st.counts[(place * K::WORDS) as usize], hi);
+    let at = st.base[key.digit(p.shift) as usize].wrapping_add(place);
+    keys_out[at as usize] = key;
+    at
+}
+
+/// Phase 6 (after a barrier): lane writes the tile's sorted places `lane + k * WORKGROUP`
+/// out, so that neighbouring lanes write neighbouring words of a digit's run; returns where.
+pub fn scatter_write_keys<K: SortKey>(
+    lane: u32,
+    group: u32,
+    st: &ScatterState,
+    p: &BuildParams,
+    keys_out: &mut [K],
+) -> [u32; ITEMS as usize] {
+    [
+        write_key(st, p, group, lane, keys_out),
+        write_key(st, p, group, lane + WORKGROUP, keys_out),
+        write_key(st, p, group, lane + 2 * WORKGROUP, keys_out),
+        write_key(st, p, group, lane + 3 * WORKGROUP, keys_out),
+        write_key(st, p, group, lane + 4 * WORKGROUP, keys_out),
+        write_key(st, p, group, lane + 5 * WORKGROUP, keys_out),
+        write_key(st, p, group, lane + 6 * WORKGROUP, keys_out),
+        write_key(st, p, group, lane + 7 * WORKGROUP, keys_out),
+    ]
+}
+
+fn stage_val(st: &mut ScatterState, place: u32, val: u32) {
+    if place < TILE {
+        st.counts[place as usize] = val;
+    }
+}
+
+/// Phase 7 (after a barrier): the lane puts its values at their places in workgroup memory.
+pub fn scatter_stage_vals<K: SortKey>(st: &mut ScatterState, s: &Staged<K>) {
+    stage_val(st, s.places[0], s.vals[0]);
+    stage_val(st, s.places[1], s.vals[1]);
+    stage_val(st, s.places[2], s.vals[2]);
+    stage_val(st, s.places[3], s.vals[3]);
+    stage_val(st, s.places[4], s.vals[4]);
+    stage_val(st, s.places[5], s.vals[5]);
+    stage_val(st, s.places[6], s.vals[6]);
+    stage_val(st, s.places[7], s.vals[7]);
+}
+
+fn write_val(st: &ScatterState, place: u32, at: u32, vals_out: &mut [u32]) {
+    if at != u32::MAX {
+        vals_out[at as usize] = st.counts[place as usize];
+    }
+}
+
+/// Phase 8 (after a barrier): lane writes the values of the places it wrote keys of.
+pub fn scatter_write_vals(lane: u32, st: &ScatterState, at: &[u32; ITEMS as usize], vals_out: &mut [u32]) {
+    write_val(st, lane, at[0], vals_out);
+    write_val(st, lane + WORKGROUP, at[1], vals_out);
+    write_val(st, lane + 2 * WORKGROUP, at[2], vals_out);
+    write_val(st, lane + 3 * WORKGROUP, at[3], vals_out);
+    write_val(st, lane + 4 * WORKGROUP, at[4], vals_out);
+    write_val(st, lane + 5 * WORKGROUP, at[5], vals_out);
+    write_val(st, lane + 6 * WORKGROUP, at[6], vals_out);
+    write_val(st, lane + 7 * WORKGROUP, at[7], vals_out);
 }
 
 /// Inputs of at most `RANK_MAX` keys (one tile) skip the radix passes: one workgroup of one

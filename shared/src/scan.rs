@@ -47,6 +47,11 @@ pub fn rake_totals(lane: u32, st: &mut BlockScan) {
     }
 }
 
+/// Sum of every lane's value, once both phases are done.
+pub fn total(st: &BlockScan) -> u32 {
+    st.totals[(RAKES - 1) as usize] + st.sums[(WORKGROUP - 1) as usize]
+}
+
 /// Sum of the values of the lanes before `lane`, once both phases are done.
 pub fn exclusive(lane: u32, st: &BlockScan) -> u32 {
     let within = if lane.is_multiple_of(RUN) {
