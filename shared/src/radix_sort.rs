@@ -395,7 +395,8 @@ pub fn scatter_rank<K: SortKey>(
     }
 }
 
-/// Stages one key in the counters' memory (free once every lane has ranked its keys).
+/// Stages one key (or value) in the counters' memory (free once every lane has ranked its
+/// keys).
 fn stage_key<K: SortKey>(st: &mut ScatterState, place: u32, key: K) {
     if place < TILE {
         for w in 0..K::WORDS {
@@ -404,16 +405,21 @@ fn stage_key<K: SortKey>(st: &mut ScatterState, place: u32, key: K) {
     }
 }
 
+/// Stages the lane's eight keys (or values) at their places.
+fn stage_items<T: SortKey>(st: &mut ScatterState, places: &[u32; ITEMS as usize], items: &[T; ITEMS as usize]) {
+    stage_key(st, places[0], items[0]);
+    stage_key(st, places[1], items[1]);
+    stage_key(st, places[2], items[2]);
+    stage_key(st, places[3], items[3]);
+    stage_key(st, places[4], items[4]);
+    stage_key(st, places[5], items[5]);
+    stage_key(st, places[6], items[6]);
+    stage_key(st, places[7], items[7]);
+}
+
 /// Phase 5 (after a barrier): the lane puts its keys at their places in workgroup memory.
 pub fn scatter_stage_keys<K: SortKey>(st: &mut ScatterState, s: &Staged<K>) {
-    stage_key(st, s.places[0], s.keys[0]);
-    stage_key(st, s.places[1], s.keys[1]);
-    stage_key(st, s.places[2], s.keys[2]);
-    stage_key(st, s.places[3], s.keys[3]);
-    stage_key(st, s.places[4], s.keys[4]);
-    stage_key(st, s.places[5], s.keys[5]);
-    stage_key(st, s.places[6], s.keys[6]);
-    stage_key(st, s.places[7], s.keys[7]);
+    stage_items(st, &s.places, &s.keys);
 }
 
 /// Writes the staged key at `place` (if the tile has one there) to its global place, which
@@ -454,22 +460,9 @@ pub fn scatter_write_keys<K: SortKey>(
     ]
 }
 
-fn stage_val(st: &mut ScatterState, place: u32, val: u32) {
-    if place < TILE {
-        st.counts[place as usize] = val;
-    }
-}
-
 /// Phase 7 (after a barrier): the lane puts its values at their places in workgroup memory.
 pub fn scatter_stage_vals<K: SortKey>(st: &mut ScatterState, s: &Staged<K>) {
-    stage_val(st, s.places[0], s.vals[0]);
-    stage_val(st, s.places[1], s.vals[1]);
-    stage_val(st, s.places[2], s.vals[2]);
-    stage_val(st, s.places[3], s.vals[3]);
-    stage_val(st, s.places[4], s.vals[4]);
-    stage_val(st, s.places[5], s.vals[5]);
-    stage_val(st, s.places[6], s.vals[6]);
-    stage_val(st, s.places[7], s.vals[7]);
+    stage_items(st, &s.places, &s.vals);
 }
 
 fn write_val(st: &ScatterState, place: u32, at: u32, vals_out: &mut [u32]) {

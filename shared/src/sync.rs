@@ -97,16 +97,7 @@ pub fn workgroup_add_ordered<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
 
 /// Relaxed workgroup-scope add on workgroup memory; returns the old value.
 pub fn workgroup_add(p: &mut u32, v: u32) -> u32 {
-    #[cfg(target_arch = "spirv")]
-    unsafe {
-        spirv_std::arch::atomic_i_add::<u32, WORKGROUP, RELAXED>(p, v)
-    }
-    #[cfg(not(target_arch = "spirv"))]
-    {
-        let old = *p;
-        *p = old.wrapping_add(v);
-        old
-    }
+    workgroup_add_ordered::<false>(p, v)
 }
 
 /// Device-scope add on storage-buffer memory; returns the old value. With `ORDERED` it is
