@@ -132,13 +132,17 @@ pub fn bench_build(
         let n = input.tris.len() + input.spheres.len();
         eprintln!("bench build: {} ({n} primitives, {opts:?})", input.name);
         lbvh.upload(&input.tris, &input.spheres)?;
-        // Warm up for at least `warmup` builds and half a second: after the CPU executor's
-        // idle stretches the GPU needs that long to return to full clocks.
+        // Warm up for at least `warmup` builds and half a second, in batches that keep the GPU
+        // busy ~5 ms each. Its clocks drop within a fraction of a second of idling (the CPU
+        // executor's runs, pipeline creation), and a stream of short builds each followed by a
+        // CPU wait does not raise them again: small inputs then measured 2.5-4x slow.
+        let once = lbvh.build_total(opts)?;
+        let batch = ((5e6 / once.max(1.0)) as usize).clamp(1, 256);
         let warm_start = std::time::Instant::now();
         let mut warmed = 0;
         while warmed < warmup || warm_start.elapsed() < std::time::Duration::from_millis(500) {
-            lbvh.build(opts, false)?;
-            warmed += 1;
+            lbvh.build_repeated(opts, batch)?;
+            warmed += batch;
         }
         // Stage times come from builds with a timestamp after every stage; the totals from
         // builds without (as the renderer runs them): each timestamp costs about a microsecond.

@@ -280,6 +280,21 @@ impl GpuLbvh {
         Ok(self.run(opts, false, false)?.iter().map(|(_, ns)| ns).sum())
     }
 
+    /// Runs `count` builds back to back in one submission, keeping the GPU busy (see
+    /// `bench::bench_build`'s warm-up).
+    pub fn build_repeated(&mut self, opts: BuildOptions, count: usize) -> Result<()> {
+        let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
+        let r = (|| {
+            cmds.begin()?;
+            for _ in 0..count {
+                self.record(&mut cmds, opts, false, false)?;
+            }
+            cmds.submit_wait().context("running repeated BVH builds")
+        })();
+        self.cmds = cmds;
+        r
+    }
+
     fn run(&mut self, opts: BuildOptions, capture: bool, stages: bool) -> Result<Vec<(&'static str, f64)>> {
         let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
         let r = (|| {
