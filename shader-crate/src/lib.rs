@@ -38,72 +38,33 @@ pub fn bounds_reduce(
     bounds::flush(lid.x, st, out);
 }
 
-#[spirv(compute(threads(256)))]
-#[allow(clippy::too_many_arguments)]
-pub fn refit(
-    #[spirv(local_invocation_id)] lid: UVec3,
-    #[spirv(workgroup_id)] gid: UVec3,
-    #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
-    #[spirv(workgroup)] st: &mut RefitState,
-) {
-    refit::clear(lid.x, st);
-    barrier();
-    refit::refit::<true, false>(lid.x, flat_group(gid.x, gid.y), st, p, parents, visits, node_words);
+/// A refit entry point: `ORDERED` visit counters or relaxed ones (lavapipe only, see
+/// `shared::refit`), with or without treelet restructuring (see `shared::treelet`).
+macro_rules! refit_kernel {
+    ($name:ident, $ordered:literal, $treelets:literal) => {
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $name(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+            #[spirv(workgroup)] st: &mut RefitState,
+        ) {
+            refit::clear(lid.x, st);
+            barrier();
+            let group = flat_group(gid.x, gid.y);
+            refit::refit::<$ordered, $treelets>(lid.x, group, st, p, parents, visits, node_words);
+        }
+    };
 }
 
-/// `refit` with a relaxed visit counter, for lavapipe only (see `shared::refit`).
-#[spirv(compute(threads(256)))]
-#[allow(clippy::too_many_arguments)]
-pub fn refit_relaxed(
-    #[spirv(local_invocation_id)] lid: UVec3,
-    #[spirv(workgroup_id)] gid: UVec3,
-    #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
-    #[spirv(workgroup)] st: &mut RefitState,
-) {
-    refit::clear(lid.x, st);
-    barrier();
-    refit::refit::<false, false>(lid.x, flat_group(gid.x, gid.y), st, p, parents, visits, node_words);
-}
-
-/// `refit` restructuring treelets (see `shared::treelet`).
-#[spirv(compute(threads(256)))]
-#[allow(clippy::too_many_arguments)]
-pub fn refit_treelets(
-    #[spirv(local_invocation_id)] lid: UVec3,
-    #[spirv(workgroup_id)] gid: UVec3,
-    #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
-    #[spirv(workgroup)] st: &mut RefitState,
-) {
-    refit::clear(lid.x, st);
-    barrier();
-    refit::refit::<true, true>(lid.x, flat_group(gid.x, gid.y), st, p, parents, visits, node_words);
-}
-
-/// `refit_treelets` with a relaxed visit counter, for lavapipe only.
-#[spirv(compute(threads(256)))]
-#[allow(clippy::too_many_arguments)]
-pub fn refit_treelets_relaxed(
-    #[spirv(local_invocation_id)] lid: UVec3,
-    #[spirv(workgroup_id)] gid: UVec3,
-    #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
-    #[spirv(workgroup)] st: &mut RefitState,
-) {
-    refit::clear(lid.x, st);
-    barrier();
-    refit::refit::<false, true>(lid.x, flat_group(gid.x, gid.y), st, p, parents, visits, node_words);
-}
+refit_kernel!(refit, true, false);
+refit_kernel!(refit_relaxed, false, false);
+refit_kernel!(refit_treelets, true, true);
+refit_kernel!(refit_treelets_relaxed, false, true);
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
