@@ -359,11 +359,12 @@ pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
     }
 }
 
-/// The keys a lane owns, their values and their places in the tile's sorted order.
-pub struct Staged<K> {
+/// The keys a lane owns, their values and their ranks: places in the sorted order (of the
+/// scatter's tile, or of all keys in the rank sort).
+pub struct Ranked<K> {
     pub keys: [K; ITEMS as usize],
     pub vals: [u32; ITEMS as usize],
-    pub places: [u32; ITEMS as usize],
+    pub ranks: [u32; ITEMS as usize],
 }
 
 /// Phase 4: lane ranks its keys within the tile (stably: in order).
@@ -374,11 +375,11 @@ pub fn scatter_rank<K: SortKey>(
     p: &BuildParams,
     keys_in: &[K],
     vals_in: &[u32],
-) -> Staged<K> {
+) -> Ranked<K> {
     let start = owned(lane, group);
     let (ka, kb) = (load4(keys_in, start, 1, p.n), load4(keys_in, start + GROUP, 1, p.n));
     let (va, vb) = (load4(vals_in, start, 1, p.n), load4(vals_in, start + GROUP, 1, p.n));
-    let places = [
+    let ranks = [
         rank_key(st, lane, p, start, ka[0]),
         rank_key(st, lane, p, start + 1, ka[1]),
         rank_key(st, lane, p, start + 2, ka[2]),
@@ -388,10 +389,10 @@ pub fn scatter_rank<K: SortKey>(
         rank_key(st, lane, p, start + 6, kb[2]),
         rank_key(st, lane, p, start + 7, kb[3]),
     ];
-    Staged {
+    Ranked {
         keys: [ka[0], ka[1], ka[2], ka[3], kb[0], kb[1], kb[2], kb[3]],
         vals: [va[0], va[1], va[2], va[3], vb[0], vb[1], vb[2], vb[3]],
-        places,
+        ranks,
     }
 }
 
@@ -418,8 +419,8 @@ fn stage_items<T: SortKey>(st: &mut ScatterState, places: &[u32; ITEMS as usize]
 }
 
 /// Phase 5 (after a barrier): the lane puts its keys at their places in workgroup memory.
-pub fn scatter_stage_keys<K: SortKey>(st: &mut ScatterState, s: &Staged<K>) {
-    stage_items(st, &s.places, &s.keys);
+pub fn scatter_stage_keys<K: SortKey>(st: &mut ScatterState, s: &Ranked<K>) {
+    stage_items(st, &s.ranks, &s.keys);
 }
 
 /// Writes the staged key at `place` (if the tile has one there) to its global place, which
@@ -461,8 +462,8 @@ pub fn scatter_write_keys<K: SortKey>(
 }
 
 /// Phase 7 (after a barrier): the lane puts its values at their places in workgroup memory.
-pub fn scatter_stage_vals<K: SortKey>(st: &mut ScatterState, s: &Staged<K>) {
-    stage_items(st, &s.places, &s.vals);
+pub fn scatter_stage_vals<K: SortKey>(st: &mut ScatterState, s: &Ranked<K>) {
+    stage_items(st, &s.ranks, &s.vals);
 }
 
 fn write_val(st: &ScatterState, place: u32, at: u32, vals_out: &mut [u32]) {
@@ -489,13 +490,6 @@ pub fn scatter_write_vals(lane: u32, st: &ScatterState, at: &[u32; ITEMS as usiz
 /// radix passes (a stable sort's output is unique) for one dispatch instead of
 /// `2 * passes(bits)`: the fixed cost that dominates small scenes' builds.
 pub const RANK_MAX: u32 = TILE;
-
-/// The keys a lane owns in the rank sort (`lane + k * WORKGROUP`), their values and ranks.
-pub struct Ranked<K> {
-    pub keys: [K; ITEMS as usize],
-    pub vals: [u32; ITEMS as usize],
-    pub ranks: [u32; ITEMS as usize],
-}
 
 /// Rank sort, phase 1: ranks the keys lane owns against all `p.n` keys, each rank counted in
 /// a register over one sweep of the keys.
