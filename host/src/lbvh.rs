@@ -1,6 +1,6 @@
 //! The GPU LBVH build: bounds, Morton codes, multi-workgroup radix sort, Karras tree and
-//! refit, recorded into one command buffer with a timestamp after every stage. Buffers grow
-//! to the largest input seen and are reused by every later build.
+//! refit, recorded into one command buffer, with a timestamp after every stage or only around
+//! the whole build. Buffers grow to the largest input seen and are reused by every later build.
 use crate::bvh::{BuildOptions, BuildResult, MortonBits, STAGES};
 use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels, BINDINGS};
 use anyhow::{Context, Result};
@@ -271,35 +271,36 @@ impl GpuLbvh {
 
     /// Builds the BVH of the uploaded primitives; returns each stage's GPU nanoseconds.
     pub fn build(&mut self, opts: BuildOptions, capture: bool) -> Result<Vec<(&'static str, f64)>> {
-        self.run(opts, capture, true)
+        self.run(opts, capture, true, 1)
     }
 
     /// Builds the BVH of the uploaded primitives with no timestamp between the stages;
     /// returns the GPU nanoseconds of the whole build.
     pub fn build_total(&mut self, opts: BuildOptions) -> Result<f64> {
-        Ok(self.run(opts, false, false)?.iter().map(|(_, ns)| ns).sum())
+        Ok(self.run(opts, false, false, 1)?.iter().map(|(_, ns)| ns).sum())
     }
 
     /// Runs `count` builds back to back in one submission, keeping the GPU busy (see
     /// `bench::bench_build`'s warm-up).
     pub fn build_repeated(&mut self, opts: BuildOptions, count: usize) -> Result<()> {
+        self.run(opts, false, false, count).map(|_| ())
+    }
+
+    /// Records `count` builds into one submission, runs it and returns its timings (the
+    /// timestamps of the first builds, where there are more than the query pool holds).
+    fn run(
+        &mut self,
+        opts: BuildOptions,
+        capture: bool,
+        stages: bool,
+        count: usize,
+    ) -> Result<Vec<(&'static str, f64)>> {
         let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
         let r = (|| {
             cmds.begin()?;
             for _ in 0..count {
-                self.record(&mut cmds, opts, false, false)?;
+                self.record(&mut cmds, opts, capture, stages)?;
             }
-            cmds.submit_wait().context("running repeated BVH builds")
-        })();
-        self.cmds = cmds;
-        r
-    }
-
-    fn run(&mut self, opts: BuildOptions, capture: bool, stages: bool) -> Result<Vec<(&'static str, f64)>> {
-        let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
-        let r = (|| {
-            cmds.begin()?;
-            self.record(&mut cmds, opts, capture, stages)?;
             cmds.submit_wait().context("running the BVH build")?;
             cmds.timings()
         })();
