@@ -286,6 +286,22 @@ impl GpuLbvh {
         self.run(opts, false, false, count).map(|_| ())
     }
 
+    /// Builds `count` times back to back in one submission, each between two timestamps (the
+    /// renderer's case: no CPU wait between builds, the GPU's clocks up); returns each
+    /// build's GPU nanoseconds. At most [`GpuLbvh::STREAM_MAX`] builds.
+    pub fn build_streamed(&mut self, opts: BuildOptions, count: usize) -> Result<Vec<f64>> {
+        anyhow::ensure!(
+            count <= Self::STREAM_MAX,
+            "at most {} streamed builds per submission",
+            Self::STREAM_MAX
+        );
+        let t = self.run(opts, false, false, count)?;
+        Ok(t.iter().filter(|(l, _)| *l == "build").map(|(_, ns)| *ns).collect())
+    }
+
+    /// Builds one submission can time back to back (two timestamps each).
+    pub const STREAM_MAX: usize = crate::vk::MAX_TIMESTAMPS as usize / 2;
+
     /// Records `count` builds into one submission, runs it and returns its timings (the
     /// timestamps of the first builds, where there are more than the query pool holds).
     fn run(

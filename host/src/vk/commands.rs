@@ -9,7 +9,8 @@ use std::sync::Arc;
 /// Longest a submission may run before [`Commands::wait`] gives up on it.
 pub const GPU_TIMEOUT_NS: u64 = 600_000_000_000;
 
-const MAX_TIMESTAMPS: u32 = 64;
+/// Timestamps one command buffer can hold (the query pool's size).
+pub const MAX_TIMESTAMPS: u32 = 64;
 
 pub struct Commands {
     gpu: Arc<Gpu>,

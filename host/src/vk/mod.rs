@@ -9,7 +9,7 @@ mod kernels;
 mod swapchain;
 
 pub use buffer::Buffer;
-pub use commands::Commands;
+pub use commands::{Commands, MAX_TIMESTAMPS};
 pub use context::{Gpu, GpuOptions};
 pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
 pub use swapchain::Swapchain;
