@@ -28,7 +28,7 @@
 //! (#keys with digit `d` of lanes < l); subtracting its value at (c, 0) leaves the rank
 //! among the tile's keys of digit `d`.
 use crate::scan::{self, BlockScan};
-use crate::sync;
+use crate::sync::{self, at, at_mut, elem, elem_mut};
 use crate::types::{load4, BuildParams, GROUP, ITEMS, TILE, WORKGROUP};
 
 pub const RADIX_BITS: u32 = 5;
@@ -129,7 +129,7 @@ pub struct HistogramState {
 
 pub fn histogram_clear(lane: u32, st: &mut HistogramState) {
     if lane < RADIX {
-        st.counts[lane as usize] = 0;
+        *elem_mut(&mut st.counts, lane) = 0;
     }
 }
 
@@ -140,7 +140,7 @@ pub fn histogram_count<K: SortKey>(lane: u32, group: u32, st: &mut HistogramStat
         let g = load4(keys, first, WORKGROUP, p.n);
         for j in 0..GROUP {
             if first + j * WORKGROUP < p.n {
-                sync::workgroup_add(&mut st.counts[g[j as usize].digit(p.shift) as usize], 1);
+                sync::workgroup_add(elem_mut(&mut st.counts, g[j as usize].digit(p.shift)), 1);
             }
         }
         k += GROUP;
@@ -156,11 +156,11 @@ pub fn histogram_store(
     supers: &mut [u32],
 ) {
     if lane < RADIX {
-        let c = st.counts[lane as usize];
-        counts[(lane * p.tiles + group) as usize] = c;
+        let c = *elem(&st.counts, lane);
+        *at_mut(counts, lane * p.tiles + group) = c;
         if c != 0 {
             sync::atomic_add_device::<false>(
-                &mut supers[(supers_base(p) + lane * super_count(p) + group / SUPER) as usize],
+                at_mut(supers, supers_base(p) + lane * super_count(p) + group / SUPER),
                 c,
             );
         }
@@ -172,8 +172,8 @@ pub fn histogram_store(
 pub const COUNTERS: usize = (HALF * WORKGROUP + WORKGROUP) as usize;
 
 /// Address of flat counter word `f = column * WORKGROUP + lane` in the padded array.
-fn slot(f: u32) -> usize {
-    (f + f / HALF) as usize
+fn slot(f: u32) -> u32 {
+    f + f / HALF
 }
 
 /// Digit `d`'s (column, bit shift of its half) in the packed counters.
@@ -210,7 +210,7 @@ const _: () = assert!(ITEMS == 2 * GROUP);
 fn count_key<K: SortKey>(st: &mut ScatterState, lane: u32, p: &BuildParams, i: u32, key: K) {
     if i < p.n {
         let (c, half) = column(key.digit(p.shift));
-        st.counts[slot(c * WORKGROUP + lane)] += 1 << half;
+        *elem_mut(&mut st.counts, slot(c * WORKGROUP + lane)) += 1 << half;
     }
 }
 
@@ -229,8 +229,8 @@ fn rank_key<K: SortKey>(st: &mut ScatterState, lane: u32, p: &BuildParams, i: u3
     if i < p.n {
         let (c, half) = column(key.digit(p.shift));
         let at = slot(c * WORKGROUP + lane);
-        let v = st.counts[at];
-        st.counts[at] = v + (1 << half);
+        let v = *elem(&st.counts, at);
+        *elem_mut(&mut st.counts, at) = v + (1 << half);
         ((v >> half) & 0xffff) + lower_half(st, half)
     } else {
         TILE
@@ -271,7 +271,7 @@ pub fn scatter_count<K: SortKey>(
     supers: &[u32],
 ) {
     for c in 0..HALF {
-        st.counts[slot(c * WORKGROUP + lane)] = 0;
+        *elem_mut(&mut st.counts, slot(c * WORKGROUP + lane)) = 0;
     }
     let start = owned(lane, group);
     let (a, b) = (load4(keys, start, 1, p.n), load4(keys, start + GROUP, 1, p.n));
@@ -313,8 +313,8 @@ pub fn scatter_count<K: SortKey>(
             + tile_share(t + 3 * LANES_PER_DIGIT, v[3], group);
         t += GROUP * LANES_PER_DIGIT;
     }
-    st.total[lane as usize] = total;
-    st.before[lane as usize] = before;
+    *elem_mut(&mut st.total, lane) = total;
+    *elem_mut(&mut st.before, lane) = before;
 }
 
 /// Phase 2: lane sums its `HALF` consecutive counter words for the block scan; lanes below
@@ -322,17 +322,17 @@ pub fn scatter_count<K: SortKey>(
 pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
     let mut s = 0;
     for k in 0..HALF {
-        s += st.counts[slot(lane * HALF + k)];
+        s += *elem(&st.counts, slot(lane * HALF + k));
     }
-    st.scan.sums[lane as usize] = s;
+    *elem_mut(&mut st.scan.sums, lane) = s;
     if lane < RADIX {
         let (mut total, mut before) = (0, 0);
         for j in 0..LANES_PER_DIGIT {
-            total += st.total[(lane * LANES_PER_DIGIT + j) as usize];
-            before += st.before[(lane * LANES_PER_DIGIT + j) as usize];
+            total += *elem(&st.total, lane * LANES_PER_DIGIT + j);
+            before += *elem(&st.before, lane * LANES_PER_DIGIT + j);
         }
-        st.digit_total[lane as usize] = total;
-        st.digit_before[lane as usize] = before;
+        *elem_mut(&mut st.digit_total, lane) = total;
+        *elem_mut(&mut st.digit_before, lane) = before;
     }
 }
 
@@ -342,8 +342,8 @@ pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
     let mut run = scan::exclusive(lane, &st.scan);
     for k in 0..HALF {
         let i = slot(lane * HALF + k);
-        let c = st.counts[i];
-        st.counts[i] = run;
+        let c = *elem(&st.counts, i);
+        *elem_mut(&mut st.counts, i) = run;
         run += c;
     }
     if lane < RADIX {
@@ -351,11 +351,11 @@ pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
         // `column * WORKGROUP / HALF` starts with that word.
         let (c, half) = column(lane);
         let smaller = (scan::exclusive(c * WORKGROUP / HALF, &st.scan) >> half) & 0xffff;
-        let mut offset = st.digit_before[lane as usize];
+        let mut offset = *elem(&st.digit_before, lane);
         for d in 0..lane {
-            offset += st.digit_total[d as usize];
+            offset += *elem(&st.digit_total, d);
         }
-        st.base[lane as usize] = offset.wrapping_sub(smaller + lower_half(st, half));
+        *elem_mut(&mut st.base, lane) = offset.wrapping_sub(smaller + lower_half(st, half));
     }
 }
 
@@ -400,8 +400,9 @@ pub fn scatter_rank<K: SortKey>(
 /// keys).
 fn stage_key<K: SortKey>(st: &mut ScatterState, place: u32, key: K) {
     if place < TILE {
-        for w in 0..K::WORDS {
-            st.counts[(place * K::WORDS + w) as usize] = key.word(w);
+        *elem_mut(&mut st.counts, place * K::WORDS) = key.word(0);
+        if K::WORDS == 2 {
+            *elem_mut(&mut st.counts, 2 * place + 1) = key.word(1);
         }
     }
 }
@@ -430,14 +431,14 @@ fn write_key<K: SortKey>(st: &ScatterState, p: &BuildParams, group: u32, place: 
         return u32::MAX;
     }
     let hi = if K::WORDS == 2 {
-        st.counts[(2 * place + 1) as usize]
+        *elem(&st.counts, 2 * place + 1)
     } else {
         0
     };
-    let key = K::from_words(st.counts[(place * K::WORDS) as usize], hi);
-    let at = st.base[key.digit(p.shift) as usize].wrapping_add(place);
-    keys_out[at as usize] = key;
-    at
+    let key = K::from_words(*elem(&st.counts, place * K::WORDS), hi);
+    let to = elem(&st.base, key.digit(p.shift)).wrapping_add(place);
+    *at_mut(keys_out, to) = key;
+    to
 }
 
 /// Phase 6 (after a barrier): lane writes the tile's sorted places `lane + k * WORKGROUP`
@@ -468,7 +469,7 @@ pub fn scatter_stage_vals<K: SortKey>(st: &mut ScatterState, s: &Ranked<K>) {
 
 fn write_val(st: &ScatterState, place: u32, at: u32, vals_out: &mut [u32]) {
     if at != u32::MAX {
-        vals_out[at as usize] = st.counts[place as usize];
+        *at_mut(vals_out, at) = *elem(&st.counts, place);
     }
 }
 
@@ -504,18 +505,18 @@ pub fn rank<K: SortKey>(lane: u32, p: &BuildParams, keys: &[K], vals: &[u32]) ->
     while k < items {
         let i = lane + k * WORKGROUP;
         if i < p.n {
-            let own = keys[i as usize];
+            let own = *at(keys, i);
             let mut rank = 0;
             let mut j = 0;
             while j < p.n {
-                let key = keys[j as usize];
+                let key = *at(keys, j);
                 if key < own || key == own && j < i {
                     rank += 1;
                 }
                 j += 1;
             }
             r.keys[k as usize] = own;
-            r.vals[k as usize] = vals[i as usize];
+            r.vals[k as usize] = *at(vals, i);
             r.ranks[k as usize] = rank;
         }
         k += 1;

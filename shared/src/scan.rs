@@ -8,6 +8,7 @@
 //! totals:    exclusive scan of the 16 run totals (lane 0)
 //! result:    exclusive(l) = sums[l - 1] within its run (0 at a run start) + totals[l / RUN]
 //! ```
+use crate::sync::{elem, elem_mut};
 use crate::types::WORKGROUP;
 
 /// Lanes per raking run, and number of runs.
@@ -27,11 +28,11 @@ pub fn rake(lane: u32, st: &mut BlockScan) {
     if lane < RAKES {
         let mut run = 0;
         for k in 0..RUN {
-            let i = (lane * RUN + k) as usize;
-            run += st.sums[i];
-            st.sums[i] = run;
+            let i = lane * RUN + k;
+            run += *elem(&st.sums, i);
+            *elem_mut(&mut st.sums, i) = run;
         }
-        st.totals[lane as usize] = run;
+        *elem_mut(&mut st.totals, lane) = run;
     }
 }
 
@@ -40,8 +41,8 @@ pub fn rake_totals(lane: u32, st: &mut BlockScan) {
     if lane == 0 {
         let mut run = 0;
         for r in 0..RAKES {
-            let t = st.totals[r as usize];
-            st.totals[r as usize] = run;
+            let t = *elem(&st.totals, r);
+            *elem_mut(&mut st.totals, r) = run;
             run += t;
         }
     }
@@ -49,7 +50,7 @@ pub fn rake_totals(lane: u32, st: &mut BlockScan) {
 
 /// Sum of every lane's value, once both phases are done.
 pub fn total(st: &BlockScan) -> u32 {
-    st.totals[(RAKES - 1) as usize] + st.sums[(WORKGROUP - 1) as usize]
+    *elem(&st.totals, RAKES - 1) + *elem(&st.sums, WORKGROUP - 1)
 }
 
 /// Sum of the values of the lanes before `lane`, once both phases are done.
@@ -57,7 +58,7 @@ pub fn exclusive(lane: u32, st: &BlockScan) -> u32 {
     let within = if lane.is_multiple_of(RUN) {
         0
     } else {
-        st.sums[(lane - 1) as usize]
+        *elem(&st.sums, lane - 1)
     };
-    within + st.totals[(lane / RUN) as usize]
+    within + *elem(&st.totals, lane / RUN)
 }

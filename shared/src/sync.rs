@@ -144,11 +144,19 @@ pub fn atomic_store_u64(p: &mut u64, v: u64) {
     }
 }
 
-/// Element `i` of a buffer read in a hot loop (the traversal, its hits' materials):
-/// unchecked on the GPU, where every such index is one the builder or the host's checked
-/// scene wrote (node links, primitive indices below `n`, object and material indices);
-/// checked on the CPU, where the tests run, so a bad index there still fails loudly. The
-/// checks cost the H100 2-5% of its frame time and 8 registers (`info --kernels`).
+// Unchecked indexing on the GPU, checked on the CPU.
+//
+// rust-gpu turns every failed index check into an early return, so each checked access is a
+// branch out of every enclosing loop: the GPU compiler then unrolls none of them, and a kernel
+// made of small workgroup-memory steps spends its time on control flow (the radix scatter's
+// phases took ~1 us each on the H100 for eight stores per lane, measured with SM-clock marks).
+// The functions below index without the check on the GPU where every index is in range by
+// construction: an index the builder or the host's checked scene wrote (node links, primitive
+// indices below `n`, object and material indices), or arithmetic on lane, tile and digit
+// numbers that the CPU executor runs through the same code with the checks on, so a bad index
+// still fails loudly in the tests.
+
+/// Element `i` of a buffer (see above).
 #[inline(always)]
 pub fn at<T>(v: &[T], i: u32) -> &T {
     #[cfg(target_arch = "spirv")]
@@ -163,18 +171,47 @@ pub fn at<T>(v: &[T], i: u32) -> &T {
     }
 }
 
-/// Slot `i` of a fixed stack whose pushes check its size and whose pops follow pushes:
-/// unchecked on the GPU, checked on the CPU, as [`at`].
+/// Element `i` of a buffer, to write (see above).
 #[inline(always)]
-pub fn slot<const N: usize>(stack: &mut [u32; N], i: usize) -> &mut u32 {
+pub fn at_mut<T>(v: &mut [T], i: u32) -> &mut T {
     #[cfg(target_arch = "spirv")]
     // SAFETY: see above.
     unsafe {
         use spirv_std::arch::IndexUnchecked;
-        stack.index_unchecked_mut(i)
+        v.index_unchecked_mut(i as usize)
     }
     #[cfg(not(target_arch = "spirv"))]
     {
-        &mut stack[i]
+        &mut v[i as usize]
+    }
+}
+
+/// Element `i` of a fixed array (workgroup memory, a stack; see above).
+#[inline(always)]
+pub fn elem<T, const N: usize>(a: &[T; N], i: u32) -> &T {
+    #[cfg(target_arch = "spirv")]
+    // SAFETY: see above.
+    unsafe {
+        use spirv_std::arch::IndexUnchecked;
+        a.index_unchecked(i as usize)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        &a[i as usize]
+    }
+}
+
+/// Element `i` of a fixed array, to write (see above).
+#[inline(always)]
+pub fn elem_mut<T, const N: usize>(a: &mut [T; N], i: u32) -> &mut T {
+    #[cfg(target_arch = "spirv")]
+    // SAFETY: see above.
+    unsafe {
+        use spirv_std::arch::IndexUnchecked;
+        a.index_unchecked_mut(i as usize)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        &mut a[i as usize]
     }
 }

@@ -4,7 +4,7 @@
 //! direction miss.
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
-use crate::sync::{at, slot};
+use crate::sync::{at, elem_mut};
 use crate::types::{
     xyz, Hit, Node, Sphere, Triangle, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID, VARIANT_MOLLER_TRUMBORE,
     VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS,
@@ -158,13 +158,13 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
         let (near, far) = if tb < ta { (b, a) } else { (a, b) };
         if near != INVALID {
             if far != INVALID && sp < STACK {
-                *slot(&mut stack, sp) = far;
+                *elem_mut(&mut stack, sp as u32) = far;
                 sp += 1;
             }
             node = near;
         } else if sp > 0 {
             sp -= 1;
-            node = *slot(&mut stack, sp);
+            node = *elem_mut(&mut stack, sp as u32);
         } else {
             return best;
         }

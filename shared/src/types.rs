@@ -194,17 +194,19 @@ pub fn flat_index(global_x: u32, global_y: u32) -> u32 {
 pub const GROUP: u32 = 4;
 const _: () = assert!(ITEMS.is_multiple_of(GROUP));
 
-/// `buf[first + k * stride]` for `k` in `0..4`, indices past `n - 1` clamped to it (`n >= 1`).
+/// `buf[first + k * stride]` for `k` in `0..4`, indices past `n - 1` clamped to it (`n >= 1`,
+/// `n <= buf.len()`; unchecked on the GPU, see `sync::at`).
 ///
 /// rust-gpu 0.11 emits no loop-unroll hints and the GPU compiler does not unroll loops with
 /// bounds checks, so a loop that loads and then uses one value per iteration waits a full
 /// memory round trip per item. Loading four before using any keeps four in flight.
 pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
+    use crate::sync::at;
     let last = n - 1;
-    let a = buf[first.min(last) as usize];
-    let b = buf[(first + stride).min(last) as usize];
-    let c = buf[(first + 2 * stride).min(last) as usize];
-    let d = buf[(first + 3 * stride).min(last) as usize];
+    let a = *at(buf, first.min(last));
+    let b = *at(buf, (first + stride).min(last));
+    let c = *at(buf, (first + 2 * stride).min(last));
+    let d = *at(buf, (first + 3 * stride).min(last));
     [a, b, c, d]
 }
 
