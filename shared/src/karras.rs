@@ -5,6 +5,7 @@
 //! told apart by their index: `delta(i, j)` is then `BITS + clz(i ^ j)` (Karras, sec. 4).
 //! Node layout: internal nodes `0..n-1`, leaves `n-1..2n-1`, root 0; see [`Node`].
 use crate::radix_sort::SortKey;
+use crate::sync::{at, at_mut};
 use crate::types::{prim_box, BuildParams, Node, Sphere, Triangle, INVALID};
 
 /// Length of the common prefix of keys `i` and `j`; -1 when `j` is outside `0..n`.
@@ -12,7 +13,7 @@ pub fn delta<K: SortKey>(keys: &[K], n: u32, i: u32, j: i32) -> i32 {
     if j < 0 || j >= n as i32 {
         return -1;
     }
-    let (a, b) = (keys[i as usize], keys[j as usize]);
+    let (a, b) = (*at(keys, i), *at(keys, j as u32));
     if a == b {
         (K::BITS + (i ^ j as u32).leading_zeros()) as i32
     } else {
@@ -83,9 +84,9 @@ pub fn build<K: SortKey>(
         return;
     }
     let leaf = n - 1 + i;
-    let prim = vals[i as usize];
+    let prim = *at(vals, i);
     let (lo, hi) = prim_box(prim, p.n_tris, tris, spheres);
-    nodes[leaf as usize] = Node {
+    *at_mut(nodes, leaf) = Node {
         min: lo.to_array(),
         a: prim,
         max: hi.to_array(),
@@ -98,15 +99,15 @@ pub fn build<K: SortKey>(
         let (first, last, gamma) = range_and_split(keys, n, i);
         let left = if first == gamma { n - 1 + gamma } else { gamma };
         let right = if last == gamma + 1 { n + gamma } else { gamma + 1 };
-        nodes[i as usize] = Node {
+        *at_mut(nodes, i) = Node {
             min: [f32::INFINITY; 3],
             a: left,
             max: [f32::NEG_INFINITY; 3],
             b: right,
         };
-        parents[left as usize] = i;
-        parents[right as usize] = i;
-        visits[i as usize] = 0;
-        visits[(n + i) as usize] = if first == i { last } else { first };
+        *at_mut(parents, left) = i;
+        *at_mut(parents, right) = i;
+        *at_mut(visits, i) = 0;
+        *at_mut(visits, n + i) = if first == i { last } else { first };
     }
 }

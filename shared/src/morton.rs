@@ -12,6 +12,7 @@
 //! widening the box of every subtree of small ones they fall among: on the CPU executor's
 //! count, rays in the bunny scene (the bunny in the Cornell box) visit 18.6 -> 12.5 inner
 //! nodes, in the Cornell box 11.0 -> 10.4, in Suzanne's 12.7 -> 9.6.
+use crate::sync::at_mut;
 use crate::types::{prim_box, prim_centroid2, BuildParams, OrderedBounds, Sphere, Triangle};
 use spirv_std::glam::Vec3;
 
@@ -106,8 +107,8 @@ pub fn morton30(
     let q = cells(i, p, b, tris, spheres, 10);
     let m = (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
     let low = (1u32 << (30 - OCTREE_BITS)) - 1;
-    keys[i as usize] = (m & !low) | (large(i, p, b, tris, spheres) as u32) << (29 - OCTREE_BITS) | (m & low) >> 1;
-    vals[i as usize] = i;
+    *at_mut(keys, i) = (m & !low) | (large(i, p, b, tris, spheres) as u32) << (29 - OCTREE_BITS) | (m & low) >> 1;
+    *at_mut(vals, i) = i;
 }
 
 /// 63-bit code of primitive `i`, laid out as [`morton30`]; also resets the sort value to `i`.
@@ -126,8 +127,8 @@ pub fn morton63(
     let q = cells(i, p, b, tris, spheres, 21);
     let m = (expand_bits_21(q[2] as u64) << 2) | (expand_bits_21(q[1] as u64) << 1) | expand_bits_21(q[0] as u64);
     let low = (1u64 << (63 - OCTREE_BITS)) - 1;
-    keys[i as usize] = (m & !low) | (large(i, p, b, tris, spheres) as u64) << (62 - OCTREE_BITS) | (m & low) >> 1;
-    vals[i as usize] = i;
+    *at_mut(keys, i) = (m & !low) | (large(i, p, b, tris, spheres) as u64) << (62 - OCTREE_BITS) | (m & low) >> 1;
+    *at_mut(vals, i) = i;
 }
 
 #[cfg(test)]

@@ -12,7 +12,7 @@
 //! The kernel sees the node buffer as 64-bit words, 4 per [`crate::types::Node`]:
 //! `[min.x | min.y, min.z | a, max.x | max.y, max.z | b]` (low half first), so a box is read
 //! or written with four atomic operations instead of six.
-use crate::sync;
+use crate::sync::{self, at, at_mut, elem_mut};
 use crate::treelet::{self, Boxed};
 use crate::types::{BuildParams, INVALID, WORKGROUP};
 
@@ -27,7 +27,7 @@ pub struct RefitState {
 
 /// Phase 1: clears the block's counters.
 pub fn clear(lane: u32, st: &mut RefitState) {
-    st.visits[lane as usize] = 0;
+    *elem_mut(&mut st.visits, lane) = 0;
 }
 
 const WORDS: u32 = 4;
@@ -52,38 +52,38 @@ fn unpack(w: [u64; 4]) -> ([f32; 3], [f32; 3]) {
 /// Internal node `node`'s box through atomic loads (another invocation may have written it
 /// in this dispatch).
 pub fn load_box(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
-    let b = (node * WORDS) as usize;
+    let b = node * WORDS;
     unpack([
-        sync::atomic_load_u64(&words[b]),
-        sync::atomic_load_u64(&words[b + 1]),
-        sync::atomic_load_u64(&words[b + 2]),
-        sync::atomic_load_u64(&words[b + 3]),
+        sync::atomic_load_u64(at(words, b)),
+        sync::atomic_load_u64(at(words, b + 1)),
+        sync::atomic_load_u64(at(words, b + 2)),
+        sync::atomic_load_u64(at(words, b + 3)),
     ])
 }
 
 /// Leaf `node`'s box through plain loads (written by the previous dispatch, never by this one).
 pub fn leaf_box(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
-    let b = (node * WORDS) as usize;
-    unpack([words[b], words[b + 1], words[b + 2], words[b + 3]])
+    let b = node * WORDS;
+    unpack([*at(words, b), *at(words, b + 1), *at(words, b + 2), *at(words, b + 3)])
 }
 
 /// Internal node `node`'s children `(a, b)` through atomic loads.
 pub fn load_children(words: &[u64], node: u32) -> (u32, u32) {
-    let b = (node * WORDS) as usize;
+    let b = node * WORDS;
     let (w1, w3) = (
-        sync::atomic_load_u64(&words[b + 1]),
-        sync::atomic_load_u64(&words[b + 3]),
+        sync::atomic_load_u64(at(words, b + 1)),
+        sync::atomic_load_u64(at(words, b + 3)),
     );
     ((w1 >> 32) as u32, (w3 >> 32) as u32)
 }
 
 /// Writes internal node `node` (box and children) through atomic stores.
 pub fn store(words: &mut [u64], node: u32, lo: [f32; 3], hi: [f32; 3], a: u32, b: u32) {
-    let w = (node * WORDS) as usize;
-    sync::atomic_store_u64(&mut words[w], join(lo[0].to_bits(), lo[1].to_bits()));
-    sync::atomic_store_u64(&mut words[w + 1], join(lo[2].to_bits(), a));
-    sync::atomic_store_u64(&mut words[w + 2], join(hi[0].to_bits(), hi[1].to_bits()));
-    sync::atomic_store_u64(&mut words[w + 3], join(hi[2].to_bits(), b));
+    let w = node * WORDS;
+    sync::atomic_store_u64(at_mut(words, w), join(lo[0].to_bits(), lo[1].to_bits()));
+    sync::atomic_store_u64(at_mut(words, w + 1), join(lo[2].to_bits(), a));
+    sync::atomic_store_u64(at_mut(words, w + 2), join(hi[0].to_bits(), hi[1].to_bits()));
+    sync::atomic_store_u64(at_mut(words, w + 3), join(hi[2].to_bits(), b));
 }
 
 /// Phase 2: climbs from leaf `BLOCK * group + lane`, fitting every internal node this
@@ -117,20 +117,20 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
     }
     let mut node = n - 1 + i;
     let (mut lo, mut hi) = leaf_box(words, node);
-    let mut parent = parents[node as usize];
+    let mut parent = *at(parents, node);
     while parent != INVALID {
         // Immutable during the refit, so loaded before the counter, in its shadow.
         let pb = parent * WORDS;
-        let left = (words[(pb + 1) as usize] >> 32) as u32;
-        let right = (words[(pb + 3) as usize] >> 32) as u32;
-        let grandparent = parents[parent as usize];
-        let far = visits[(n + parent) as usize];
+        let left = (*at(words, pb + 1) >> 32) as u32;
+        let right = (*at(words, pb + 3) >> 32) as u32;
+        let grandparent = *at(parents, parent);
+        let far = *at(visits, n + parent);
         let local = parent.wrapping_sub(base) < BLOCK && far.wrapping_sub(base) < BLOCK;
         // The first arrival at a node stops; the second fits it and climbs on.
         let earlier = if local {
-            sync::workgroup_add_ordered::<ORDERED>(&mut st.visits[(parent - base) as usize], 1)
+            sync::workgroup_add_ordered::<ORDERED>(elem_mut(&mut st.visits, parent - base), 1)
         } else {
-            sync::atomic_add_device::<ORDERED>(&mut visits[parent as usize], 1)
+            sync::atomic_add_device::<ORDERED>(at_mut(visits, parent), 1)
         };
         if earlier == 0 {
             return;

@@ -137,14 +137,15 @@ pub fn xyz(v: [f32; 4]) -> Vec3 {
     Vec3::new(v[0], v[1], v[2])
 }
 
-/// Axis-aligned box of primitive `i`.
+/// Axis-aligned box of primitive `i` (`i < n_tris + spheres.len()`; unchecked on the GPU,
+/// see `sync::at`).
 pub fn prim_box(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> (Vec3, Vec3) {
     if i < n_tris {
-        let t = tris[i as usize];
+        let t = *crate::sync::at(tris, i);
         let (a, b, c) = (xyz(t.v0), xyz(t.v1), xyz(t.v2));
         (a.min(b).min(c), a.max(b).max(c))
     } else {
-        let s = spheres[(i - n_tris) as usize].center_radius;
+        let s = crate::sync::at(spheres, i - n_tris).center_radius;
         let r = Vec3::splat(s[3].abs());
         (xyz(s) - r, xyz(s) + r)
     }
@@ -157,7 +158,7 @@ pub fn prim_centroid2(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]
         let (lo, hi) = prim_box(i, n_tris, tris, spheres);
         lo + hi
     } else {
-        let c = xyz(spheres[(i - n_tris) as usize].center_radius);
+        let c = xyz(crate::sync::at(spheres, i - n_tris).center_radius);
         c + c
     }
 }
