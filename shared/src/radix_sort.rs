@@ -30,6 +30,7 @@
 use crate::scan::{self, BlockScan};
 use crate::sync::{self, at, at_mut, elem, elem_mut};
 use crate::types::{load4, BuildParams, GROUP, ITEMS, TILE, WORKGROUP};
+use seq_macro::seq;
 
 pub const RADIX_BITS: u32 = 5;
 pub const RADIX: u32 = 1 << RADIX_BITS;
@@ -43,6 +44,10 @@ pub const SUPER: u32 = 64;
 /// Lanes that share one digit when the scatter sums the tables.
 const LANES_PER_DIGIT: u32 = WORKGROUP / RADIX;
 const _: () = assert!(RADIX * LANES_PER_DIGIT == WORKGROUP);
+// The loops over digits, counter words and table lanes are written out (`seq!`) with these
+// counts: rust-gpu emits no unroll hints, and a loop the driver does not unroll waits out a
+// workgroup-memory round trip per iteration.
+const _: () = assert!(RADIX == 32 && HALF == 16 && LANES_PER_DIGIT == 8);
 
 /// A key the sort can take apart into digits.
 pub trait SortKey: Copy + PartialOrd + Default {
@@ -270,9 +275,9 @@ pub fn scatter_count<K: SortKey>(
     counts: &[u32],
     supers: &[u32],
 ) {
-    for c in 0..HALF {
-        *elem_mut(&mut st.counts, slot(c * WORKGROUP + lane)) = 0;
-    }
+    seq!(C in 0..16 {
+        *elem_mut(&mut st.counts, slot(C * WORKGROUP + lane)) = 0;
+    });
     let start = owned(lane, group);
     let (a, b) = (load4(keys, start, 1, p.n), load4(keys, start + GROUP, 1, p.n));
     count_key(st, lane, p, start, a[0]);
@@ -321,16 +326,16 @@ pub fn scatter_count<K: SortKey>(
 /// `RADIX` also finish the table sums of their digit.
 pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
     let mut s = 0;
-    for k in 0..HALF {
-        s += *elem(&st.counts, slot(lane * HALF + k));
-    }
+    seq!(K in 0..16 {
+        s += *elem(&st.counts, slot(lane * HALF + K));
+    });
     *elem_mut(&mut st.scan.sums, lane) = s;
     if lane < RADIX {
         let (mut total, mut before) = (0, 0);
-        for j in 0..LANES_PER_DIGIT {
-            total += *elem(&st.total, lane * LANES_PER_DIGIT + j);
-            before += *elem(&st.before, lane * LANES_PER_DIGIT + j);
-        }
+        seq!(J in 0..8 {
+            total += *elem(&st.total, lane * LANES_PER_DIGIT + J);
+            before += *elem(&st.before, lane * LANES_PER_DIGIT + J);
+        });
         *elem_mut(&mut st.digit_total, lane) = total;
         *elem_mut(&mut st.digit_before, lane) = before;
     }
@@ -340,21 +345,22 @@ pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
 /// below `RADIX` find the global offset of their digit for this tile (see the module docs).
 pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
     let mut run = scan::exclusive(lane, &st.scan);
-    for k in 0..HALF {
-        let i = slot(lane * HALF + k);
-        let c = *elem(&st.counts, i);
-        *elem_mut(&mut st.counts, i) = run;
-        run += c;
-    }
+    seq!(K in 0..16 {
+        let c~K = *elem(&st.counts, slot(lane * HALF + K));
+    });
+    seq!(K in 0..16 {
+        *elem_mut(&mut st.counts, slot(lane * HALF + K)) = run;
+        run += c~K;
+    });
     if lane < RADIX {
         // The scan's value in this digit's half at word (column, lane 0); block-scan lane
         // `column * WORKGROUP / HALF` starts with that word.
         let (c, half) = column(lane);
         let smaller = (scan::exclusive(c * WORKGROUP / HALF, &st.scan) >> half) & 0xffff;
         let mut offset = *elem(&st.digit_before, lane);
-        for d in 0..lane {
-            offset += *elem(&st.digit_total, d);
-        }
+        seq!(D in 0..32 {
+            offset += if D < lane { *elem(&st.digit_total, D) } else { 0 };
+        });
         *elem_mut(&mut st.base, lane) = offset.wrapping_sub(smaller + lower_half(st, half));
     }
 }

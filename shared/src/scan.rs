@@ -10,11 +10,16 @@
 //! ```
 use crate::sync::{elem, elem_mut};
 use crate::types::WORKGROUP;
+use seq_macro::seq;
 
 /// Lanes per raking run, and number of runs.
 pub const RUN: u32 = 16;
 pub const RAKES: u32 = WORKGROUP / RUN;
 const _: () = assert!(RUN * RAKES == WORKGROUP);
+// The loops over a run and over the run totals are written out with `seq!`, which takes
+// literal counts: rust-gpu emits no unroll hints, and the driver left these loops rolled, one
+// dependent workgroup-memory round trip per iteration.
+const _: () = assert!(RUN == 16 && RAKES == 16);
 
 /// Workgroup memory of a block scan. Each lane writes its value to `sums[lane]`, then the
 /// phases [`rake`] | barrier | [`rake_totals`] | barrier run, then [`exclusive`] reads.
@@ -26,12 +31,15 @@ pub struct BlockScan {
 /// Phase 1: lanes below `RAKES` scan their run in place (inclusive).
 pub fn rake(lane: u32, st: &mut BlockScan) {
     if lane < RAKES {
+        // All loads first, then the sums in registers (written out: see `RUN`).
+        seq!(K in 0..16 {
+            let v~K = *elem(&st.sums, lane * RUN + K);
+        });
         let mut run = 0;
-        for k in 0..RUN {
-            let i = lane * RUN + k;
-            run += *elem(&st.sums, i);
-            *elem_mut(&mut st.sums, i) = run;
-        }
+        seq!(K in 0..16 {
+            run += v~K;
+            *elem_mut(&mut st.sums, lane * RUN + K) = run;
+        });
         *elem_mut(&mut st.totals, lane) = run;
     }
 }
@@ -39,12 +47,14 @@ pub fn rake(lane: u32, st: &mut BlockScan) {
 /// Phase 2: lane 0 turns the run totals into exclusive offsets.
 pub fn rake_totals(lane: u32, st: &mut BlockScan) {
     if lane == 0 {
+        seq!(R in 0..16 {
+            let t~R = *elem(&st.totals, R);
+        });
         let mut run = 0;
-        for r in 0..RAKES {
-            let t = *elem(&st.totals, r);
-            *elem_mut(&mut st.totals, r) = run;
-            run += t;
-        }
+        seq!(R in 0..16 {
+            *elem_mut(&mut st.totals, R) = run;
+            run += t~R;
+        });
     }
 }
 
