@@ -266,6 +266,7 @@ fn tile_share(t: u32, v: u32, group: u32) -> u32 {
 /// Phase 1: lane counts the digits of the keys it owns into its column, and sums its share
 /// of the tables for the tile offsets.
 #[allow(clippy::too_many_arguments)]
+#[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
 pub fn scatter_count<K: SortKey>(
     lane: u32,
     group: u32,
@@ -324,6 +325,7 @@ pub fn scatter_count<K: SortKey>(
 
 /// Phase 2: lane sums its `HALF` consecutive counter words for the block scan; lanes below
 /// `RADIX` also finish the table sums of their digit.
+#[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
 pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
     let mut s = 0;
     seq!(K in 0..16 {
@@ -343,6 +345,7 @@ pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
 
 /// Phase 3 (after the block scan): the counters become exclusive prefix sums, and lanes
 /// below `RADIX` find the global offset of their digit for this tile (see the module docs).
+#[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
 pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
     let mut run = scan::exclusive(lane, &st.scan);
     seq!(K in 0..16 {

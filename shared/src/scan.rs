@@ -29,6 +29,7 @@ pub struct BlockScan {
 }
 
 /// Phase 1: lanes below `RAKES` scan their run in place (inclusive).
+#[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
 pub fn rake(lane: u32, st: &mut BlockScan) {
     if lane < RAKES {
         // All loads first, then the sums in registers (written out: see `RUN`).
