@@ -85,13 +85,9 @@ pub fn build<K: SortKey>(
     }
     let leaf = n - 1 + i;
     let prim = *at(vals, i);
+    // The leaf's primitive is gathered first and stored last, so that its loads are in
+    // flight during the searches below.
     let (lo, hi) = prim_box(prim, p.n_tris, tris, spheres);
-    *at_mut(nodes, leaf) = Node {
-        min: lo.to_array(),
-        a: prim,
-        max: hi.to_array(),
-        b: INVALID,
-    };
     if i == 0 {
         parents[0] = INVALID;
     }
@@ -110,4 +106,10 @@ pub fn build<K: SortKey>(
         *at_mut(visits, i) = 0;
         *at_mut(visits, n + i) = if first == i { last } else { first };
     }
+    *at_mut(nodes, leaf) = Node {
+        min: lo.to_array(),
+        a: prim,
+        max: hi.to_array(),
+        b: INVALID,
+    };
 }
