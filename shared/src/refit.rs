@@ -15,6 +15,7 @@
 use crate::sync::{self, at, at_mut, elem_mut};
 use crate::treelet::{self, Boxed};
 use crate::types::{BuildParams, INVALID, WORKGROUP};
+use seq_macro::seq;
 
 /// Leaves per workgroup, one per lane.
 pub const BLOCK: u32 = WORKGROUP;
@@ -138,15 +139,16 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         let sibling = if left == node { right } else { left };
         let (s_lo, s_hi) = load_box(words, sibling);
         let (c_lo, c_hi) = (lo, hi);
-        for k in 0..3 {
+        // Written out (rust-gpu emits no unroll hints).
+        seq!(K in 0..3 {
             let (l_lo, r_lo, l_hi, r_hi) = if left == node {
-                (lo[k], s_lo[k], hi[k], s_hi[k])
+                (lo[K], s_lo[K], hi[K], s_hi[K])
             } else {
-                (s_lo[k], lo[k], s_hi[k], hi[k])
+                (s_lo[K], lo[K], s_hi[K], hi[K])
             };
-            lo[k] = l_lo.min(r_lo);
-            hi[k] = l_hi.max(r_hi);
-        }
+            lo[K] = l_lo.min(r_lo);
+            hi[K] = l_hi.max(r_hi);
+        });
         store(words, parent, lo, hi, left, right);
         if TREELETS {
             let here = Boxed {
