@@ -152,9 +152,11 @@ pub fn atomic_store_u64(p: &mut u64, v: u64) {
 // phases took ~1 us each on the H100 for eight stores per lane, measured with SM-clock marks).
 // The functions below index without the check on the GPU where every index is in range by
 // construction: an index the builder or the host's checked scene wrote (node links, primitive
-// indices below `n`, object and material indices), or arithmetic on lane, tile and digit
-// numbers that the CPU executor runs through the same code with the checks on, so a bad index
-// still fails loudly in the tests.
+// indices below `n`, object and material indices), a slot of the traversal's fixed stack
+// (pushes check its size, pops follow pushes), or arithmetic on lane, tile and digit numbers
+// that the CPU executor runs through the same code with the checks on, so a bad index still
+// fails loudly in the tests. In the traversal the checks cost the H100 2-5% of its frame time
+// and 8 registers.
 
 /// Element `i` of a buffer (see above).
 #[inline(always)]
