@@ -277,7 +277,7 @@ impl GpuLbvh {
     /// Builds the BVH of the uploaded primitives with no timestamp between the stages;
     /// returns the GPU nanoseconds of the whole build.
     pub fn build_total(&mut self, opts: BuildOptions) -> Result<f64> {
-        Ok(self.run(opts, false, false, 1)?.iter().map(|(_, ns)| ns).sum())
+        Ok(self.build_streamed(opts, 1)?.iter().sum())
     }
 
     /// Runs `count` builds back to back in one submission, keeping the GPU busy (see
