@@ -136,22 +136,17 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let mut parents = vec![0u32; total_nodes];
     let mut visits = vec![0u32; 2 * n as usize];
     for i in 0..n {
-        karras::build(
-            i,
-            &p,
-            &keys,
-            &vals,
-            tris,
-            spheres,
-            &mut nodes,
-            &mut parents,
-            &mut visits,
-        );
+        karras::build(i, &p, &keys, &mut nodes, &mut parents, &mut visits);
     }
     lap("tree", &mut times);
 
     // The refit sees the nodes as 64-bit words (`Node` is only 4-aligned: copy, not cast).
     let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&nodes);
+    let prims = refit::Prims {
+        order: &vals,
+        tris,
+        spheres,
+    };
     for g in 0..n.div_ceil(refit::BLOCK) {
         let mut st = refit::RefitState {
             visits: [0; refit::BLOCK as usize],
@@ -159,9 +154,9 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         lanes(|l| refit::clear(l, &mut st));
         lanes(|l| {
             if opts.treelets {
-                refit::refit::<true, true>(l, g, &mut st, &p, &mut parents, &mut visits, &mut words);
+                refit::refit::<true, true>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words);
             } else {
-                refit::refit::<true, false>(l, g, &mut st, &p, &mut parents, &mut visits, &mut words);
+                refit::refit::<true, false>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words);
             }
         });
     }

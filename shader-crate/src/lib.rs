@@ -48,6 +48,9 @@ macro_rules! refit_kernel {
             #[spirv(local_invocation_id)] lid: UVec3,
             #[spirv(workgroup_id)] gid: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
@@ -56,7 +59,8 @@ macro_rules! refit_kernel {
             refit::clear(lid.x, st);
             barrier();
             let group = flat_group(gid.x, gid.y);
-            refit::refit::<$ordered, $treelets>(lid.x, group, st, p, parents, visits, node_words);
+            let prims = refit::Prims { order, tris, spheres };
+            refit::refit::<$ordered, $treelets>(lid.x, group, st, p, prims, parents, visits, node_words);
         }
     };
 }
@@ -150,29 +154,15 @@ macro_rules! key_kernels {
         }
 
         #[spirv(compute(threads(256)))]
-        #[allow(clippy::too_many_arguments)]
         pub fn $build(
             #[spirv(global_invocation_id)] id: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &mut [Node],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
         ) {
-            karras::build(
-                flat_index(id.x, id.y),
-                p,
-                keys,
-                vals,
-                tris,
-                spheres,
-                nodes,
-                parents,
-                visits,
-            );
+            karras::build(flat_index(id.x, id.y), p, keys, nodes, parents, visits);
         }
     };
 }

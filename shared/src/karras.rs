@@ -6,7 +6,7 @@
 //! Node layout: internal nodes `0..n-1`, leaves `n-1..2n-1`, root 0; see [`Node`].
 use crate::radix_sort::SortKey;
 use crate::sync::{at, at_mut};
-use crate::types::{prim_box, BuildParams, Node, Sphere, Triangle, INVALID};
+use crate::types::{BuildParams, Node, INVALID};
 
 /// Length of the common prefix of keys `i` and `j`; -1 when `j` is outside `0..n`.
 pub fn delta<K: SortKey>(keys: &[K], n: u32, i: u32, j: i32) -> i32 {
@@ -64,17 +64,14 @@ pub fn range_and_split<K: SortKey>(keys: &[K], n: u32, i: u32) -> (u32, u32, u32
     (ii.min(j) as u32, ii.max(j) as u32, gamma as u32)
 }
 
-/// Builds internal node `i` and leaf `i`, records parents, clears the visit counter and
-/// records the far end of node `i`'s leaf range (`i` is one end) in `visits[n + i]` for
-/// the refit (see [`crate::refit::refit`]).
-#[allow(clippy::too_many_arguments)]
+/// Builds internal node `i`, records its children's parents, clears its visit counter and
+/// records the far end of its leaf range (`i` is one end) in `visits[n + i]` for the refit.
+/// The leaves are written by the refit (see [`crate::refit::refit`]), which gathers each
+/// leaf's primitive as it starts its climb: written here, they would cross memory twice more.
 pub fn build<K: SortKey>(
     i: u32,
     p: &BuildParams,
     keys: &[K],
-    vals: &[u32],
-    tris: &[Triangle],
-    spheres: &[Sphere],
     nodes: &mut [Node],
     parents: &mut [u32],
     visits: &mut [u32],
@@ -83,11 +80,6 @@ pub fn build<K: SortKey>(
     if i >= n {
         return;
     }
-    let leaf = n - 1 + i;
-    let prim = *at(vals, i);
-    // The leaf's primitive is gathered first and stored last, so that its loads are in
-    // flight during the searches below.
-    let (lo, hi) = prim_box(prim, p.n_tris, tris, spheres);
     if i == 0 {
         parents[0] = INVALID;
     }
@@ -106,10 +98,4 @@ pub fn build<K: SortKey>(
         *at_mut(visits, i) = 0;
         *at_mut(visits, n + i) = if first == i { last } else { first };
     }
-    *at_mut(nodes, leaf) = Node {
-        min: lo.to_array(),
-        a: prim,
-        max: hi.to_array(),
-        b: INVALID,
-    };
 }

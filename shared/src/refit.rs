@@ -14,7 +14,7 @@
 //! or written with four atomic operations instead of six.
 use crate::sync::{self, at, at_mut, elem_mut};
 use crate::treelet::{self, Boxed};
-use crate::types::{BuildParams, INVALID, WORKGROUP};
+use crate::types::{prim_box, BuildParams, Sphere, Triangle, INVALID, WORKGROUP};
 use seq_macro::seq;
 
 /// Leaves per workgroup, one per lane.
@@ -50,8 +50,8 @@ fn unpack(w: [u64; 4]) -> ([f32; 3], [f32; 3]) {
     ([x0, y0, z0], [x1, y1, z1])
 }
 
-/// Internal node `node`'s box through atomic loads (another invocation may have written it
-/// in this dispatch).
+/// Node `node`'s box through atomic loads (another invocation may have written it in this
+/// dispatch).
 pub fn load_box(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
     let b = node * WORDS;
     unpack([
@@ -60,12 +60,6 @@ pub fn load_box(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
         sync::atomic_load_u64(at(words, b + 2)),
         sync::atomic_load_u64(at(words, b + 3)),
     ])
-}
-
-/// Leaf `node`'s box through plain loads (written by the previous dispatch, never by this one).
-pub fn leaf_box(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
-    let b = node * WORDS;
-    unpack([*at(words, b), *at(words, b + 1), *at(words, b + 2), *at(words, b + 3)])
 }
 
 /// Internal node `node`'s children `(a, b)` through atomic loads.
@@ -87,7 +81,16 @@ pub fn store(words: &mut [u64], node: u32, lo: [f32; 3], hi: [f32; 3], a: u32, b
     sync::atomic_store_u64(at_mut(words, w + 3), join(hi[2].to_bits(), b));
 }
 
-/// Phase 2: climbs from leaf `BLOCK * group + lane`, fitting every internal node this
+/// The primitives in their sorted order: `tris[order[i]]` (or `spheres[order[i] - n_tris]`)
+/// is leaf `i`'s.
+#[derive(Clone, Copy)]
+pub struct Prims<'a> {
+    pub order: &'a [u32],
+    pub tris: &'a [Triangle],
+    pub spheres: &'a [Sphere],
+}
+
+/// Phase 2: writes leaf `BLOCK * group + lane` (its primitive's box) and climbs from it, fitting every internal node this
 /// invocation arrives at second. The invocation carries the box it just fitted and reads only
 /// the sibling's; children are combined in (left, right) order so that `min(-0.0, +0.0)` is
 /// the same on every backend. A node's leaf range is `[node, visits[n + node]]` or the
@@ -101,11 +104,13 @@ pub fn store(words: &mut [u64], node: u32, lo: [f32; 3], hi: [f32; 3], a: u32, b
 ///
 /// With `TREELETS`, every node fitted becomes the root of a treelet restructured for the
 /// least surface-area cost (see [`crate::treelet`]).
+#[allow(clippy::too_many_arguments)]
 pub fn refit<const ORDERED: bool, const TREELETS: bool>(
     lane: u32,
     group: u32,
     st: &mut RefitState,
     p: &BuildParams,
+    prims: Prims,
     parents: &mut [u32],
     visits: &mut [u32],
     words: &mut [u64],
@@ -117,7 +122,10 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         return;
     }
     let mut node = n - 1 + i;
-    let (mut lo, mut hi) = leaf_box(words, node);
+    let prim = *at(prims.order, i);
+    let (l, h) = prim_box(prim, p.n_tris, prims.tris, prims.spheres);
+    let (mut lo, mut hi) = (l.to_array(), h.to_array());
+    store(words, node, lo, hi, prim, INVALID);
     let mut parent = *at(parents, node);
     while parent != INVALID {
         // Immutable during the refit, so loaded before the counter, in its shadow.

@@ -30,14 +30,10 @@ pub struct Boxed {
     pub hi: [f32; 3],
 }
 
-/// Node `node` with its box, read as [`refit`] reads them: a leaf's plainly, an internal
-/// node's through atomics (an earlier treelet in this dispatch may have rewritten it).
-fn boxed(words: &[u64], node: u32, first_leaf: u32) -> Boxed {
-    let (lo, hi) = if node >= first_leaf {
-        refit::leaf_box(words, node)
-    } else {
-        refit::load_box(words, node)
-    };
+/// Node `node` with its box, read through atomics as [`refit`] reads them (the refit writes
+/// the leaves, and an earlier treelet in this dispatch may have rewritten an internal node).
+fn boxed(words: &[u64], node: u32) -> Boxed {
+    let (lo, hi) = refit::load_box(words, node);
     Boxed { node, lo, hi }
 }
 
@@ -121,8 +117,8 @@ pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, pare
         inner[m] = leaf[pick].node;
         m += 1;
         let (c, d) = refit::load_children(words, leaf[pick].node);
-        leaf[pick] = boxed(words, c, first_leaf);
-        leaf[k] = boxed(words, d, first_leaf);
+        leaf[pick] = boxed(words, c);
+        leaf[k] = boxed(words, d);
         k += 1;
     }
     if k < 3 {
