@@ -27,7 +27,7 @@ pub fn build(tris: &[Triangle], spheres: &[Sphere], opts: BuildOptions) -> (Buil
     }
 }
 
-type MortonFn<K> = fn(u32, &BuildParams, &OrderedBounds, &[Triangle], &[Sphere], &mut [K], &mut [u32]);
+type MortonFn<K> = fn(u32, &BuildParams, &OrderedBounds, &[[f32; 4]], &mut [K], &mut [u32]);
 
 fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     tris: &[Triangle],
@@ -53,12 +53,13 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     // Bounds: one workgroup per tile.
     let mut b = OrderedBounds::EMPTY;
+    let mut summaries = vec![[0f32; 4]; n as usize];
     for g in 0..tiles {
         let mut st = BoundsState {
             b: OrderedBounds::EMPTY,
         };
         lanes(|l| bounds::clear(l, &mut st));
-        lanes(|l| bounds::accumulate(l, g, &mut st, &p, tris, spheres));
+        lanes(|l| bounds::accumulate(l, g, &mut st, &p, tris, spheres, &mut summaries));
         lanes(|l| bounds::flush(l, &st, &mut b));
     }
     out.bounds = b;
@@ -67,7 +68,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let mut keys = vec![K::default(); n as usize];
     let mut vals = vec![0u32; n as usize];
     for i in 0..n {
-        morton_fn(i, &p, &b, tris, spheres, &mut keys, &mut vals);
+        morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
     }
     out.morton = keys.iter().map(|&k| k.into()).collect();
     lap("morton", &mut times);

@@ -22,6 +22,7 @@ use spirv_std::glam::UVec3;
 use spirv_std::spirv;
 
 #[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
 pub fn bounds_reduce(
     #[spirv(local_invocation_id)] lid: UVec3,
     #[spirv(workgroup_id)] gid: UVec3,
@@ -29,11 +30,12 @@ pub fn bounds_reduce(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut OrderedBounds,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &mut [[f32; 4]],
     #[spirv(workgroup)] st: &mut BoundsState,
 ) {
     bounds::clear(lid.x, st);
     barrier();
-    bounds::accumulate(lid.x, flat_group(gid.x, gid.y), st, p, tris, spheres);
+    bounds::accumulate(lid.x, flat_group(gid.x, gid.y), st, p, tris, spheres, summaries);
     barrier();
     bounds::flush(lid.x, st, out);
 }
@@ -77,13 +79,12 @@ macro_rules! key_kernels {
         pub fn $morton(
             #[spirv(global_invocation_id)] id: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] b: &OrderedBounds,
             #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &[[f32; 4]],
         ) {
-            morton::$morton(flat_index(id.x, id.y), p, b, tris, spheres, keys, vals);
+            morton::$morton(flat_index(id.x, id.y), p, b, summaries, keys, vals);
         }
 
         #[spirv(compute(threads(256)))]

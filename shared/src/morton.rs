@@ -12,8 +12,8 @@
 //! widening the box of every subtree of small ones they fall among: on the CPU executor's
 //! count, rays in the bunny scene (the bunny in the Cornell box) visit 18.6 -> 12.5 inner
 //! nodes, in the Cornell box 11.0 -> 10.4, in Suzanne's 12.7 -> 9.6.
-use crate::sync::at_mut;
-use crate::types::{prim_box, prim_centroid2, BuildParams, OrderedBounds, Sphere, Triangle};
+use crate::sync::{at, at_mut};
+use crate::types::{BuildParams, OrderedBounds};
 use spirv_std::glam::Vec3;
 
 /// Spreads the low 10 bits of `v` so that bit `k` moves to bit `3k`:
@@ -66,28 +66,26 @@ pub fn quantise(x: f32, lo: f32, s: f32, bits: u32) -> u32 {
     }
 }
 
-/// Quantised cell of primitive `i` on each axis.
-fn cells(i: u32, p: &BuildParams, b: &OrderedBounds, tris: &[Triangle], spheres: &[Sphere], bits: u32) -> [u32; 3] {
-    let c = prim_centroid2(i, p.n_tris, tris, spheres);
+/// Quantised cell of a primitive on each axis, from its summary.
+fn cells(s: [f32; 4], b: &OrderedBounds, bits: u32) -> [u32; 3] {
     let lo = b.min();
     let ext: Vec3 = b.max() - lo;
     [
-        quantise(c.x, lo.x, cell_scale(ext.x, bits), bits),
-        quantise(c.y, lo.y, cell_scale(ext.y, bits), bits),
-        quantise(c.z, lo.z, cell_scale(ext.z, bits), bits),
+        quantise(s[0], lo.x, cell_scale(ext.x, bits), bits),
+        quantise(s[1], lo.y, cell_scale(ext.y, bits), bits),
+        quantise(s[2], lo.z, cell_scale(ext.z, bits), bits),
     ]
 }
 
 /// Spatial bits of a code above its size bit: one octree level.
 pub const OCTREE_BITS: u32 = 3;
 
-/// Whether primitive `i` is large: its box's largest side exceeds half the largest side of
-/// the centroids' bounds (`b` holds doubled centroids, hence the 4). Exact on every backend
-/// (subtractions, a comparison and a multiplication by a power of two).
-pub fn large(i: u32, p: &BuildParams, b: &OrderedBounds, tris: &[Triangle], spheres: &[Sphere]) -> bool {
-    let (lo, hi) = prim_box(i, p.n_tris, tris, spheres);
-    let (d, e) = (hi - lo, b.max() - b.min());
-    4.0 * d.x.max(d.y).max(d.z) > e.x.max(e.y).max(e.z)
+/// Whether a primitive is large: its box's largest side (`s[3]` of its summary) exceeds half
+/// the largest side of the centroids' bounds (`b` holds doubled centroids, hence the 4).
+/// Exact on every backend (subtractions, a comparison and a multiplication by a power of two).
+pub fn large(s: [f32; 4], b: &OrderedBounds) -> bool {
+    let e = b.max() - b.min();
+    4.0 * s[3] > e.x.max(e.y).max(e.z)
 }
 
 /// 30-bit code of primitive `i` (`zyx` bit triples, the size bit below the first; see the
@@ -96,18 +94,18 @@ pub fn morton30(
     i: u32,
     p: &BuildParams,
     b: &OrderedBounds,
-    tris: &[Triangle],
-    spheres: &[Sphere],
+    summaries: &[[f32; 4]],
     keys: &mut [u32],
     vals: &mut [u32],
 ) {
     if i >= p.n {
         return;
     }
-    let q = cells(i, p, b, tris, spheres, 10);
+    let s = *at(summaries, i);
+    let q = cells(s, b, 10);
     let m = (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
     let low = (1u32 << (30 - OCTREE_BITS)) - 1;
-    *at_mut(keys, i) = (m & !low) | (large(i, p, b, tris, spheres) as u32) << (29 - OCTREE_BITS) | (m & low) >> 1;
+    *at_mut(keys, i) = (m & !low) | (large(s, b) as u32) << (29 - OCTREE_BITS) | (m & low) >> 1;
     *at_mut(vals, i) = i;
 }
 
@@ -116,18 +114,18 @@ pub fn morton63(
     i: u32,
     p: &BuildParams,
     b: &OrderedBounds,
-    tris: &[Triangle],
-    spheres: &[Sphere],
+    summaries: &[[f32; 4]],
     keys: &mut [u64],
     vals: &mut [u32],
 ) {
     if i >= p.n {
         return;
     }
-    let q = cells(i, p, b, tris, spheres, 21);
+    let s = *at(summaries, i);
+    let q = cells(s, b, 21);
     let m = (expand_bits_21(q[2] as u64) << 2) | (expand_bits_21(q[1] as u64) << 1) | expand_bits_21(q[0] as u64);
     let low = (1u64 << (63 - OCTREE_BITS)) - 1;
-    *at_mut(keys, i) = (m & !low) | (large(i, p, b, tris, spheres) as u64) << (62 - OCTREE_BITS) | (m & low) >> 1;
+    *at_mut(keys, i) = (m & !low) | (large(s, b) as u64) << (62 - OCTREE_BITS) | (m & low) >> 1;
     *at_mut(vals, i) = i;
 }
 
@@ -180,7 +178,7 @@ mod tests {
     /// by octant first, then small before large within one, then by position.
     #[test]
     fn large_primitives_get_the_size_bit_below_the_first_octant_bits() {
-        use crate::types::f32_to_ordered;
+        use crate::types::{f32_to_ordered, prim_summary, Triangle};
         let tri = |c: [f32; 3], r: f32| Triangle {
             v0: [c[0] - r, c[1] - r, c[2], 0.0],
             v1: [c[0] + r, c[1] - r, c[2], 0.0],
@@ -193,9 +191,9 @@ mod tests {
             tri([0.2, 0.2, 0.2], 0.6),
         ];
         let mut b = OrderedBounds::EMPTY;
-        for i in 0..3 {
-            let c = prim_centroid2(i, 3, &tris, &[]);
-            for (k, v) in c.to_array().into_iter().enumerate() {
+        let summaries: [[f32; 4]; 3] = core::array::from_fn(|i| prim_summary(i as u32, 3, &tris, &[]));
+        for s in summaries {
+            for (k, v) in s[..3].iter().copied().enumerate() {
                 b.min[k] = b.min[k].min(f32_to_ordered(v));
                 b.max[k] = b.max[k].max(f32_to_ordered(v));
             }
@@ -208,8 +206,8 @@ mod tests {
         };
         let (mut k30, mut k63, mut vals) = ([0u32; 3], [0u64; 3], [0u32; 3]);
         for i in 0..3 {
-            morton30(i, &p, &b, &tris, &[], &mut k30, &mut vals);
-            morton63(i, &p, &b, &tris, &[], &mut k63, &mut vals);
+            morton30(i, &p, &b, &summaries, &mut k30, &mut vals);
+            morton63(i, &p, &b, &summaries, &mut k63, &mut vals);
         }
         let bit30 = |k: u32| k >> (29 - OCTREE_BITS) & 1;
         let bit63 = |k: u64| k >> (62 - OCTREE_BITS) & 1;
@@ -219,5 +217,31 @@ mod tests {
         assert!(k30[0] < k30[2] && k30[2] < k30[1], "{k30:x?}");
         assert!(k63[0] < k63[2] && k63[2] < k63[1], "{k63:x?}");
         assert!(k30.iter().all(|&k| k < 1 << 30) && k63.iter().all(|&k| k < 1 << 63));
+    }
+
+    /// A summary holds what the Morton stage used to gather itself: twice the centroid
+    /// (`prim_centroid2`, bit for bit) and the box's largest side, for triangles and spheres.
+    #[test]
+    fn summaries_hold_the_doubled_centroid_and_the_largest_side() {
+        use crate::types::{prim_centroid2, prim_summary, Sphere, Triangle};
+        let tris = [Triangle {
+            v0: [0.0, 0.0, 0.0, 0.0],
+            v1: [2.0, 1.0, 0.5, 0.0],
+            v2: [-1.0, 3.0, 0.25, 0.0],
+        }];
+        // A negative radius counts as its absolute value.
+        let spheres = [Sphere {
+            center_radius: [1.0, -2.0, 0.1, -0.75],
+        }];
+        let want = [[1.0, 3.0, 0.5, 3.0], [2.0, -4.0, 0.2, 1.5]];
+        for (i, want) in want.into_iter().enumerate() {
+            let s = prim_summary(i as u32, 1, &tris, &spheres);
+            assert_eq!(s, want, "primitive {i}");
+            let c = prim_centroid2(i as u32, 1, &tris, &spheres);
+            assert_eq!(
+                s[..3].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                c.to_array().map(f32::to_bits)
+            );
+        }
     }
 }
