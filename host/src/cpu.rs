@@ -53,6 +53,9 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     // Bounds: one workgroup per tile.
     let mut b = OrderedBounds::EMPTY;
+    // The GPU's scratch that outlives a build: the super-tile sums and the bounds pair (see
+    // `shared::bounds`), reset by the tree kernel as on the GPU.
+    let mut supers = vec![0u32; sort::supers_words(n) as usize];
     let mut summaries = vec![[0f32; 4]; n as usize];
     for g in 0..tiles {
         let mut st = BoundsState {
@@ -83,7 +86,6 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         let mut keys_b = keys.clone();
         let mut vals_b = vals.clone();
         let mut counts = vec![0u32; (RADIX * tiles) as usize];
-        let mut supers = vec![0u32; (sort::passes(opts.bits.key_bits()) * RADIX * sort::super_count(&p)) as usize];
         for pass in 0..sort::passes(opts.bits.key_bits()) {
             p.shift = pass * sort::RADIX_BITS;
             for g in 0..tiles {
@@ -138,7 +140,12 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let mut visits = vec![0u32; 2 * n as usize];
     for i in 0..n {
         karras::build(i, &p, &keys, &mut nodes, &mut parents, &mut visits);
+        sort::clear_supers(i, n, &mut supers);
     }
+    debug_assert!(supers.iter().all(|&w| w == 0));
+    let mut pair = [b, OrderedBounds::EMPTY];
+    bounds::publish(0, &mut pair);
+    debug_assert_eq!(pair, [OrderedBounds::EMPTY, b]);
     lap("tree", &mut times);
 
     // The refit sees the nodes as 64-bit words (`Node` is only 4-aligned: copy, not cast).

@@ -6,7 +6,7 @@ use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels, BINDINGS};
 use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
-use shared::radix_sort::{self as sort, RADIX, SUPER};
+use shared::radix_sort::{self as sort, RADIX};
 use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;
 
@@ -36,24 +36,20 @@ struct Buffers {
 }
 
 impl Buffers {
-    /// Bytes of the super-tile sums for `n` primitives: every pass of the widest sort.
-    fn supers_bytes(n: u64) -> u64 {
-        sort::passes(64) as u64 * RADIX as u64 * n.div_ceil(TILE as u64).div_ceil(SUPER as u64) * 4
-    }
-
     fn new(gpu: &Arc<Gpu>, kernels: &Kernels, n_tris: usize, n_spheres: usize) -> Result<Buffers> {
         let n = (n_tris + n_spheres).max(1) as u64;
         let tiles = n.div_ceil(TILE as u64);
         let dev = |name: &str, bytes: u64| Buffer::new(gpu, name, bytes, MemoryLocation::GpuOnly);
         let tris = dev("triangles", (n_tris * size_of::<Triangle>()) as u64)?;
         let spheres = dev("spheres", (n_spheres * size_of::<Sphere>()) as u64)?;
-        let bounds = dev("bounds", size_of::<OrderedBounds>() as u64)?;
+        // The reduction's and the last build's (see `shared::bounds`).
+        let bounds = dev("bounds", 2 * size_of::<OrderedBounds>() as u64)?;
         let keys_a = dev("keys A", n * 8)?;
         let vals_a = dev("values A", n * 4)?;
         let keys_b = dev("keys B", n * 8)?;
         let vals_b = dev("values B", n * 4)?;
         let table = dev("digit table", tiles * RADIX as u64 * 4)?;
-        let supers = dev("super-tile sums", Self::supers_bytes(n))?;
+        let supers = dev("super-tile sums", sort::supers_words(n as u32) as u64 * 4)?;
         let nodes = dev("nodes", (2 * n - 1) * size_of::<Node>() as u64)?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
@@ -144,7 +140,15 @@ impl GpuLbvh {
         if !fits {
             self.bufs = None;
             let grow = |x: usize| x + x / 4;
-            self.bufs = Some(Buffers::new(&self.gpu, &self.kernels, grow(n_tris), grow(n_spheres))?);
+            let b = Buffers::new(&self.gpu, &self.kernels, grow(n_tris), grow(n_spheres))?;
+            // What every build expects to find and leaves behind (see `record`).
+            self.cmds.begin()?;
+            Self::empty_bounds(&self.cmds, &b, 0);
+            Self::empty_bounds(&self.cmds, &b, 1);
+            self.cmds.fill_range(&b.supers, 0, b.supers.size, 0);
+            self.cmds.barrier();
+            self.cmds.submit_wait().context("clearing the build's buffers")?;
+            self.bufs = Some(b);
         }
         self.n_tris = n_tris as u32;
         self.n = (n_tris + n_spheres) as u32;
@@ -179,6 +183,13 @@ impl GpuLbvh {
         }
         self.cmds.barrier();
         self.cmds.submit_wait().context("uploading primitives")
+    }
+
+    /// Records a fill of entry `k` of the bounds buffer with [`OrderedBounds::EMPTY`].
+    fn empty_bounds(cmds: &Commands, b: &Buffers, k: u64) {
+        let at = k * size_of::<OrderedBounds>() as u64;
+        cmds.fill_range(&b.bounds, at, 16, u32::MAX);
+        cmds.fill_range(&b.bounds, at + 16, 16, 0);
     }
 
     /// Records the whole build into `cmds` (which must be recording), with a timestamp
@@ -220,12 +231,12 @@ impl GpuLbvh {
                 cmds.timestamp(label);
             }
         };
+        // No fills: the bounds' reduction starts empty and the super-tile sums zero because the
+        // tree kernel of the build before (or `reserve`) left them so.
         cmds.timestamp("start");
-        cmds.fill_range(&b.bounds, 0, 16, u32::MAX);
-        cmds.fill_range(&b.bounds, 16, 16, 0);
-        cmds.fill_range(&b.supers, 0, Buffers::supers_bytes(n as u64), 0);
-        cmds.barrier();
         if n == 0 {
+            Self::empty_bounds(cmds, b, 1);
+            cmds.barrier();
             for s in STAGES {
                 stamp(cmds, s);
             }
@@ -352,8 +363,8 @@ impl GpuLbvh {
         let total = (2 * n).saturating_sub(1);
         Ok(BuildResult {
             bounds: self
-                .download::<OrderedBounds>(|b| &b.bounds, 1)?
-                .first()
+                .download::<OrderedBounds>(|b| &b.bounds, 2)?
+                .get(1)
                 .copied()
                 .unwrap_or_default(),
             morton: keys(self, |b| &b.capture)?,

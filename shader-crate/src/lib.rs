@@ -155,6 +155,7 @@ macro_rules! key_kernels {
         }
 
         #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
         pub fn $build(
             #[spirv(global_invocation_id)] id: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
@@ -162,8 +163,16 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &mut [Node],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] bounds: &mut [OrderedBounds],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &mut [u32],
         ) {
-            karras::build(flat_index(id.x, id.y), p, keys, nodes, parents, visits);
+            let i = flat_index(id.x, id.y);
+            karras::build(i, p, keys, nodes, parents, visits);
+            // The sort and the Morton stage are done with these: reset for the next build.
+            if i < p.n {
+                sort::clear_supers(i, p.n, supers);
+            }
+            bounds::publish(i, bounds);
         }
     };
 }

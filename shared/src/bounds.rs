@@ -5,9 +5,12 @@
 //! The same pass stores each primitive's [`prim_summary`] (centroid and largest side) for the
 //! Morton stage, which then reads 16 bytes per primitive instead of the primitive.
 //!
-//! Phases: [`clear`] | barrier | [`accumulate`] | barrier | [`flush`]. The global bounds start
-//! as [`OrderedBounds::EMPTY`] (the host fills them before the dispatch).
-use crate::sync::{self, at_mut};
+//! Phases: [`clear`] | barrier | [`accumulate`] | barrier | [`flush`]. The bounds buffer holds
+//! two [`OrderedBounds`]: the reduction's, which starts as [`OrderedBounds::EMPTY`], and the
+//! last build's. A later kernel of the build (after the Morton stage has read them) runs
+//! [`publish`], which copies the first into the second and empties the first for the next
+//! build, so that no build starts with a fill (the host empties it once when it allocates it).
+use crate::sync::{self, at, at_mut};
 use crate::types::{
     f32_to_ordered, prim_summary, BuildParams, OrderedBounds, Sphere, Triangle, ITEMS, TILE, WORKGROUP,
 };
@@ -71,5 +74,14 @@ pub fn flush(lane: u32, st: &BoundsState, out: &mut OrderedBounds) {
         let k = lane as usize;
         sync::atomic_min(&mut out.min[k], st.b.min[k]);
         sync::atomic_max(&mut out.max[k], st.b.max[k]);
+    }
+}
+
+/// Invocation 0 of a kernel after the Morton stage: keeps the reduction's bounds as the last
+/// build's (`b[1]`) and resets the reduction (`b[0]`) for the next build.
+pub fn publish(i: u32, b: &mut [OrderedBounds]) {
+    if i == 0 {
+        *at_mut(b, 1) = *at(b, 0);
+        *at_mut(b, 0) = OrderedBounds::EMPTY;
     }
 }

@@ -120,6 +120,24 @@ pub fn supers_base(p: &BuildParams) -> u32 {
     p.shift / RADIX_BITS * RADIX * super_count(p)
 }
 
+/// Words of the super-tile tables of every pass of the widest sort (64-bit keys) of `n`
+/// keys.
+pub fn supers_words(n: u32) -> u32 {
+    passes(64) * RADIX * n.div_ceil(TILE).div_ceil(SUPER)
+}
+
+/// Zeroes the super-tile tables for the next build (the histogram adds into them), invocation
+/// `i` of `n` taking every `n`-th word. Run by a kernel after the sort, so that no build
+/// starts with a fill: between builds every word of the buffer is zero (the host zeroes it
+/// once when it allocates it).
+pub fn clear_supers(i: u32, n: u32, supers: &mut [u32]) {
+    let mut w = i;
+    while w < supers_words(n) {
+        *at_mut(supers, w) = 0;
+        w += n;
+    }
+}
+
 /// Number of digit passes for keys of `bits` significant bits (always even, so that the
 /// sorted pairs end in the input buffers; a last pass past the key's bits only copies).
 pub fn passes(bits: u32) -> u32 {
