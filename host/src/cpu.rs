@@ -109,13 +109,16 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
                 },
             });
             for g in 0..tiles {
-                lanes(|l| sort::scatter_count(l, g, &mut st, &p, &keys, &counts, &supers));
+                let owned: Vec<_> = (0..WORKGROUP)
+                    .map(|l| sort::scatter_count(l, g, &mut st, &p, &keys, &vals, &counts, &supers))
+                    .collect();
                 lanes(|l| sort::scatter_sums(l, &mut st));
                 lanes(|l| scan::rake(l, &mut st.scan));
                 lanes(|l| scan::rake_totals(l, &mut st.scan));
                 lanes(|l| sort::scatter_offsets(l, &mut st));
                 let staged: Vec<_> = (0..WORKGROUP)
-                    .map(|l| sort::scatter_rank(l, g, &mut st, &p, &keys, &vals))
+                    .zip(owned)
+                    .map(|(l, o)| sort::scatter_rank(l, g, &mut st, &p, o))
                     .collect();
                 staged.iter().for_each(|s| sort::scatter_stage_keys(&mut st, s));
                 let at: Vec<_> = (0..WORKGROUP)

@@ -118,7 +118,16 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &[u32],
             #[spirv(workgroup)] st: &mut ScatterState,
         ) {
-            sort::scatter_count(lid.x, flat_group(gid.x, gid.y), st, p, keys_in, counts, supers);
+            let owned = sort::scatter_count(
+                lid.x,
+                flat_group(gid.x, gid.y),
+                st,
+                p,
+                keys_in,
+                vals_in,
+                counts,
+                supers,
+            );
             barrier();
             sort::scatter_sums(lid.x, st);
             barrier();
@@ -129,7 +138,7 @@ macro_rules! key_kernels {
             sort::scatter_offsets(lid.x, st);
             barrier();
             let group = flat_group(gid.x, gid.y);
-            let staged = sort::scatter_rank(lid.x, group, st, p, keys_in, vals_in);
+            let staged = sort::scatter_rank(lid.x, group, st, p, owned);
             barrier();
             sort::scatter_stage_keys(st, &staged);
             barrier();
