@@ -151,9 +151,11 @@ pub fn prim_box(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> (
     }
 }
 
-/// What the Morton stage needs of primitive `i`: twice its centroid (as [`prim_centroid2`])
-/// and the largest side of its box. The bounds stage gathers the primitive once and stores
-/// this (16 bytes, where a triangle is 48), so the Morton stage reads a third of the bytes.
+/// What the Morton stage needs of primitive `i`: twice the centroid of its box and the
+/// largest side of that box. The doubled centroid is `min + max` for a triangle and `c + c` for
+/// a sphere: one exact-or-rounded addition and no multiplication, so no backend can fuse it
+/// differently. The bounds stage gathers the primitive once and stores this (16 bytes, where a
+/// triangle is 48), so the Morton stage reads a third of the bytes.
 pub fn prim_summary(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> [f32; 4] {
     let (lo, hi) = prim_box(i, n_tris, tris, spheres);
     let c = if i < n_tris {
@@ -164,18 +166,6 @@ pub fn prim_summary(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) 
     };
     let d = hi - lo;
     [c.x, c.y, c.z, d.x.max(d.y).max(d.z)]
-}
-
-/// Twice the centroid of primitive `i`'s box, `min + max`: one exact-or-rounded addition and no
-/// multiplication, so no backend can fuse it differently.
-pub fn prim_centroid2(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> Vec3 {
-    if i < n_tris {
-        let (lo, hi) = prim_box(i, n_tris, tris, spheres);
-        lo + hi
-    } else {
-        let c = xyz(crate::sync::at(spheres, i - n_tris).center_radius);
-        c + c
-    }
 }
 
 const _: () = assert!(size_of::<Triangle>() == 48);
