@@ -178,9 +178,7 @@ macro_rules! key_kernels {
             let i = flat_index(id.x, id.y);
             karras::build(i, p, keys, nodes, parents, visits);
             // The sort and the Morton stage are done with these: reset for the next build.
-            if i < p.n {
-                sort::clear_supers(i, p.n, supers);
-            }
+            sort::clear_supers(i, p.n, supers);
             bounds::publish(i, bounds);
         }
     };

@@ -2,11 +2,13 @@
 //! (reduce-then-scan, Merrill & Grimshaw 2011, without their subgroup tricks), two
 //! dispatches per `RADIX_BITS`-bit digit:
 //!
-//! 1. [`histogram`]: each tile of `TILE` keys counts its digits, stores them in the tile
+//! 1. [`histogram_count`]: each tile of `TILE` keys counts its digits, stores them in the tile
 //!    table `counts[digit * tiles + tile]`, and adds them atomically into the super-tile
-//!    table `supers[digit * n_supers + tile / SUPER]` of this pass (zeroed before the sort).
-//! 2. [`scatter`]: each tile finds the output offset of every digit from the two tables,
-//!    reading at most `RADIX * (n_supers + SUPER)` words, ranks its keys stably and writes them.
+//!    table `supers[digit * n_supers + tile / SUPER]` of this pass (zero when a build starts:
+//!    see [`clear_supers`]).
+//! 2. [`scatter_count`] and the phases after it: each tile finds the output offset of every
+//!    digit from the two tables, reading at most `RADIX * (n_supers + SUPER)` words, ranks its
+//!    keys stably and writes them.
 //!
 //! The offset of digit `d` for tile `t` in super-tile `s = t / SUPER`:
 //!
@@ -127,12 +129,16 @@ pub fn supers_words(n: u32) -> u32 {
 }
 
 /// Zeroes the super-tile tables for the next build (the histogram adds into them), invocation
-/// `i` of `n` taking every `n`-th word. Run by a kernel after the sort, so that no build
-/// starts with a fill: between builds every word of the buffer is zero (the host zeroes it
-/// once when it allocates it).
+/// `i < n` taking every `n`-th word. Run by a kernel after the sort, so that no build starts
+/// with a fill: between builds every word of the buffer is zero (the host zeroes it once when
+/// it allocates it).
 pub fn clear_supers(i: u32, n: u32, supers: &mut [u32]) {
+    if i >= n {
+        return;
+    }
+    let words = supers_words(n);
     let mut w = i;
-    while w < supers_words(n) {
+    while w < words {
         *at_mut(supers, w) = 0;
         w += n;
     }
