@@ -1,8 +1,9 @@
 //! Parallel construction of a binary radix tree over sorted Morton codes (Karras 2012,
 //! "Maximizing Parallelism in the Construction of BVHs, Octrees, and k-d Trees", sec. 4).
 //!
-//! Invocation `i` builds internal node `i` (for `i < n - 1`) and leaf `i`. Equal codes are
-//! told apart by their index: `delta(i, j)` is then `BITS + clz(i ^ j)` (Karras, sec. 4).
+//! Invocation `i` builds internal node `i` (for `i < n - 1`; the refit writes the leaves).
+//! Equal codes are told apart by their index: `delta(i, j)` is then `BITS + clz(i ^ j)`
+//! (Karras, sec. 4).
 //! Node layout: internal nodes `0..n-1`, leaves `n-1..2n-1`, root 0; see [`Node`].
 use crate::radix_sort::SortKey;
 use crate::sync::{at, at_mut};

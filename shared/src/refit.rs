@@ -90,8 +90,8 @@ pub struct Prims<'a> {
     pub spheres: &'a [Sphere],
 }
 
-/// Phase 2: writes leaf `BLOCK * group + lane` (its primitive's box) and climbs from it, fitting every internal node this
-/// invocation arrives at second. The invocation carries the box it just fitted and reads only
+/// Phase 2: writes leaf `BLOCK * group + lane` (its primitive's box) and climbs from it,
+/// fitting every internal node this invocation arrives at second. The invocation carries the box it just fitted and reads only
 /// the sibling's; children are combined in (left, right) order so that `min(-0.0, +0.0)` is
 /// the same on every backend. A node's leaf range is `[node, visits[n + node]]` or the
 /// reverse (recorded by [`crate::karras::build`]): when it lies in the block, the node's

@@ -1,6 +1,6 @@
 //! The seam between kernels and GPU-only intrinsics. On SPIR-V these are real atomics; on the
 //! CPU executor, which runs one invocation at a time, plain reads and writes have the same
-//! meaning. Also the hot loops' unchecked reads ([`at`], [`slot`]), checked on the CPU.
+//! meaning. Also unchecked indexing ([`at`], [`at_mut`], [`elem`], [`elem_mut`]), checked on the CPU.
 #[cfg(target_arch = "spirv")]
 use spirv_std::memory::{Scope, Semantics};
 
