@@ -4,9 +4,9 @@
 use crate::bvh::{BuildOptions, BuildResult, MortonBits};
 use bytemuck::Pod;
 use shared::bounds::{self, BoundsState};
-use shared::radix_sort::{self as sort, HistogramState, ScatterState, SortKey, RADIX};
+use shared::radix_sort::{self as sort, DigitCounts, HistogramState, ScatterState, SortKey, RADIX};
 use shared::scan::{self, BlockScan};
-use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
+use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::{karras, morton, refit};
 use std::time::Instant;
 
@@ -27,7 +27,7 @@ pub fn build(tris: &[Triangle], spheres: &[Sphere], opts: BuildOptions) -> (Buil
     }
 }
 
-type MortonFn<K> = fn(u32, &BuildParams, &OrderedBounds, &[[f32; 4]], &mut [K], &mut [u32]);
+type MortonFn<K> = fn(u32, &BuildParams, &OrderedBounds, &[[f32; 4]], &mut [K], &mut [u32]) -> K;
 
 fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     tris: &[Triangle],
@@ -36,13 +36,13 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     morton_fn: MortonFn<K>,
 ) -> (BuildResult, Vec<(&'static str, f64)>) {
     let n = (tris.len() + spheres.len()) as u32;
-    let tiles = n.div_ceil(TILE);
     let mut p = BuildParams {
         n_tris: tris.len() as u32,
         n,
         shift: 0,
-        tiles,
+        passes: sort::passes(opts.bits.key_bits()),
     };
+    let tiles = p.tiles();
     let mut times = Vec::new();
     let mut out = BuildResult::default();
     let mut t = Instant::now();
@@ -53,9 +53,10 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     // Bounds: one workgroup per tile.
     let mut b = OrderedBounds::EMPTY;
-    // The GPU's scratch that outlives a build: the super-tile sums and the bounds pair (see
+    // The GPU's scratch that outlives a build: the sort's tables and the bounds pair (see
     // `shared::bounds`), reset by the tree kernel as on the GPU.
     let mut supers = vec![0u32; sort::supers_words(n) as usize];
+    let mut counts = vec![0u32; (RADIX * tiles).max(sort::COUNTED_WORDS) as usize];
     let mut summaries = vec![[0f32; 4]; n as usize];
     for g in 0..tiles {
         let mut st = BoundsState {
@@ -70,8 +71,17 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     let mut keys = vec![K::default(); n as usize];
     let mut vals = vec![0u32; n as usize];
-    for i in 0..n {
-        morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
+    for g in 0..n.div_ceil(WORKGROUP) {
+        let mut st = Box::new(DigitCounts {
+            counts: [0; sort::DIGIT_WORDS],
+        });
+        lanes(|l| sort::digits_clear(l, &mut st));
+        lanes(|l| {
+            let i = g * WORKGROUP + l;
+            let key = morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
+            sort::digits_count(i, &mut st, &p, key);
+        });
+        lanes(|l| sort::digits_store(l, g, &st, &p, &mut counts, &mut supers));
     }
     out.morton = keys.iter().map(|&k| k.into()).collect();
     lap("morton", &mut times);
@@ -85,10 +95,11 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     } else {
         let mut keys_b = keys.clone();
         let mut vals_b = vals.clone();
-        let mut counts = vec![0u32; (RADIX * tiles) as usize];
-        for pass in 0..sort::passes(opts.bits.key_bits()) {
+        for pass in 0..p.passes {
             p.shift = pass * sort::RADIX_BITS;
-            for g in 0..tiles {
+            // A counted sort's tables come from the Morton stage and the scatters.
+            let histogram_tiles = if sort::counted(&p) { 0 } else { tiles };
+            for g in 0..histogram_tiles {
                 let mut st = HistogramState {
                     counts: [0; RADIX as usize],
                 };
@@ -122,7 +133,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
                     .collect();
                 staged.iter().for_each(|s| sort::scatter_stage_keys(&mut st, s));
                 let at: Vec<_> = (0..WORKGROUP)
-                    .map(|l| sort::scatter_write_keys(l, g, &st, &p, &mut keys_b))
+                    .map(|l| sort::scatter_write_keys(l, g, &st, &p, &mut keys_b, &mut counts))
                     .collect();
                 staged.iter().for_each(|s| sort::scatter_stage_vals(&mut st, s));
                 for (l, at) in (0..WORKGROUP).zip(&at) {
@@ -143,9 +154,10 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let mut visits = vec![0u32; 2 * n as usize];
     for i in 0..n {
         karras::build(i, &p, &keys, &mut nodes, &mut parents, &mut visits);
-        sort::clear_supers(i, n, &mut supers);
+        sort::clear_tables(i, &p, &mut counts, &mut supers);
     }
-    debug_assert!(supers.iter().all(|&w| w == 0));
+    let table_words = sort::COUNTED_WORDS as usize;
+    debug_assert!(supers.iter().chain(&counts[..table_words]).all(|&w| w == 0));
     let mut pair = [b, OrderedBounds::EMPTY];
     bounds::publish(0, &mut pair);
     debug_assert_eq!(pair, [OrderedBounds::EMPTY, b]);

@@ -48,7 +48,8 @@ impl Buffers {
         let vals_a = dev("values A", n * 4)?;
         let keys_b = dev("keys B", n * 8)?;
         let vals_b = dev("values B", n * 4)?;
-        let table = dev("digit table", tiles * RADIX as u64 * 4)?;
+        let table_words = (tiles * RADIX as u64).max(sort::COUNTED_WORDS as u64);
+        let table = dev("digit tables", table_words * 4)?;
         let supers = dev("super-tile sums", sort::supers_words(n as u32) as u64 * 4)?;
         let nodes = dev("nodes", (2 * n - 1) * size_of::<Node>() as u64)?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
@@ -146,6 +147,7 @@ impl GpuLbvh {
             Self::empty_bounds(&self.cmds, &b, 0);
             Self::empty_bounds(&self.cmds, &b, 1);
             self.cmds.fill_range(&b.supers, 0, b.supers.size, 0);
+            self.cmds.fill_range(&b.table, 0, b.table.size, 0);
             self.cmds.barrier();
             self.cmds.submit_wait().context("clearing the build's buffers")?;
             self.bufs = Some(b);
@@ -200,19 +202,20 @@ impl GpuLbvh {
         let bits = opts.bits;
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         let n = self.n;
-        let tiles = n.div_ceil(TILE);
         let items = n.div_ceil(WORKGROUP);
         let k = &self.kernels;
         let mut p = BuildParams {
             n_tris: self.n_tris,
             n,
             shift: 0,
-            tiles,
+            passes: sort::passes(bits.key_bits()),
         };
+        let tiles = p.tiles();
         let (set_ab, set_ba) = (b.sets.sets[0], b.sets.sets[1]);
-        let (morton, histogram, scatter, rank, build) = match bits {
+        let (morton, morton_counted, histogram, scatter, rank, build) = match bits {
             MortonBits::B30 => (
                 Kernel::Morton30,
+                Kernel::Morton30Counted,
                 Kernel::SortHistogramU32,
                 Kernel::SortScatterU32,
                 Kernel::SortRankU32,
@@ -220,6 +223,7 @@ impl GpuLbvh {
             ),
             MortonBits::B63 => (
                 Kernel::Morton63,
+                Kernel::Morton63Counted,
                 Kernel::SortHistogramU64,
                 Kernel::SortScatterU64,
                 Kernel::SortRankU64,
@@ -231,7 +235,7 @@ impl GpuLbvh {
                 cmds.timestamp(label);
             }
         };
-        // No fills: the bounds' reduction starts empty and the super-tile sums zero because the
+        // No fills: the bounds' reduction starts empty and the sort's tables zero because the
         // tree kernel of the build before (or `reserve`) left them so.
         cmds.timestamp("start");
         if n == 0 {
@@ -248,6 +252,7 @@ impl GpuLbvh {
         cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, tiles);
         cmds.barrier();
         stamp(cmds, STAGES[0]);
+        let morton = if sort::counted(&p) { morton_counted } else { morton };
         cmds.dispatch(k, set_ab, morton, &p, items);
         cmds.barrier();
         if capture {
@@ -260,12 +265,15 @@ impl GpuLbvh {
             cmds.barrier();
             stamp(cmds, "sort.rank");
         } else {
-            for pass in 0..sort::passes(bits.key_bits()) {
+            for pass in 0..p.passes {
                 p.shift = pass * sort::RADIX_BITS;
                 let set = if pass % 2 == 0 { set_ab } else { set_ba };
-                cmds.dispatch(k, set, histogram, &p, tiles);
-                cmds.barrier();
-                stamp(cmds, "sort.histogram");
+                // A counted sort's tables come from the Morton stage and the scatters.
+                if !sort::counted(&p) {
+                    cmds.dispatch(k, set, histogram, &p, tiles);
+                    cmds.barrier();
+                    stamp(cmds, "sort.histogram");
+                }
                 cmds.dispatch(k, set, scatter, &p, tiles);
                 cmds.barrier();
                 stamp(cmds, "sort.scatter");

@@ -5,13 +5,13 @@
 
 use shared::bounds::{self, BoundsState};
 use shared::path::{self, World};
-use shared::radix_sort::{self as sort, HistogramState, ScatterState};
+use shared::radix_sort::{self as sort, DigitCounts, HistogramState, ScatterState};
 use shared::refit::RefitState;
 use shared::scan;
 use shared::traverse::Scene;
 use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,
-    Triangle, FEATURES_ALL,
+    Triangle, FEATURES_ALL, WORKGROUP,
 };
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
@@ -74,7 +74,7 @@ refit_kernel!(refit_treelets_relaxed, false, true);
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
-    ($k:ty, $morton:ident, $histogram:ident, $scatter:ident, $rank:ident, $build:ident) => {
+    ($k:ty, $morton:ident, $morton_counted:ident, $histogram:ident, $scatter:ident, $rank:ident, $build:ident) => {
         #[spirv(compute(threads(256)))]
         pub fn $morton(
             #[spirv(global_invocation_id)] id: UVec3,
@@ -85,6 +85,31 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &[[f32; 4]],
         ) {
             morton::$morton(flat_index(id.x, id.y), p, b, summaries, keys, vals);
+        }
+
+        /// Morton codes and the digit counts of a counted sort (see `shared::radix_sort`).
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $morton_counted(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] b: &OrderedBounds,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &mut [u32],
+            #[spirv(workgroup)] st: &mut DigitCounts,
+        ) {
+            let group = flat_group(gid.x, gid.y);
+            let i = group * WORKGROUP + lid.x;
+            sort::digits_clear(lid.x, st);
+            barrier();
+            let key = morton::$morton(i, p, b, summaries, keys, vals);
+            sort::digits_count(i, st, p, key);
+            barrier();
+            sort::digits_store(lid.x, group, st, p, counts, supers);
         }
 
         #[spirv(compute(threads(256)))]
@@ -114,7 +139,7 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals_in: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &[u32],
             #[spirv(workgroup)] st: &mut ScatterState,
         ) {
@@ -142,7 +167,7 @@ macro_rules! key_kernels {
             barrier();
             sort::scatter_stage_keys(st, &staged);
             barrier();
-            let at = sort::scatter_write_keys(lid.x, group, st, p, keys_out);
+            let at = sort::scatter_write_keys(lid.x, group, st, p, keys_out, counts);
             barrier();
             sort::scatter_stage_vals(st, &staged);
             barrier();
@@ -173,12 +198,13 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] bounds: &mut [OrderedBounds],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &mut [u32],
         ) {
             let i = flat_index(id.x, id.y);
             karras::build(i, p, keys, nodes, parents, visits);
             // The sort and the Morton stage are done with these: reset for the next build.
-            sort::clear_supers(i, p.n, supers);
+            sort::clear_tables(i, p, counts, supers);
             bounds::publish(i, bounds);
         }
     };
@@ -187,6 +213,7 @@ macro_rules! key_kernels {
 key_kernels!(
     u32,
     morton30,
+    morton30_counted,
     sort_histogram_u32,
     sort_scatter_u32,
     sort_rank_u32,
@@ -195,6 +222,7 @@ key_kernels!(
 key_kernels!(
     u64,
     morton63,
+    morton63_counted,
     sort_histogram_u64,
     sort_scatter_u64,
     sort_rank_u64,

@@ -89,7 +89,7 @@ pub fn large(s: [f32; 4], b: &OrderedBounds) -> bool {
 }
 
 /// 30-bit code of primitive `i` (`zyx` bit triples, the size bit below the first; see the
-/// module); also resets the sort value to `i`.
+/// module), which it returns (0 when `i >= n`); also resets the sort value to `i`.
 pub fn morton30(
     i: u32,
     p: &BuildParams,
@@ -97,19 +97,22 @@ pub fn morton30(
     summaries: &[[f32; 4]],
     keys: &mut [u32],
     vals: &mut [u32],
-) {
+) -> u32 {
     if i >= p.n {
-        return;
+        return 0;
     }
     let s = *at(summaries, i);
     let q = cells(s, b, 10);
     let m = (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
     let low = (1u32 << (30 - OCTREE_BITS)) - 1;
-    *at_mut(keys, i) = (m & !low) | (large(s, b) as u32) << (29 - OCTREE_BITS) | (m & low) >> 1;
+    let key = (m & !low) | (large(s, b) as u32) << (29 - OCTREE_BITS) | (m & low) >> 1;
+    *at_mut(keys, i) = key;
     *at_mut(vals, i) = i;
+    key
 }
 
-/// 63-bit code of primitive `i`, laid out as [`morton30`]; also resets the sort value to `i`.
+/// 63-bit code of primitive `i`, laid out as [`morton30`], which it returns (0 when
+/// `i >= n`); also resets the sort value to `i`.
 pub fn morton63(
     i: u32,
     p: &BuildParams,
@@ -117,16 +120,18 @@ pub fn morton63(
     summaries: &[[f32; 4]],
     keys: &mut [u64],
     vals: &mut [u32],
-) {
+) -> u64 {
     if i >= p.n {
-        return;
+        return 0;
     }
     let s = *at(summaries, i);
     let q = cells(s, b, 21);
     let m = (expand_bits_21(q[2] as u64) << 2) | (expand_bits_21(q[1] as u64) << 1) | expand_bits_21(q[0] as u64);
     let low = (1u64 << (63 - OCTREE_BITS)) - 1;
-    *at_mut(keys, i) = (m & !low) | (large(s, b) as u64) << (62 - OCTREE_BITS) | (m & low) >> 1;
+    let key = (m & !low) | (large(s, b) as u64) << (62 - OCTREE_BITS) | (m & low) >> 1;
+    *at_mut(keys, i) = key;
     *at_mut(vals, i) = i;
+    key
 }
 
 #[cfg(test)]
@@ -202,7 +207,7 @@ mod tests {
             n_tris: 3,
             n: 3,
             shift: 0,
-            tiles: 0,
+            passes: 0,
         };
         let (mut k30, mut k63, mut vals) = ([0u32; 3], [0u64; 3], [0u32; 3]);
         for i in 0..3 {

@@ -105,8 +105,15 @@ pub struct BuildParams {
     pub n: u32,
     /// Radix sort: bit offset of the digit this pass sorts by.
     pub shift: u32,
+    /// Radix sort: number of digit passes (see [`crate::radix_sort::passes`]).
+    pub passes: u32,
+}
+
+impl BuildParams {
     /// Radix sort: number of tiles, `ceil(n / TILE)`.
-    pub tiles: u32,
+    pub fn tiles(&self) -> u32 {
+        self.n.div_ceil(TILE)
+    }
 }
 
 /// Maps an `f32` to a `u32` with the same order (`-0.0` just below `+0.0`):

@@ -9,7 +9,7 @@ use raytrace::inputs::{assets_dir, generate, load_obj, Distribution};
 use raytrace::lbvh::GpuLbvh;
 use raytrace::validate::validate;
 use raytrace::vk::{Gpu, Kernels};
-use shared::radix_sort::SUPER;
+use shared::radix_sort as sort;
 use shared::types::{Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;
 
@@ -107,11 +107,20 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
             }
         }
     }
-    // More than one super-tile of the sort's offset tables.
-    let n = (2 * SUPER * TILE + 1) as usize;
-    for opts in BUILDS {
-        let (t, s) = generate(n, Distribution::Random, true, 77);
-        check(&mut lbvh, &format!("Random-{n}"), &t, &s, opts);
+    // More than one super-tile of the sort's offset tables (histogram dispatches), then the
+    // largest and smallest counted sorts, which need the tables that sort left cleared,
+    // then one key past the counted sorts.
+    let counted_max = sort::COUNTED_MAX as usize;
+    for n in [
+        2 * (sort::SUPER as usize) * tile + 1,
+        counted_max,
+        tile + 1,
+        counted_max + 1,
+    ] {
+        for opts in BUILDS {
+            let (t, s) = generate(n, Distribution::Random, true, 77);
+            check(&mut lbvh, &format!("Random-{n}"), &t, &s, opts);
+        }
     }
     assert_no_validation_errors(&gpu);
 }

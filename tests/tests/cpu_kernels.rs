@@ -6,12 +6,13 @@ use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
 use raytrace::validate::validate;
 use shared::karras::range_and_split;
-use shared::radix_sort::SUPER;
+use shared::radix_sort::{COUNTED_MAX, SUPER};
 use shared::types::{Node, TILE, WORKGROUP};
 
 #[test]
 fn the_sort_is_a_stable_sort_of_the_morton_codes() {
-    // Up to `RANK_MAX` keys the rank sort, above the radix passes.
+    // Up to `RANK_MAX` keys the rank sort, above the radix passes: counted up to
+    // `COUNTED_MAX` keys, then with histograms.
     for bits in [MortonBits::B30, MortonBits::B63] {
         for dist in Distribution::ALL {
             // The last size spans three super-tiles of the scatter's offset tables.
@@ -23,6 +24,8 @@ fn the_sort_is_a_stable_sort_of_the_morton_codes() {
                 257,
                 TILE as usize,
                 TILE as usize + 1,
+                COUNTED_MAX as usize,
+                COUNTED_MAX as usize + 1,
                 20_000,
                 (2 * SUPER * TILE + 1) as usize,
             ] {

@@ -34,7 +34,7 @@ pub fn render_cpu(
         n_tris: n_tris as u32,
         n: (n_tris + n_spheres) as u32,
         shift: 0,
-        tiles: 0,
+        passes: 0,
     };
     let mut tris = vec![Triangle::default(); n_tris];
     let mut spheres = vec![Sphere::default(); n_spheres];

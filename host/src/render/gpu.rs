@@ -261,7 +261,7 @@ impl GpuRenderer {
                 n_tris: f.n_tris,
                 n: f.n_prims,
                 shift: 0,
-                tiles: 0,
+                passes: 0,
             };
             let (x, y) = grid(f.n_prims.div_ceil(WORKGROUP));
             cmds.dispatch_sets(k, &sets, Kernel::Transform, bytemuck::bytes_of(&p), x, y);

@@ -20,6 +20,8 @@ pub enum Kernel {
     BoundsReduce,
     Morton30,
     Morton63,
+    Morton30Counted,
+    Morton63Counted,
     SortHistogramU32,
     SortHistogramU64,
     SortScatterU32,
@@ -40,10 +42,12 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    pub const ALL: [Kernel; 20] = [
+    pub const ALL: [Kernel; 22] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
+        Kernel::Morton30Counted,
+        Kernel::Morton63Counted,
         Kernel::SortHistogramU32,
         Kernel::SortHistogramU64,
         Kernel::SortScatterU32,
@@ -69,6 +73,8 @@ impl Kernel {
             Kernel::BoundsReduce => "bounds_reduce",
             Kernel::Morton30 => "morton30",
             Kernel::Morton63 => "morton63",
+            Kernel::Morton30Counted => "morton30_counted",
+            Kernel::Morton63Counted => "morton63_counted",
             Kernel::SortHistogramU32 => "sort_histogram_u32",
             Kernel::SortHistogramU64 => "sort_histogram_u64",
             Kernel::SortScatterU32 => "sort_scatter_u32",
