@@ -1,13 +1,15 @@
 //! Bottom-up box fitting (Karras 2012, sec. 4; the thesis's refit): one invocation per leaf
 //! climbs towards the root. At each internal node an acquire-release visit counter lets the
 //! first arrival stop and the second, which then sees both children's boxes, fit the node
-//! and go on. Boxes are read and written through device-scope atomics, so no stale cache
-//! line of another workgroup's write can be seen.
+//! and go on. Boxes are read and written through atomics, device-scope where another
+//! workgroup may have written them, so no stale cache line of its write can be seen.
 //!
 //! A workgroup climbs the leaves `BLOCK * group..` (one per lane). Nodes whose leaves all lie
 //! in that block are met only by its lanes: their counters live in workgroup memory, with
 //! workgroup-scope ordering, cheaper than a device-scope counter in the
-//! storage buffer (`visits`), kept for the nodes above the blocks.
+//! storage buffer (`visits`), kept for the nodes above the blocks; and the second arrival
+//! there reads its sibling's box with workgroup-scope loads, which the SM's cache may serve
+//! (1M 391 -> 389 us, 16M 4.36 -> 4.35 ms on the H100).
 //!
 //! The kernel sees the node buffer as 64-bit words, 4 per [`crate::types::Node`]:
 //! `[min.x | min.y, min.z | a, max.x | max.y, max.z | b]` (low half first), so a box is read
@@ -59,6 +61,17 @@ pub fn load_box(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
         sync::atomic_load_u64(at(words, b + 1)),
         sync::atomic_load_u64(at(words, b + 2)),
         sync::atomic_load_u64(at(words, b + 3)),
+    ])
+}
+
+/// [`load_box`] of a node that an invocation of this workgroup wrote (workgroup scope).
+pub fn load_box_local(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
+    let b = node * WORDS;
+    unpack([
+        sync::workgroup_load_u64(at(words, b)),
+        sync::workgroup_load_u64(at(words, b + 1)),
+        sync::workgroup_load_u64(at(words, b + 2)),
+        sync::workgroup_load_u64(at(words, b + 3)),
     ])
 }
 
@@ -145,7 +158,11 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
             return;
         }
         let sibling = if left == node { right } else { left };
-        let (s_lo, s_hi) = load_box(words, sibling);
+        let (s_lo, s_hi) = if local {
+            load_box_local(words, sibling)
+        } else {
+            load_box(words, sibling)
+        };
         let (c_lo, c_hi) = (lo, hi);
         // Written out (rust-gpu emits no unroll hints).
         seq!(K in 0..3 {

@@ -132,6 +132,19 @@ pub fn atomic_load_u64(p: &u64) -> u64 {
     }
 }
 
+/// Relaxed workgroup-scope 64-bit load of storage-buffer memory that an invocation of the
+/// same workgroup stored (with [`atomic_store_u64`]): the SM's own cache may serve it.
+pub fn workgroup_load_u64(p: &u64) -> u64 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_load::<u64, WORKGROUP, RELAXED>(p)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        *p
+    }
+}
+
 /// Relaxed device-scope 64-bit store, the partner of [`atomic_load_u64`].
 pub fn atomic_store_u64(p: &mut u64, v: u64) {
     #[cfg(target_arch = "spirv")]
