@@ -53,26 +53,18 @@ fn unpack(w: [u64; 4]) -> ([f32; 3], [f32; 3]) {
 }
 
 /// Node `node`'s box through atomic loads (another invocation may have written it in this
-/// dispatch).
-pub fn load_box(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
+/// dispatch): workgroup-scope ones when `LOCAL` (an invocation of this workgroup wrote it:
+/// the SM's cache may serve them), else device-scope.
+pub fn load_box<const LOCAL: bool>(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
     let b = node * WORDS;
-    unpack([
-        sync::atomic_load_u64(at(words, b)),
-        sync::atomic_load_u64(at(words, b + 1)),
-        sync::atomic_load_u64(at(words, b + 2)),
-        sync::atomic_load_u64(at(words, b + 3)),
-    ])
-}
-
-/// [`load_box`] of a node that an invocation of this workgroup wrote (workgroup scope).
-pub fn load_box_local(words: &[u64], node: u32) -> ([f32; 3], [f32; 3]) {
-    let b = node * WORDS;
-    unpack([
-        sync::workgroup_load_u64(at(words, b)),
-        sync::workgroup_load_u64(at(words, b + 1)),
-        sync::workgroup_load_u64(at(words, b + 2)),
-        sync::workgroup_load_u64(at(words, b + 3)),
-    ])
+    let load = |k: u32| {
+        if LOCAL {
+            sync::workgroup_load_u64(at(words, b + k))
+        } else {
+            sync::atomic_load_u64(at(words, b + k))
+        }
+    };
+    unpack([load(0), load(1), load(2), load(3)])
 }
 
 /// Internal node `node`'s children `(a, b)` through atomic loads.
@@ -159,9 +151,9 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         }
         let sibling = if left == node { right } else { left };
         let (s_lo, s_hi) = if local {
-            load_box_local(words, sibling)
+            load_box::<true>(words, sibling)
         } else {
-            load_box(words, sibling)
+            load_box::<false>(words, sibling)
         };
         let (c_lo, c_hi) = (lo, hi);
         // Written out (rust-gpu emits no unroll hints).

@@ -33,7 +33,7 @@ pub struct Boxed {
 /// Node `node` with its box, read through atomics as [`refit`] reads them (the refit writes
 /// the leaves, and an earlier treelet in this dispatch may have rewritten an internal node).
 fn boxed(words: &[u64], node: u32) -> Boxed {
-    let (lo, hi) = refit::load_box(words, node);
+    let (lo, hi) = refit::load_box::<false>(words, node);
     Boxed { node, lo, hi }
 }
 
