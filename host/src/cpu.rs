@@ -56,7 +56,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     // The GPU's scratch that outlives a build: the sort's tables and the bounds pair (see
     // `shared::bounds`), reset by the tree kernel as on the GPU.
     let mut supers = vec![0u32; sort::supers_words(n) as usize];
-    let mut counts = vec![0u32; (RADIX * tiles).max(sort::COUNTED_WORDS) as usize];
+    let mut counts = vec![0u32; sort::table_words(n) as usize];
     let mut summaries = vec![[0f32; 4]; n as usize];
     for g in 0..tiles {
         let mut st = BoundsState {
@@ -71,17 +71,24 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     let mut keys = vec![K::default(); n as usize];
     let mut vals = vec![0u32; n as usize];
-    for g in 0..n.div_ceil(WORKGROUP) {
-        let mut st = Box::new(DigitCounts {
-            counts: [0; sort::DIGIT_WORDS],
-        });
-        lanes(|l| sort::digits_clear(l, &mut st));
-        lanes(|l| {
-            let i = g * WORKGROUP + l;
-            let key = morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
-            sort::digits_count(i, &mut st, &p, key);
-        });
-        lanes(|l| sort::digits_store(l, g, &st, &p, &mut counts, &mut supers));
+    if sort::counted(&p) {
+        // The counting Morton kernel: a workgroup per 256 primitives.
+        for g in 0..n.div_ceil(WORKGROUP) {
+            let mut st = Box::new(DigitCounts {
+                counts: [0; sort::DIGIT_WORDS],
+            });
+            lanes(|l| sort::digits_clear(l, &mut st));
+            lanes(|l| {
+                let i = g * WORKGROUP + l;
+                let key = morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
+                sort::digits_count(i, &mut st, &p, key);
+            });
+            lanes(|l| sort::digits_store(l, g, &st, &p, &mut counts, &mut supers));
+        }
+    } else {
+        for i in 0..n {
+            morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
+        }
     }
     out.morton = keys.iter().map(|&k| k.into()).collect();
     lap("morton", &mut times);

@@ -6,8 +6,8 @@ use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels, BINDINGS};
 use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
-use shared::radix_sort::{self as sort, RADIX};
-use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
+use shared::radix_sort as sort;
+use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use std::sync::Arc;
 
 /// Device buffers of the build, sized for `capacity` primitives.
@@ -38,7 +38,6 @@ struct Buffers {
 impl Buffers {
     fn new(gpu: &Arc<Gpu>, kernels: &Kernels, n_tris: usize, n_spheres: usize) -> Result<Buffers> {
         let n = (n_tris + n_spheres).max(1) as u64;
-        let tiles = n.div_ceil(TILE as u64);
         let dev = |name: &str, bytes: u64| Buffer::new(gpu, name, bytes, MemoryLocation::GpuOnly);
         let tris = dev("triangles", (n_tris * size_of::<Triangle>()) as u64)?;
         let spheres = dev("spheres", (n_spheres * size_of::<Sphere>()) as u64)?;
@@ -48,8 +47,7 @@ impl Buffers {
         let vals_a = dev("values A", n * 4)?;
         let keys_b = dev("keys B", n * 8)?;
         let vals_b = dev("values B", n * 4)?;
-        let table_words = (tiles * RADIX as u64).max(sort::COUNTED_WORDS as u64);
-        let table = dev("digit tables", table_words * 4)?;
+        let table = dev("digit tables", sort::table_words(n as u32) as u64 * 4)?;
         let supers = dev("super-tile sums", sort::supers_words(n as u32) as u64 * 4)?;
         let nodes = dev("nodes", (2 * n - 1) * size_of::<Node>() as u64)?;
         let parents = dev("parents", (2 * n - 1) * 4)?;

@@ -150,8 +150,14 @@ pub fn table_base(p: &BuildParams, shift: u32) -> u32 {
 }
 
 /// Words of the `counts` buffer a counted sort may use: the tables of every pass of the
-/// widest sort (64-bit keys) of one super-tile.
-pub const COUNTED_WORDS: u32 = passes(64) * RADIX * SUPER;
+/// widest sort (64-bit keys) of the largest counted sort.
+pub const COUNTED_WORDS: u32 = passes(64) * RADIX * COUNTED_TILES;
+
+/// Words of the `counts` buffer for sorts of up to `n` keys: one table for every pass of a
+/// histogram sort, or every table of a counted one.
+pub fn table_words(n: u32) -> u32 {
+    (RADIX * n.div_ceil(TILE)).max(COUNTED_WORDS)
+}
 
 /// Words of the `counts` buffer the sort of `p.n` keys leaves non-zero: a counted sort's
 /// tables; every table word a next counted sort could use after any other (the histogram
@@ -215,7 +221,7 @@ pub struct DigitCounts {
     pub counts: [u32; DIGIT_WORDS],
 }
 
-/// Morton stage, phase 1: clears the counters.
+/// Morton stage of a counted sort, phase 1: clears the counters.
 pub fn digits_clear(lane: u32, st: &mut DigitCounts) {
     let mut w = lane;
     while w < DIGIT_WORDS as u32 {
@@ -224,10 +230,10 @@ pub fn digits_clear(lane: u32, st: &mut DigitCounts) {
     }
 }
 
-/// Morton stage, phase 2 (after a barrier): counts key `i`'s digit of every pass, if it
-/// exists and the sort is counted.
+/// Morton stage of a counted sort, phase 2 (after a barrier): counts key `i`'s digit of
+/// every pass, if it exists.
 pub fn digits_count<K: SortKey>(i: u32, st: &mut DigitCounts, p: &BuildParams, key: K) {
-    if i < p.n && counted(p) {
+    if i < p.n {
         let mut pass = 0;
         while pass < p.passes {
             let d = key.digit(pass * RADIX_BITS);
@@ -237,13 +243,10 @@ pub fn digits_count<K: SortKey>(i: u32, st: &mut DigitCounts, p: &BuildParams, k
     }
 }
 
-/// Morton stage, phase 3 (after a barrier): adds the workgroup's counts (of keys
-/// `WORKGROUP * group..`, all in one tile) into every pass's digit totals (its super-tile
-/// table: one super-tile) and the first pass's tile table.
+/// Morton stage of a counted sort, phase 3 (after a barrier): adds the workgroup's counts
+/// (of keys `WORKGROUP * group..`, all in one tile) into every pass's digit totals (its
+/// super-tile table: one super-tile) and the first pass's tile table.
 pub fn digits_store(lane: u32, group: u32, st: &DigitCounts, p: &BuildParams, counts: &mut [u32], supers: &mut [u32]) {
-    if !counted(p) {
-        return;
-    }
     let tile = group / (TILE / WORKGROUP);
     let mut w = lane;
     while w < p.passes * RADIX {
