@@ -170,27 +170,36 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     debug_assert_eq!(pair, [OrderedBounds::EMPTY, b]);
     lap("tree", &mut times);
 
-    // The refit sees the nodes as 64-bit words (`Node` is only 4-aligned: copy, not cast).
-    let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&nodes);
     let prims = refit::Prims {
         order: &vals,
         tris,
         spheres,
     };
-    for g in 0..n.div_ceil(refit::BLOCK) {
-        let mut st = refit::RefitState {
-            visits: [0; refit::BLOCK as usize],
-        };
-        lanes(|l| refit::clear(l, &mut st));
-        lanes(|l| {
-            if opts.treelets {
-                refit::refit::<true, true>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words);
-            } else {
-                refit::refit::<true, false>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words);
-            }
-        });
-    }
-    let nodes: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
+    let groups = n.div_ceil(refit::BLOCK);
+    let nodes: Vec<Node> = if opts.treelets {
+        // The treelet refit sees the nodes as 64-bit words (`Node` is only 4-aligned: copy, not cast).
+        let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&nodes);
+        for g in 0..groups {
+            let mut st = refit::RefitState {
+                visits: [0; refit::BLOCK as usize],
+            };
+            lanes(|l| refit::clear(l, &mut st));
+            lanes(|l| refit::refit::<true, true>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words));
+        }
+        bytemuck::pod_collect_to_vec(&words)
+    } else {
+        // The fit sees them as 32-bit words.
+        let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(&nodes);
+        for g in 0..groups {
+            let mut st = refit::FitState {
+                boxes: [0.0; 6 * refit::BLOCK as usize],
+                links: [0; refit::BLOCK as usize],
+            };
+            lanes(|l| refit::fit_links(l, g, &mut st, &p, &parents, &visits, &words));
+            lanes(|l| refit::fit::<true>(l, g, &mut st, &p, prims, &parents, &visits, &mut words));
+        }
+        bytemuck::pod_collect_to_vec(&words)
+    };
     lap("refit", &mut times);
     out.nodes = nodes;
     out.parents = parents;

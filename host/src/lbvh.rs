@@ -280,7 +280,12 @@ impl GpuLbvh {
         cmds.dispatch(k, set_ab, build, &p, items);
         cmds.barrier();
         stamp(cmds, STAGES[3]);
-        cmds.dispatch(k, set_ab, self.gpu.refit_kernel(opts.treelets), &p, items);
+        let refit = match self.gpu.refit_kernel(opts.treelets) {
+            (kernel, Some(constant)) => k.specialised(kernel, constant)?,
+            (kernel, None) => k.pipeline(kernel),
+        };
+        let (x, y) = shared::types::grid(items);
+        cmds.dispatch_pipeline(k, refit, &[set_ab], bytemuck::bytes_of(&p), x, y);
         cmds.barrier();
         cmds.timestamp(if stages { STAGES[4] } else { "build" });
         Ok(())

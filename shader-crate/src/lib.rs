@@ -6,7 +6,7 @@
 use shared::bounds::{self, BoundsState};
 use shared::path::{self, World};
 use shared::radix_sort::{self as sort, DigitCounts, HistogramState, ScatterState};
-use shared::refit::RefitState;
+use shared::refit::{FitState, RefitState};
 use shared::scan;
 use shared::traverse::Scene;
 use shared::types::{
@@ -67,10 +67,36 @@ macro_rules! refit_kernel {
     };
 }
 
-refit_kernel!(refit, true, false);
-refit_kernel!(refit_relaxed, false, false);
 refit_kernel!(refit_treelets, true, true);
 refit_kernel!(refit_treelets_relaxed, false, true);
+
+/// The box fit (`shared::refit::fit`); specialisation constant 0 is 1 for its ordered
+/// variant, 0 for the relaxed one (lavapipe).
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn fit(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
+    #[spirv(spec_constant(id = 0, default = 1))] ordered: u32,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &[u32],
+    #[spirv(workgroup)] st: &mut FitState,
+) {
+    let group = flat_group(gid.x, gid.y);
+    refit::fit_links(lid.x, group, st, p, parents, visits, node_words);
+    barrier();
+    let prims = refit::Prims { order, tris, spheres };
+    if ordered != 0 {
+        refit::fit::<true>(lid.x, group, st, p, prims, parents, visits, node_words);
+    } else {
+        refit::fit::<false>(lid.x, group, st, p, prims, parents, visits, node_words);
+    }
+}
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {

@@ -67,7 +67,7 @@ pub fn range_and_split<K: SortKey>(keys: &[K], n: u32, i: u32) -> (u32, u32, u32
 
 /// Builds internal node `i`, records its children's parents, clears its visit counter and
 /// records the far end of its leaf range (`i` is one end) in `visits[n + i]` for the refit.
-/// The leaves are written by the refit (see [`crate::refit::refit`]), which gathers each
+/// The leaves are written by the refit (see [`crate::refit::fit`]), which gathers each
 /// leaf's primitive as it starts its climb: written here, they would cross memory twice more.
 pub fn build<K: SortKey>(
     i: u32,

@@ -7,6 +7,7 @@
 //! separated by workgroup barriers.
 #![cfg_attr(not(test), no_std)]
 #![cfg_attr(not(target_arch = "spirv"), feature(core_float_math))]
+#![cfg_attr(target_arch = "spirv", feature(asm_experimental_arch))]
 
 pub mod bounds;
 pub mod display;

@@ -1,20 +1,24 @@
-//! Bottom-up box fitting (Karras 2012, sec. 4; the thesis's refit): one invocation per leaf
-//! climbs towards the root. At each internal node an acquire-release visit counter lets the
-//! first arrival stop and the second, which then sees both children's boxes, fit the node
-//! and go on. Boxes are read and written through atomics, device-scope where another
-//! workgroup may have written them, so no stale cache line of its write can be seen.
+//! Bottom-up box fitting (Karras 2012, sec. 4; the thesis's refit), one invocation per leaf
+//! climbing towards the root, in two forms:
 //!
-//! A workgroup climbs the leaves `BLOCK * group..` (one per lane). Nodes whose leaves all lie
-//! in that block are met only by its lanes: their counters live in workgroup memory, with
-//! workgroup-scope ordering, cheaper than a device-scope counter in the
-//! storage buffer (`visits`), kept for the nodes above the blocks; and the second arrival
-//! there reads its sibling's box with workgroup-scope loads, which the SM's cache may serve
-//! (1M 391 -> 389 us, 16M 4.36 -> 4.35 ms on the H100).
+//! - [`fit`], the build's: a workgroup fits the nodes whose leaves all lie in its block of
+//!   `BLOCK` leaves, siblings meeting in workgroup memory, and merges the boxes of those
+//!   subtrees' roots into the nodes above with atomic float `min`/`max` (no invocation
+//!   waits for another across workgroups). H100, refit stage, B30: Suzanne 34 -> 18 us,
+//!   bunny 42 -> 27, 1M 157 -> 157, 16M 1751 -> 1892 against [`refit`]'s counters.
+//! - [`refit`], the treelet builds' (a treelet is restructured when its root is fitted, so
+//!   these need to know when a node is complete): at each internal node an acquire-release
+//!   visit counter lets the first arrival stop and the second, which then sees both
+//!   children's boxes, fit the node and go on. Boxes are read and written through atomics,
+//!   device-scope where another workgroup may have written them, so no stale cache line of
+//!   its write can be seen. Nodes whose leaves all lie in the workgroup's block have their
+//!   counters in workgroup memory, and the second arrival there reads its sibling's box with
+//!   workgroup-scope loads, which the SM's cache may serve.
 //!
-//! The kernel sees the node buffer as 64-bit words, 4 per [`crate::types::Node`]:
+//! [`refit`] sees the node buffer as 64-bit words, 4 per [`crate::types::Node`]:
 //! `[min.x | min.y, min.z | a, max.x | max.y, max.z | b]` (low half first), so a box is read
-//! or written with four atomic operations instead of six.
-use crate::sync::{self, at, at_mut, elem_mut};
+//! or written with four atomic operations instead of six; [`fit`] as 32-bit words.
+use crate::sync::{self, at, at_mut, elem, elem_mut};
 use crate::treelet::{self, Boxed};
 use crate::types::{prim_box, BuildParams, Sphere, Triangle, INVALID, WORKGROUP};
 use seq_macro::seq;
@@ -184,5 +188,185 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         }
         node = parent;
         parent = grandparent;
+    }
+}
+
+/// Workgroup memory of [`fit`]: a box slot per lane and a link word per internal node
+/// `BLOCK * group + s` (7 KB).
+pub struct FitState {
+    /// The box `(lo, hi)` of the node where lane `l` arrived last: `boxes[6 * l..6 * l + 6]`.
+    pub boxes: [f32; 6 * BLOCK as usize],
+    /// Node `BLOCK * group + s`'s way up ([`LOCAL`], [`LEFT`] and its parent's slot in the
+    /// low byte, or 0 where its parent is outside the block), and in bits 16.. the lane + 1
+    /// of the first child to arrive at it.
+    pub links: [u32; BLOCK as usize],
+}
+
+/// Ancestors whose leaf range spans this many leaves or more are tested before the merges
+/// (see [`fit`]); below, merged into blindly (few local roots meet there). H100, refit
+/// stage: merging blindly everywhere, bunny 25 us, 1M 322, 16M 5718 (the root takes every
+/// local root's merges); testing every ancestor 32 / 166 / 2017 (each test waits for the
+/// boxes' loads); from 4 blocks 27 / 157 / 1892; from 32 blocks 25 / 170 / 2141.
+pub const CHECK_SPAN: u32 = 4 * BLOCK;
+
+/// A link's flag: the parent's leaves all lie in the block (its slot is the low byte).
+const LOCAL: u32 = 1 << 8;
+/// A link's flag: the node is its parent's left child.
+const LEFT: u32 = 1 << 9;
+/// Where a link word records the first arrival (lane + 1).
+const ARRIVAL: u32 = 16;
+const _: () = assert!(BLOCK <= 256 && BLOCK < 1 << (32 - ARRIVAL));
+
+/// Node `c`'s way up from the block starting at leaf `base` (see [`FitState::links`]).
+/// `words` is the node buffer as 32-bit words, 8 per [`crate::types::Node`] (`a`, the left
+/// child, at `8 * p + 3`).
+fn link(c: u32, base: u32, n: u32, parents: &[u32], visits: &[u32], words: &[u32]) -> u32 {
+    let p = *at(parents, c);
+    if p == INVALID {
+        return 0;
+    }
+    let far = *at(visits, n + p);
+    if p.wrapping_sub(base) >= BLOCK || far.wrapping_sub(base) >= BLOCK {
+        return 0;
+    }
+    let left = if *at(words, 8 * p + 3) == c { LEFT } else { 0 };
+    LOCAL | left | (p - base)
+}
+
+/// Writes node `node`'s box (its 32-bit words 0-2 and 4-6; the links are the tree kernel's).
+#[allow(clippy::identity_op)] // `seq!` starts at 0
+fn store_box(words: &mut [u32], node: u32, lo: [f32; 3], hi: [f32; 3]) {
+    let w = 8 * node;
+    seq!(K in 0..3 {
+        *at_mut(words, w + K) = lo[K].to_bits();
+        *at_mut(words, w + 4 + K) = hi[K].to_bits();
+    });
+}
+
+/// Phase 1 of [`fit`]: lane `s` records internal node `BLOCK * group + s`'s way up.
+pub fn fit_links(
+    lane: u32,
+    group: u32,
+    st: &mut FitState,
+    p: &BuildParams,
+    parents: &[u32],
+    visits: &[u32],
+    words: &[u32],
+) {
+    let base = group * BLOCK;
+    let x = base + lane;
+    let up = if x + 1 < p.n {
+        link(x, base, p.n, parents, visits, words)
+    } else {
+        0
+    };
+    *elem_mut(&mut st.links, lane) = up;
+}
+
+/// Phase 2: the box fit without the visit counters' chain across the GPU. Lane `l` writes
+/// leaf `BLOCK * group + l` and climbs while the parent's leaves all lie in the block (a
+/// *local* node), meeting its sibling in workgroup memory: it leaves its box in its slot and
+/// sets its lane in the parent's link word; the first to arrive stops, the second reads
+/// the first's box from its slot, fits the parent (children in (left, right) order, so that
+/// `min(-0.0, +0.0)` is the same on every backend) and goes on. A lane stops at most once,
+/// so its slot is read at most once, after its last write.
+///
+/// At a node whose parent is not local (a *local root*), the lane merges its box into its
+/// ancestors with atomic float `min`/`max` on their bits ([`sync::atomic_fmin_bits`]; the
+/// tree kernel left them empty), from the parent up, and stops at the first ancestor whose
+/// box (as loaded: it only grows) already holds its own. No invocation waits for another,
+/// so a level above the blocks costs a load of the parent and its box instead of a
+/// device-scope counter, a fence and the sibling's box; the early stop keeps the merges off
+/// the top of the tree, which every local root reaches. Each node's box is still exactly
+/// the union of its leaves, whatever the order: a lane that merged into a node goes on to
+/// the parent, or stops there because the parent already holds its box; so every node
+/// holds each box merged into its child, and by induction every local root's below it.
+/// Boxes of nodes above the blocks order -0.0 below +0.0 (in the merges and the test).
+///
+/// `ORDERED` makes the link word's `or` acquire-release on workgroup memory; lavapipe runs
+/// the relaxed variant (see [`refit`]).
+#[allow(clippy::too_many_arguments)]
+#[allow(clippy::identity_op)] // `seq!` starts at 0
+pub fn fit<const ORDERED: bool>(
+    lane: u32,
+    group: u32,
+    st: &mut FitState,
+    p: &BuildParams,
+    prims: Prims,
+    parents: &[u32],
+    visits: &[u32],
+    words: &mut [u32],
+) {
+    let n = p.n;
+    let base = group * BLOCK;
+    let i = base + lane;
+    if i >= n {
+        return;
+    }
+    let mut node = n - 1 + i;
+    let prim = *at(prims.order, i);
+    let (l, h) = prim_box(prim, p.n_tris, prims.tris, prims.spheres);
+    let (mut lo, mut hi) = (l.to_array(), h.to_array());
+    store_box(words, node, lo, hi);
+    *at_mut(words, 8 * node + 3) = prim;
+    *at_mut(words, 8 * node + 7) = INVALID;
+    let mut up = link(node, base, n, parents, visits, words);
+    while up & LOCAL != 0 {
+        let slot = 6 * lane;
+        seq!(K in 0..3 {
+            *elem_mut(&mut st.boxes, slot + K) = lo[K];
+            *elem_mut(&mut st.boxes, slot + 3 + K) = hi[K];
+        });
+        let s = up & 0xff;
+        let old = sync::workgroup_or_ordered::<ORDERED>(elem_mut(&mut st.links, s), (lane + 1) << ARRIVAL);
+        let first = old >> ARRIVAL;
+        if first == 0 {
+            return;
+        }
+        let other = 6 * (first - 1);
+        seq!(K in 0..3 {
+            let (m_lo, m_hi) = (*elem(&st.boxes, other + K), *elem(&st.boxes, other + 3 + K));
+            let (l_lo, r_lo, l_hi, r_hi) = if up & LEFT != 0 {
+                (lo[K], m_lo, hi[K], m_hi)
+            } else {
+                (m_lo, lo[K], m_hi, hi[K])
+            };
+            lo[K] = l_lo.min(r_lo);
+            hi[K] = l_hi.max(r_hi);
+        });
+        node = base + s;
+        store_box(words, node, lo, hi);
+        up = old & 0xffff;
+    }
+    let mut a = *at(parents, node);
+    while a != INVALID {
+        let w = 8 * a;
+        let next = *at(parents, a);
+        let far = *at(visits, n + a);
+        if a.abs_diff(far) >= CHECK_SPAN {
+            let mut covered = true;
+            seq!(K in 0..3 {
+                let (a_lo, a_hi) = (sync::atomic_load_u32(at(words, w + K)), sync::atomic_load_u32(at(words, w + 4 + K)));
+                covered &= total_order(a_lo) <= total_order(lo[K].to_bits())
+                    && total_order(a_hi) >= total_order(hi[K].to_bits());
+            });
+            if covered {
+                return;
+            }
+        }
+        seq!(K in 0..3 {
+            sync::atomic_fmin_bits(at_mut(words, w + K), lo[K]);
+            sync::atomic_fmax_bits(at_mut(words, w + 4 + K), hi[K]);
+        });
+        a = next;
+    }
+}
+
+/// `f32` bits mapped to `u32` in the order of [`sync::atomic_fmin_bits`] (-0.0 < +0.0).
+fn total_order(bits: u32) -> u32 {
+    if (bits as i32) < 0 {
+        !bits
+    } else {
+        bits | 1 << 31
     }
 }

@@ -95,6 +95,113 @@ pub fn workgroup_add_ordered<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
     }
 }
 
+/// Acquire-release on workgroup memory alone: orders this invocation's workgroup-memory
+/// accesses around a workgroup-memory atomic (the fit's arrival flags, see `refit::fit`).
+#[cfg(target_arch = "spirv")]
+const WG_ONLY_ACQ_REL: u32 = Semantics::ACQUIRE_RELEASE.bits() | Semantics::WORKGROUP_MEMORY.bits();
+
+/// Workgroup-scope `or` on workgroup memory; returns the old value. With `ORDERED` it is
+/// acquire-release on workgroup memory; without, relaxed.
+pub fn workgroup_or_ordered<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        if ORDERED {
+            spirv_std::arch::atomic_or::<u32, WORKGROUP, WG_ONLY_ACQ_REL>(p, v)
+        } else {
+            spirv_std::arch::atomic_or::<u32, WORKGROUP, RELAXED>(p, v)
+        }
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        let old = *p;
+        *p = old | v;
+        old
+    }
+}
+
+/// Relaxed device-scope float `min` on the bits of a non-NaN `f32` held in a `u32`: a
+/// signed integer `min` where `v` is non-negative, an unsigned `max` where it is negative
+/// (negative floats order backwards as integers, and above every non-negative one
+/// unsigned). The result is the minimum under the order in which -0.0 < +0.0 whatever the
+/// order of the updates. No value comes back: a reduction the GPU need not wait for.
+pub fn atomic_fmin_bits(p: &mut u32, v: f32) {
+    let b = v.to_bits();
+    if (b as i32) >= 0 {
+        smin_u32(p, b);
+    } else {
+        #[cfg(target_arch = "spirv")]
+        unsafe {
+            spirv_std::arch::atomic_u_max::<u32, DEVICE, RELAXED>(p, b);
+        }
+        #[cfg(not(target_arch = "spirv"))]
+        {
+            *p = (*p).max(b);
+        }
+    }
+}
+
+/// Relaxed device-scope float `max`, the partner of [`atomic_fmin_bits`] (+0.0 > -0.0).
+pub fn atomic_fmax_bits(p: &mut u32, v: f32) {
+    let b = v.to_bits();
+    if (b as i32) >= 0 {
+        smax_u32(p, b);
+    } else {
+        #[cfg(target_arch = "spirv")]
+        unsafe {
+            spirv_std::arch::atomic_u_min::<u32, DEVICE, RELAXED>(p, b);
+        }
+        #[cfg(not(target_arch = "spirv"))]
+        {
+            *p = (*p).min(b);
+        }
+    }
+}
+
+/// Relaxed device-scope signed `min` on a `u32` (spirv-std types `OpAtomicSMin` by signed
+/// integers only, and the node words are unsigned).
+fn smin_u32(p: &mut u32, v: u32) {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        core::arch::asm! {
+            "%u32 = OpTypeInt 32 0",
+            "%scope = OpConstant %u32 {scope}",
+            "%semantics = OpConstant %u32 {semantics}",
+            "%value = OpLoad _ {value}",
+            "%old = OpAtomicSMin %u32 {ptr} %scope %semantics %value",
+            scope = const DEVICE,
+            semantics = const RELAXED,
+            ptr = in(reg) p,
+            value = in(reg) &v,
+        }
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        *p = (*p as i32).min(v as i32) as u32;
+    }
+}
+
+/// Relaxed device-scope signed `max` on a `u32` (see [`smin_u32`]).
+fn smax_u32(p: &mut u32, v: u32) {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        core::arch::asm! {
+            "%u32 = OpTypeInt 32 0",
+            "%scope = OpConstant %u32 {scope}",
+            "%semantics = OpConstant %u32 {semantics}",
+            "%value = OpLoad _ {value}",
+            "%old = OpAtomicSMax %u32 {ptr} %scope %semantics %value",
+            scope = const DEVICE,
+            semantics = const RELAXED,
+            ptr = in(reg) p,
+            value = in(reg) &v,
+        }
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        *p = (*p as i32).max(v as i32) as u32;
+    }
+}
+
 /// Relaxed workgroup-scope add on workgroup memory; returns the old value.
 pub fn workgroup_add(p: &mut u32, v: u32) -> u32 {
     workgroup_add_ordered::<false>(p, v)
@@ -116,6 +223,19 @@ pub fn atomic_add_device<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
         let old = *p;
         *p = old.wrapping_add(v);
         old
+    }
+}
+
+/// Relaxed device-scope 32-bit load: reads what another workgroup stored or merged in this
+/// dispatch, past any non-coherent cache.
+pub fn atomic_load_u32(p: &u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_load::<u32, DEVICE, RELAXED>(p)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        *p
     }
 }
 

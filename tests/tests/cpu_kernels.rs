@@ -85,6 +85,28 @@ fn every_input_shape_gives_a_valid_tree() {
 }
 
 #[test]
+fn the_fit_gives_every_node_exactly_its_childrens_union() {
+    // Many blocks of the fit: nodes above them take merged boxes, which stop early where an
+    // ancestor already holds theirs; no box may come out loose (or short: the validator).
+    for bits in [MortonBits::B30, MortonBits::B63] {
+        for dist in Distribution::ALL {
+            for n in [5000, 40_000] {
+                let (t, s) = generate(n, dist, true, 11);
+                let (r, _) = cpu::build(&t, &s, BuildOptions::lbvh(bits));
+                validate(&r.nodes, &r.parents, &t, &s).unwrap();
+                for (i, node) in r.nodes.iter().enumerate().filter(|(_, x)| !x.is_leaf()) {
+                    let (a, b) = (&r.nodes[node.a as usize], &r.nodes[node.b as usize]);
+                    for k in 0..3 {
+                        assert_eq!(node.min[k], a.min[k].min(b.min[k]), "{dist:?} n={n} {bits:?} node {i}");
+                        assert_eq!(node.max[k], a.max[k].max(b.max[k]), "{dist:?} n={n} {bits:?} node {i}");
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn the_validator_catches_broken_trees() {
     let (t, s) = generate(100, Distribution::Random, true, 5);
     let (r, _) = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30));

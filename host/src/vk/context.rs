@@ -323,15 +323,15 @@ impl Gpu {
         self.driver_id == vk::DriverId::MESA_LLVMPIPE
     }
 
-    /// The refit entry point for this device, with or without treelet restructuring:
-    /// lavapipe needs the relaxed variants (see `shared::refit`).
-    pub fn refit_kernel(&self, treelets: bool) -> super::Kernel {
+    /// The refit entry point for this device, with or without treelet restructuring, and
+    /// the value of its specialisation constant where it has one: lavapipe needs the relaxed
+    /// variants (see `shared::refit`).
+    pub fn refit_kernel(&self, treelets: bool) -> (super::Kernel, Option<u32>) {
         use super::Kernel::*;
         match (treelets, self.is_lavapipe()) {
-            (false, false) => Refit,
-            (false, true) => RefitRelaxed,
-            (true, false) => RefitTreelets,
-            (true, true) => RefitTreeletsRelaxed,
+            (false, lavapipe) => (Fit, Some(u32::from(!lavapipe))),
+            (true, false) => (RefitTreelets, None),
+            (true, true) => (RefitTreeletsRelaxed, None),
         }
     }
 

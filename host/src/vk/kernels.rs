@@ -30,8 +30,7 @@ pub enum Kernel {
     SortRankU64,
     KarrasBuildU32,
     KarrasBuildU64,
-    Refit,
-    RefitRelaxed,
+    Fit,
     RefitTreelets,
     RefitTreeletsRelaxed,
     Transform,
@@ -42,7 +41,7 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    pub const ALL: [Kernel; 22] = [
+    pub const ALL: [Kernel; 21] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -56,8 +55,7 @@ impl Kernel {
         Kernel::SortRankU64,
         Kernel::KarrasBuildU32,
         Kernel::KarrasBuildU64,
-        Kernel::Refit,
-        Kernel::RefitRelaxed,
+        Kernel::Fit,
         Kernel::RefitTreelets,
         Kernel::RefitTreeletsRelaxed,
         Kernel::Transform,
@@ -83,8 +81,7 @@ impl Kernel {
             Kernel::SortRankU64 => "sort_rank_u64",
             Kernel::KarrasBuildU32 => "karras_build_u32",
             Kernel::KarrasBuildU64 => "karras_build_u64",
-            Kernel::Refit => "refit",
-            Kernel::RefitRelaxed => "refit_relaxed",
+            Kernel::Fit => "fit",
             Kernel::RefitTreelets => "refit_treelets",
             Kernel::RefitTreeletsRelaxed => "refit_treelets_relaxed",
             Kernel::Transform => "transform",
@@ -215,10 +212,10 @@ impl Kernels {
     }
 
     /// `kernel` specialised to `constant` (its specialisation constant 0: the path tracer's
-    /// `FEATURE_*` and `VARIANT_*` bits), made on first use and kept. On a device whose `fma`
-    /// rounds twice [`VARIANT_SPLIT_PRODUCTS`] is added.
+    /// `FEATURE_*` and `VARIANT_*` bits; the fit's ordering), made on first use and kept. On a
+    /// device whose `fma` rounds twice [`VARIANT_SPLIT_PRODUCTS`] is added to a tracer's.
     pub fn specialised(&self, kernel: Kernel, constant: u32) -> Result<vk::Pipeline> {
-        let constant = if self.fused_fma {
+        let constant = if self.fused_fma || !matches!(kernel, Kernel::PathTrace | Kernel::CastRays) {
             constant
         } else {
             constant | VARIANT_SPLIT_PRODUCTS
