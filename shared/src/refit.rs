@@ -20,7 +20,7 @@
 //! or written with four atomic operations instead of six; [`fit`] as 32-bit words.
 use crate::sync::{self, at, at_mut, elem, elem_mut};
 use crate::treelet::{self, Boxed};
-use crate::types::{prim_box, BuildParams, Sphere, Triangle, INVALID, WORKGROUP};
+use crate::types::{f32_to_ordered, prim_box, BuildParams, Sphere, Triangle, INVALID, WORKGROUP};
 use seq_macro::seq;
 
 /// Leaves per workgroup, one per lane.
@@ -347,8 +347,8 @@ pub fn fit<const ORDERED: bool>(
             let mut covered = true;
             seq!(K in 0..3 {
                 let (a_lo, a_hi) = (sync::atomic_load_u32(at(words, w + K)), sync::atomic_load_u32(at(words, w + 4 + K)));
-                covered &= total_order(a_lo) <= total_order(lo[K].to_bits())
-                    && total_order(a_hi) >= total_order(hi[K].to_bits());
+                covered &= f32_to_ordered(f32::from_bits(a_lo)) <= f32_to_ordered(lo[K])
+                    && f32_to_ordered(f32::from_bits(a_hi)) >= f32_to_ordered(hi[K]);
             });
             if covered {
                 return;
@@ -359,14 +359,5 @@ pub fn fit<const ORDERED: bool>(
             sync::atomic_fmax_bits(at_mut(words, w + 4 + K), hi[K]);
         });
         a = next;
-    }
-}
-
-/// `f32` bits mapped to `u32` in the order of [`sync::atomic_fmin_bits`] (-0.0 < +0.0).
-fn total_order(bits: u32) -> u32 {
-    if (bits as i32) < 0 {
-        !bits
-    } else {
-        bits | 1 << 31
     }
 }
