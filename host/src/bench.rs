@@ -4,16 +4,8 @@
 //! timing. Writes Markdown and JSON.
 use crate::bvh::{BuildOptions, MortonBits, STAGES};
 
-/// Reported columns: the stages, and the sort's two kernels (summed over its passes).
-const COLUMNS: [&str; 7] = [
-    STAGES[0],
-    STAGES[1],
-    STAGES[2],
-    "sort.histogram",
-    "sort.scatter",
-    STAGES[3],
-    STAGES[4],
-];
+/// Reported columns: the stages.
+const COLUMNS: [&str; 5] = STAGES;
 use crate::cpu;
 use crate::inputs::{assets_dir, generate, load_obj, Distribution};
 use crate::lbvh::GpuLbvh;

@@ -4,9 +4,9 @@
 use crate::bvh::{BuildOptions, BuildResult, MortonBits};
 use bytemuck::Pod;
 use shared::bounds::{self, BoundsState};
-use shared::radix_sort::{self as sort, DigitCounts, HistogramState, ScatterState, SortKey, RADIX};
+use shared::radix_sort::{self as sort, DigitCounts, ScatterState, SortKey, RADIX};
 use shared::scan::{self, BlockScan};
-use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
+use shared::types::{item_groups, items_per_lane, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::{karras, morton, refit};
 use std::time::Instant;
 
@@ -51,14 +51,14 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         t = Instant::now();
     };
 
-    // Bounds: one workgroup per tile.
+    // Bounds: `items_per_lane` primitives a lane.
     let mut b = OrderedBounds::EMPTY;
     // The GPU's scratch that outlives a build: the sort's tables and the bounds pair (see
     // `shared::bounds`), reset by the tree kernel as on the GPU.
-    let mut supers = vec![0u32; sort::supers_words(n) as usize];
+    let mut totals = vec![0u32; sort::TOTALS_WORDS as usize];
     let mut counts = vec![0u32; sort::table_words(n) as usize];
     let mut summaries = vec![[0f32; 4]; n as usize];
-    for g in 0..tiles {
+    for g in 0..item_groups(n) {
         let mut st = BoundsState {
             b: OrderedBounds::EMPTY,
         };
@@ -71,19 +71,22 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     let mut keys = vec![K::default(); n as usize];
     let mut vals = vec![0u32; n as usize];
-    if sort::counted(&p) {
-        // The counting Morton kernel: a workgroup per 256 primitives.
-        for g in 0..n.div_ceil(WORKGROUP) {
+    if n > sort::RANK_MAX {
+        // The counting Morton kernel (for the radix passes).
+        let items = items_per_lane(n);
+        for g in 0..item_groups(n) {
             let mut st = Box::new(DigitCounts {
                 counts: [0; sort::DIGIT_WORDS],
             });
             lanes(|l| sort::digits_clear(l, &mut st));
-            lanes(|l| {
-                let i = g * WORKGROUP + l;
-                let key = morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
-                sort::digits_count(i, &mut st, &p, key);
-            });
-            lanes(|l| sort::digits_store(l, g, &st, &p, &mut counts, &mut supers));
+            for k in 0..items {
+                lanes(|l| {
+                    let i = (g * items + k) * WORKGROUP + l;
+                    let key = morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
+                    sort::digits_count(i, &mut st, &p, key);
+                });
+            }
+            lanes(|l| sort::digits_store(l, &st, &p, &mut totals));
         }
     } else {
         for i in 0..n {
@@ -104,43 +107,43 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         let mut vals_b = vals.clone();
         for pass in 0..p.passes {
             p.shift = pass * sort::RADIX_BITS;
-            // A counted sort's tables come from the Morton stage and the scatters.
-            let histogram_tiles = if sort::counted(&p) { 0 } else { tiles };
-            for g in 0..histogram_tiles {
-                let mut st = HistogramState {
-                    counts: [0; RADIX as usize],
-                };
-                lanes(|l| sort::histogram_clear(l, &mut st));
-                lanes(|l| sort::histogram_count(l, g, &mut st, &p, &keys));
-                lanes(|l| sort::histogram_store(l, g, &st, &p, &mut counts, &mut supers));
-            }
             let mut st = Box::new(ScatterState {
                 counts: [0; sort::COUNTERS],
-                total: [0; WG],
-                before: [0; WG],
+                window: [0; 2 * WG],
                 digit_total: [0; RADIX as usize],
+                own: [0; RADIX as usize],
                 digit_before: [0; RADIX as usize],
+                end: [0; RADIX as usize],
                 base: [0; RADIX as usize],
+                tile: 0,
+                pending: 0,
                 scan: BlockScan {
                     sums: [0; WG],
                     totals: [0; scan::RAKES as usize],
                 },
             });
-            for g in 0..tiles {
+            // Workgroups in turn: each claims the next tile, so its look-back finds every
+            // tile before it published.
+            for _ in 0..tiles {
+                lanes(|l| sort::scatter_claim(l, &mut st, &p, &mut totals));
                 let owned: Vec<_> = (0..WORKGROUP)
-                    .map(|l| sort::scatter_count(l, g, &mut st, &p, &keys, &vals, &counts, &supers))
+                    .map(|l| sort::scatter_count(l, &mut st, &p, &keys, &vals, &totals))
                     .collect();
                 lanes(|l| sort::scatter_sums(l, &mut st));
                 lanes(|l| scan::rake(l, &mut st.scan));
                 lanes(|l| scan::rake_totals(l, &mut st.scan));
-                lanes(|l| sort::scatter_offsets(l, &mut st));
+                lanes(|l| sort::scatter_offsets(l, &mut st, &p, &mut counts));
+                while sort::looking_back(&st) {
+                    lanes(|l| sort::lookback_load(l, &mut st, &p, &counts));
+                    lanes(|l| sort::lookback_sum(l, &mut st, &p, &mut counts));
+                }
                 let staged: Vec<_> = (0..WORKGROUP)
                     .zip(owned)
-                    .map(|(l, o)| sort::scatter_rank(l, g, &mut st, &p, o))
+                    .map(|(l, o)| sort::scatter_rank(l, &mut st, &p, o))
                     .collect();
                 staged.iter().for_each(|s| sort::scatter_stage_keys(&mut st, s));
                 let at: Vec<_> = (0..WORKGROUP)
-                    .map(|l| sort::scatter_write_keys(l, g, &st, &p, &mut keys_b, &mut counts))
+                    .map(|l| sort::scatter_write_keys(l, &st, &p, &mut keys_b))
                     .collect();
                 staged.iter().for_each(|s| sort::scatter_stage_vals(&mut st, s));
                 for (l, at) in (0..WORKGROUP).zip(&at) {
@@ -161,10 +164,9 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let mut visits = vec![0u32; 2 * n as usize];
     for i in 0..n {
         karras::build(i, &p, &keys, &mut nodes, &mut parents, &mut visits);
-        sort::clear_tables(i, &p, &mut counts, &mut supers);
+        sort::clear_tables(i, &p, &mut counts, &mut totals);
     }
-    let table_words = sort::COUNTED_WORDS as usize;
-    debug_assert!(supers.iter().chain(&counts[..table_words]).all(|&w| w == 0));
+    debug_assert!(totals.iter().chain(&counts).all(|&w| w == 0));
     let mut pair = [b, OrderedBounds::EMPTY];
     bounds::publish(0, &mut pair);
     debug_assert_eq!(pair, [OrderedBounds::EMPTY, b]);

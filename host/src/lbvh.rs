@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
 use shared::radix_sort as sort;
-use shared::types::{BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
+use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use std::sync::Arc;
 
 /// Device buffers of the build, sized for `capacity` primitives.
@@ -19,9 +19,10 @@ struct Buffers {
     vals_a: Buffer,
     keys_b: Buffer,
     vals_b: Buffer,
+    /// The sort's status tables (its look-back).
     table: Buffer,
-    /// Per-super-tile digit sums of every pass of the sort.
-    supers: Buffer,
+    /// The sort's digit totals and tile counters.
+    totals: Buffer,
     nodes: Buffer,
     parents: Buffer,
     visits: Buffer,
@@ -47,8 +48,8 @@ impl Buffers {
         let vals_a = dev("values A", n * 4)?;
         let keys_b = dev("keys B", n * 8)?;
         let vals_b = dev("values B", n * 4)?;
-        let table = dev("digit tables", sort::table_words(n as u32) as u64 * 4)?;
-        let supers = dev("super-tile sums", sort::supers_words(n as u32) as u64 * 4)?;
+        let table = dev("sort status tables", sort::table_words(n as u32) as u64 * 4)?;
+        let totals = dev("sort digit totals", sort::TOTALS_WORDS as u64 * 4)?;
         let nodes = dev("nodes", (2 * n - 1) * size_of::<Node>() as u64)?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
@@ -56,7 +57,7 @@ impl Buffers {
         let staging_bytes = (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
         let staging = Buffer::new(gpu, "staging", staging_bytes, MemoryLocation::CpuToGpu)?;
         let a_to_b: [&Buffer; BINDINGS] = [
-            &tris, &spheres, &bounds, &keys_a, &vals_a, &keys_b, &vals_b, &table, &nodes, &parents, &visits, &supers,
+            &tris, &spheres, &bounds, &keys_a, &vals_a, &keys_b, &vals_b, &table, &nodes, &parents, &visits, &totals,
         ];
         let mut b_to_a = a_to_b;
         b_to_a[3..7].copy_from_slice(&[&keys_b, &vals_b, &keys_a, &vals_a]);
@@ -70,7 +71,7 @@ impl Buffers {
             keys_b,
             vals_b,
             table,
-            supers,
+            totals,
             nodes,
             parents,
             visits,
@@ -121,7 +122,7 @@ impl GpuLbvh {
             None => (0, 0),
             Some(b) => {
                 let all = [
-                    &b.tris, &b.spheres, &b.bounds, &b.keys_a, &b.vals_a, &b.keys_b, &b.vals_b, &b.table, &b.supers,
+                    &b.tris, &b.spheres, &b.bounds, &b.keys_a, &b.vals_a, &b.keys_b, &b.vals_b, &b.table, &b.totals,
                     &b.parents, &b.visits, &b.capture, &b.staging,
                 ];
                 (b.nodes.size, all.iter().map(|x| x.size).sum())
@@ -144,7 +145,7 @@ impl GpuLbvh {
             self.cmds.begin()?;
             Self::empty_bounds(&self.cmds, &b, 0);
             Self::empty_bounds(&self.cmds, &b, 1);
-            self.cmds.fill_range(&b.supers, 0, b.supers.size, 0);
+            self.cmds.fill_range(&b.totals, 0, b.totals.size, 0);
             self.cmds.fill_range(&b.table, 0, b.table.size, 0);
             self.cmds.barrier();
             self.cmds.submit_wait().context("clearing the build's buffers")?;
@@ -210,11 +211,10 @@ impl GpuLbvh {
         };
         let tiles = p.tiles();
         let (set_ab, set_ba) = (b.sets.sets[0], b.sets.sets[1]);
-        let (morton, morton_counted, histogram, scatter, rank, build) = match bits {
+        let (morton, morton_counted, scatter, rank, build) = match bits {
             MortonBits::B30 => (
                 Kernel::Morton30,
                 Kernel::Morton30Counted,
-                Kernel::SortHistogramU32,
                 Kernel::SortScatterU32,
                 Kernel::SortRankU32,
                 Kernel::KarrasBuildU32,
@@ -222,7 +222,6 @@ impl GpuLbvh {
             MortonBits::B63 => (
                 Kernel::Morton63,
                 Kernel::Morton63Counted,
-                Kernel::SortHistogramU64,
                 Kernel::SortScatterU64,
                 Kernel::SortRankU64,
                 Kernel::KarrasBuildU64,
@@ -247,11 +246,15 @@ impl GpuLbvh {
             }
             return Ok(());
         }
-        cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, tiles);
+        cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, item_groups(n));
         cmds.barrier();
         stamp(cmds, STAGES[0]);
-        let morton = if sort::counted(&p) { morton_counted } else { morton };
-        cmds.dispatch(k, set_ab, morton, &p, items);
+        // The radix passes take their digit totals from the Morton stage.
+        if n > sort::RANK_MAX {
+            cmds.dispatch(k, set_ab, morton_counted, &p, item_groups(n));
+        } else {
+            cmds.dispatch(k, set_ab, morton, &p, items);
+        }
         cmds.barrier();
         if capture {
             cmds.copy_range(&b.keys_a, 0, &b.capture, 0, n as u64 * 8);
@@ -266,12 +269,6 @@ impl GpuLbvh {
             for pass in 0..p.passes {
                 p.shift = pass * sort::RADIX_BITS;
                 let set = if pass % 2 == 0 { set_ab } else { set_ba };
-                // A counted sort's tables come from the Morton stage and the scatters.
-                if !sort::counted(&p) {
-                    cmds.dispatch(k, set, histogram, &p, tiles);
-                    cmds.barrier();
-                    stamp(cmds, "sort.histogram");
-                }
                 cmds.dispatch(k, set, scatter, &p, tiles);
                 cmds.barrier();
                 stamp(cmds, "sort.scatter");

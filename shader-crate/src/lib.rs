@@ -5,10 +5,11 @@
 
 use shared::bounds::{self, BoundsState};
 use shared::path::{self, World};
-use shared::radix_sort::{self as sort, DigitCounts, HistogramState, ScatterState};
+use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
 use shared::refit::{FitState, RefitState};
 use shared::scan;
 use shared::traverse::Scene;
+use shared::types::items_per_lane;
 use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,
     Triangle, FEATURES_ALL, WORKGROUP,
@@ -100,7 +101,7 @@ pub fn fit(
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
-    ($k:ty, $morton:ident, $morton_counted:ident, $histogram:ident, $scatter:ident, $rank:ident, $build:ident) => {
+    ($k:ty, $morton:ident, $morton_counted:ident, $scatter:ident, $rank:ident, $build:ident) => {
         #[spirv(compute(threads(256)))]
         pub fn $morton(
             #[spirv(global_invocation_id)] id: UVec3,
@@ -113,7 +114,7 @@ macro_rules! key_kernels {
             morton::$morton(flat_index(id.x, id.y), p, b, summaries, keys, vals);
         }
 
-        /// Morton codes and the digit counts of a counted sort (see `shared::radix_sort`).
+        /// Morton codes and every sort pass's digit counts (see `shared::radix_sort`).
         #[spirv(compute(threads(256)))]
         #[allow(clippy::too_many_arguments)]
         pub fn $morton_counted(
@@ -123,62 +124,41 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] b: &OrderedBounds,
             #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &[[f32; 4]],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
             #[spirv(workgroup)] st: &mut DigitCounts,
         ) {
             let group = flat_group(gid.x, gid.y);
-            let i = group * WORKGROUP + lid.x;
             sort::digits_clear(lid.x, st);
             barrier();
-            let key = morton::$morton(i, p, b, summaries, keys, vals);
-            sort::digits_count(i, st, p, key);
+            let items = items_per_lane(p.n);
+            let mut k = 0;
+            while k < items {
+                let i = (group * items + k) * WORKGROUP + lid.x;
+                let key = morton::$morton(i, p, b, summaries, keys, vals);
+                sort::digits_count(i, st, p, key);
+                k += 1;
+            }
             barrier();
-            sort::digits_store(lid.x, group, st, p, counts, supers);
-        }
-
-        #[spirv(compute(threads(256)))]
-        pub fn $histogram(
-            #[spirv(local_invocation_id)] lid: UVec3,
-            #[spirv(workgroup_id)] gid: UVec3,
-            #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &mut [u32],
-            #[spirv(workgroup)] st: &mut HistogramState,
-        ) {
-            sort::histogram_clear(lid.x, st);
-            barrier();
-            sort::histogram_count(lid.x, flat_group(gid.x, gid.y), st, p, keys);
-            barrier();
-            sort::histogram_store(lid.x, flat_group(gid.x, gid.y), st, p, counts, supers);
+            sort::digits_store(lid.x, st, p, totals);
         }
 
         #[spirv(compute(threads(256)))]
         #[allow(clippy::too_many_arguments)]
         pub fn $scatter(
             #[spirv(local_invocation_id)] lid: UVec3,
-            #[spirv(workgroup_id)] gid: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
             #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys_in: &[$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals_in: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
             #[spirv(workgroup)] st: &mut ScatterState,
         ) {
-            let owned = sort::scatter_count(
-                lid.x,
-                flat_group(gid.x, gid.y),
-                st,
-                p,
-                keys_in,
-                vals_in,
-                counts,
-                supers,
-            );
+            sort::scatter_claim(lid.x, st, p, totals);
+            barrier();
+            let owned = sort::scatter_count(lid.x, st, p, keys_in, vals_in, totals);
             barrier();
             sort::scatter_sums(lid.x, st);
             barrier();
@@ -186,14 +166,19 @@ macro_rules! key_kernels {
             barrier();
             scan::rake_totals(lid.x, &mut st.scan);
             barrier();
-            sort::scatter_offsets(lid.x, st);
+            sort::scatter_offsets(lid.x, st, p, counts);
             barrier();
-            let group = flat_group(gid.x, gid.y);
-            let staged = sort::scatter_rank(lid.x, group, st, p, owned);
+            while sort::looking_back(st) {
+                sort::lookback_load(lid.x, st, p, counts);
+                barrier();
+                sort::lookback_sum(lid.x, st, p, counts);
+                barrier();
+            }
+            let staged = sort::scatter_rank(lid.x, st, p, owned);
             barrier();
             sort::scatter_stage_keys(st, &staged);
             barrier();
-            let at = sort::scatter_write_keys(lid.x, group, st, p, keys_out, counts);
+            let at = sort::scatter_write_keys(lid.x, st, p, keys_out);
             barrier();
             sort::scatter_stage_vals(st, &staged);
             barrier();
@@ -225,12 +210,12 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] bounds: &mut [OrderedBounds],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] supers: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
         ) {
             let i = flat_index(id.x, id.y);
             karras::build(i, p, keys, nodes, parents, visits);
             // The sort and the Morton stage are done with these: reset for the next build.
-            sort::clear_tables(i, p, counts, supers);
+            sort::clear_tables(i, p, counts, totals);
             bounds::publish(i, bounds);
         }
     };
@@ -240,7 +225,6 @@ key_kernels!(
     u32,
     morton30,
     morton30_counted,
-    sort_histogram_u32,
     sort_scatter_u32,
     sort_rank_u32,
     karras_build_u32
@@ -249,7 +233,6 @@ key_kernels!(
     u64,
     morton63,
     morton63_counted,
-    sort_histogram_u64,
     sort_scatter_u64,
     sort_rank_u64,
     karras_build_u64

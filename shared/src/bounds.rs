@@ -1,5 +1,5 @@
 //! Scene bounds of the primitive centroids: a multi-workgroup reduction. Each workgroup
-//! reduces its tile into workgroup memory, then merges it into the global [`OrderedBounds`]
+//! reduces its primitives ([`items_per_lane`] a lane) into workgroup memory, then merges it into the global [`OrderedBounds`]
 //! with six device atomics. Min and max are exact, so the result does not depend on order.
 //!
 //! The same pass stores each primitive's [`prim_summary`] (centroid and largest side) for the
@@ -12,7 +12,7 @@
 //! build, so that no build starts with a fill (the host empties it once when it allocates it).
 use crate::sync::{self, at, at_mut};
 use crate::types::{
-    f32_to_ordered, prim_summary, BuildParams, OrderedBounds, Sphere, Triangle, ITEMS, TILE, WORKGROUP,
+    f32_to_ordered, items_per_lane, prim_summary, BuildParams, OrderedBounds, Sphere, Triangle, WORKGROUP,
 };
 use spirv_std::glam::Vec3;
 
@@ -39,14 +39,15 @@ pub fn accumulate(
     spheres: &[Sphere],
     summaries: &mut [[f32; 4]],
 ) {
-    let first = group * TILE + lane;
+    let items = items_per_lane(p.n);
+    let first = group * items * WORKGROUP + lane;
     if first >= p.n {
         return;
     }
     let mut lo = summarise(first, p, tris, spheres, summaries);
     let mut hi = lo;
-    // Grid-stride over the tile: lane takes every WORKGROUP-th primitive.
-    for k in 1..ITEMS {
+    // Grid-stride over the workgroup's primitives: lane takes every WORKGROUP-th.
+    for k in 1..items {
         let i = first + k * WORKGROUP;
         if i < p.n {
             let c = summarise(i, p, tris, spheres, summaries);

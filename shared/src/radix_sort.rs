@@ -1,29 +1,26 @@
-//! Stable least-significant-digit radix sort of (key, primitive) pairs over many workgroups
-//! (reduce-then-scan, Merrill & Grimshaw 2011, without their subgroup tricks), two
-//! dispatches per `RADIX_BITS`-bit digit:
+//! Stable least-significant-digit radix sort of (key, primitive) pairs over many workgroups,
+//! one dispatch per `RADIX_BITS`-bit digit (Adinets & Merrill 2022, "Onesweep", without its
+//! subgroup tricks):
 //!
-//! 1. [`histogram_count`]: each tile of `TILE` keys counts its digits, stores them in the tile
-//!    table `counts[digit * tiles + tile]`, and adds them atomically into the super-tile
-//!    table `supers[digit * n_supers + tile / SUPER]` of this pass (zero when a build starts:
-//!    see [`clear_tables`]).
-//! 2. [`scatter_count`] and the phases after it: each tile finds the output offset of every
-//!    digit from the two tables, reading at most `RADIX * (n_supers + SUPER)` words, ranks its
-//!    keys stably and writes them.
+//! 1. The Morton stage counts every pass's digits ([`digits_count`]): a digit's total is the
+//!    same in every order, so one sweep gives every pass its digit totals (`totals`, zero when
+//!    a build starts: see [`clear_tables`]).
+//! 2. Each pass's scatter claims its tile in start order ([`scatter_claim`]), counts its
+//!    keys' digits, publishes them in the pass's status table and looks back over the tiles
+//!    before it for each digit's count there (chained scan with decoupled look-back, Merrill
+//!    & Garland 2016: a tile publishes its own counts at once and, when it knows them, the
+//!    counts up to and including itself, so a later tile stops at the first such word); then
+//!    it ranks its keys stably and writes them.
 //!
-//! Small sorts (at most `COUNTED_MAX` keys, [`counted`]) have no histogram dispatch, one
-//! dispatch per digit: the Morton stage counts every pass's digits
-//! ([`digits_count`]; a digit's total is the same in every order) and the first pass's per
-//! tile (its keys are in their first pass's order), and each scatter adds the key it writes
-//! into the next pass's tile table, the tile of its place there ([`scatter_write_keys`]).
-//! Each pass has its own tile table (`RADIX * tiles` words from [`table_base`]).
-//!
-//! The offset of digit `d` for tile `t` in super-tile `s = t / SUPER`:
+//! The offset of digit `d` for tile `t`:
 //!
 //! ```text
-//! offset(d, t) = sum_{d' < d} sum_S supers[d'][S]      keys with a smaller digit
-//!              + sum_{S < s} supers[d][S]              digit d in earlier super-tiles
-//!              + sum_{s*SUPER <= t' < t} counts[d][t'] digit d in earlier tiles of s
+//! offset(d, t) = sum_{d' < d} totals[d']       keys with a smaller digit
+//!              + sum_{t' < t} count(d, t')     digit d in earlier tiles (the look-back)
 //! ```
+//!
+//! A tile waits only for tiles that claimed theirs before it, which run or have run: the
+//! look-back needs no more of the GPU's scheduling (nor lavapipe's threads) than that.
 //!
 //! In the scatter, lane `l` owns the `ITEMS` consecutive keys at `l * ITEMS`, so order
 //! within a tile is (lane, item) = input order: the pass is stable. The tile's keys are put
@@ -48,9 +45,7 @@ pub const HALF: u32 = RADIX / 2;
 const _: () = assert!(TILE < 1 << 16);
 // The scatter stages a tile of 64-bit keys in the counters' memory.
 const _: () = assert!(2 * TILE as usize <= COUNTERS);
-/// Tiles per super-tile.
-pub const SUPER: u32 = 64;
-/// Lanes that share one digit when the scatter sums the tables.
+/// Lanes per digit in a look-back step.
 const LANES_PER_DIGIT: u32 = WORKGROUP / RADIX;
 const _: () = assert!(RADIX * LANES_PER_DIGIT == WORKGROUP);
 // The loops over digits, counter words and table lanes are written out (`seq!`) with these
@@ -119,85 +114,47 @@ impl SortKey for u64 {
     }
 }
 
-/// Number of super-tiles.
-pub fn super_count(p: &BuildParams) -> u32 {
-    p.tiles().div_ceil(SUPER)
+/// A status word's flags: the tile's own count of the digit; the count of it in every tile
+/// up to and including this one. No flag: not published yet.
+pub const AGGREGATE: u32 = 1 << 30;
+pub const PREFIX: u32 = 1 << 31;
+const COUNT: u32 = AGGREGATE - 1;
+
+/// Status word of digit `d` of tile `tile` in the pass at `p.shift`, in the `counts` buffer.
+pub fn status(p: &BuildParams, tile: u32, d: u32) -> u32 {
+    ((p.shift / RADIX_BITS) * p.tiles() + tile) * RADIX + d
 }
 
-/// Keys of the largest counted sort (at most one super-tile).
-pub const COUNTED_MAX: u32 = COUNTED_TILES * TILE;
-/// Tiles of the largest counted sort. A counted pass saves a histogram dispatch but pays an
-/// atomic add per key; on the H100 (B30 totals, counted vs histogram sort) 4,000 keys
-/// (2 tiles) build in 95 us instead of 113, 8,000 (4) in 106 instead of 115, but 16,000 (8)
-/// in 133 instead of 117 and the bunny (35) in 147 instead of 133.
-pub const COUNTED_TILES: u32 = 4;
-const _: () = assert!(COUNTED_TILES <= SUPER);
-
-/// Whether the sort of `p.n` keys is counted (no histogram dispatch; see the module docs):
-/// more than the rank sort's [`RANK_MAX`], at most one super-tile.
-pub fn counted(p: &BuildParams) -> bool {
-    p.n > RANK_MAX && p.n <= COUNTED_MAX
-}
-
-/// Start of the tile table of the pass at `shift` in the `counts` buffer: one table per pass
-/// in a counted sort, one table for all passes otherwise.
-pub fn table_base(p: &BuildParams, shift: u32) -> u32 {
-    if counted(p) {
-        shift / RADIX_BITS * RADIX * p.tiles()
-    } else {
-        0
-    }
-}
-
-/// Words of the `counts` buffer a counted sort may use: the tables of every pass of the
-/// widest sort (64-bit keys) of the largest counted sort.
-pub const COUNTED_WORDS: u32 = passes(64) * RADIX * COUNTED_TILES;
-
-/// Words of the `counts` buffer for sorts of up to `n` keys: one table for every pass of a
-/// histogram sort, or every table of a counted one.
+/// Words of the `counts` buffer for sorts of up to `n` keys: a status table per pass of the
+/// widest sort (64-bit keys), `RADIX` words per tile.
 pub fn table_words(n: u32) -> u32 {
-    (RADIX * n.div_ceil(TILE)).max(COUNTED_WORDS)
+    passes(64) * RADIX * n.div_ceil(TILE).max(1)
 }
 
-/// Words of the `counts` buffer the sort of `p.n` keys leaves non-zero: a counted sort's
-/// tables; every table word a next counted sort could use after any other (the histogram
-/// overwrites its table); none after a rank sort, which uses no table.
-fn dirty_table_words(p: &BuildParams) -> u32 {
-    if p.n <= RANK_MAX {
-        0
-    } else if counted(p) {
-        p.passes * RADIX * p.tiles()
-    } else {
-        COUNTED_WORDS
-    }
+/// The `totals` buffer: every pass's digit totals (`pass * RADIX + d`), then every pass's
+/// tile counter.
+pub const TOTALS_WORDS: u32 = DIGIT_WORDS as u32 + passes(64);
+
+/// Tile counter of the pass at `p.shift` in the `totals` buffer.
+fn tile_counter(p: &BuildParams) -> u32 {
+    DIGIT_WORDS as u32 + p.shift / RADIX_BITS
 }
 
-/// Start of this pass's super-tile table in the `supers` buffer (`RADIX * supers` per pass).
-pub fn supers_base(p: &BuildParams) -> u32 {
-    p.shift / RADIX_BITS * RADIX * super_count(p)
-}
-
-/// Words of the super-tile tables of every pass of the widest sort (64-bit keys) of `n`
-/// keys.
-pub fn supers_words(n: u32) -> u32 {
-    passes(64) * RADIX * n.div_ceil(TILE).div_ceil(SUPER)
-}
-
-/// Zeroes the super-tile tables and the counted sorts' tile tables for the next build (both
-/// are added into atomically), invocation `i < p.n` taking every `p.n`-th word. Run by a
-/// kernel after the sort, so that no build starts with a fill: between builds every word
-/// either uses is zero (the host zeroes the buffers once when it allocates them).
-pub fn clear_tables(i: u32, p: &BuildParams, counts: &mut [u32], supers: &mut [u32]) {
-    if i >= p.n {
+/// Zeroes what the sort of `p.n` keys added into or published (the digit totals, the tile
+/// counters, the status tables) for the next build, invocation `i < p.n` taking every
+/// `p.n`-th word. Run by a kernel after the sort, so that no build starts with a fill:
+/// between builds every word is zero (the host zeroes the buffers once when it allocates
+/// them). A rank sort (at most `RANK_MAX` keys) uses none of them.
+pub fn clear_tables(i: u32, p: &BuildParams, counts: &mut [u32], totals: &mut [u32]) {
+    if i >= p.n || p.n <= RANK_MAX {
         return;
     }
-    let words = supers_words(p.n);
     let mut w = i;
-    while w < words {
-        *at_mut(supers, w) = 0;
+    while w < TOTALS_WORDS {
+        *at_mut(totals, w) = 0;
         w += p.n;
     }
-    let words = dirty_table_words(p);
+    let words = p.passes * RADIX * p.tiles();
     let mut w = i;
     while w < words {
         *at_mut(counts, w) = 0;
@@ -215,13 +172,12 @@ pub const fn passes(bits: u32) -> u32 {
 /// Digit counters of the widest sort's passes.
 pub const DIGIT_WORDS: usize = (passes(64) * RADIX) as usize;
 
-/// Workgroup memory of the Morton stage of a counted sort: per pass, per digit, the
-/// workgroup's keys.
+/// Workgroup memory of the Morton stage: per pass, per digit, the workgroup's keys.
 pub struct DigitCounts {
     pub counts: [u32; DIGIT_WORDS],
 }
 
-/// Morton stage of a counted sort, phase 1: clears the counters.
+/// Morton stage, phase 1: clears the counters.
 pub fn digits_clear(lane: u32, st: &mut DigitCounts) {
     let mut w = lane;
     while w < DIGIT_WORDS as u32 {
@@ -230,8 +186,8 @@ pub fn digits_clear(lane: u32, st: &mut DigitCounts) {
     }
 }
 
-/// Morton stage of a counted sort, phase 2 (after a barrier): counts key `i`'s digit of
-/// every pass, if it exists.
+/// Morton stage, phase 2 (after a barrier): counts key `i`'s digit of every pass, if it
+/// exists.
 pub fn digits_count<K: SortKey>(i: u32, st: &mut DigitCounts, p: &BuildParams, key: K) {
     if i < p.n {
         let mut pass = 0;
@@ -243,68 +199,16 @@ pub fn digits_count<K: SortKey>(i: u32, st: &mut DigitCounts, p: &BuildParams, k
     }
 }
 
-/// Morton stage of a counted sort, phase 3 (after a barrier): adds the workgroup's counts
-/// (of keys `WORKGROUP * group..`, all in one tile) into every pass's digit totals (its
-/// super-tile table: one super-tile) and the first pass's tile table.
-pub fn digits_store(lane: u32, group: u32, st: &DigitCounts, p: &BuildParams, counts: &mut [u32], supers: &mut [u32]) {
-    let tile = group / (TILE / WORKGROUP);
+/// Morton stage, phase 3 (after a barrier): adds the workgroup's counts into every pass's
+/// digit totals.
+pub fn digits_store(lane: u32, st: &DigitCounts, p: &BuildParams, totals: &mut [u32]) {
     let mut w = lane;
     while w < p.passes * RADIX {
         let c = *elem(&st.counts, w);
         if c != 0 {
-            let d = w % RADIX;
-            // `supers_base` of pass `w / RADIX` with one super-tile: `w - d`.
-            sync::atomic_add_device::<false>(at_mut(supers, w), c);
-            if w < RADIX {
-                sync::atomic_add_device::<false>(at_mut(counts, d * p.tiles() + tile), c);
-            }
+            sync::atomic_add_device::<false>(at_mut(totals, w), c);
         }
         w += WORKGROUP;
-    }
-}
-
-/// Workgroup memory of the histogram kernel.
-pub struct HistogramState {
-    pub counts: [u32; RADIX as usize],
-}
-
-pub fn histogram_clear(lane: u32, st: &mut HistogramState) {
-    if lane < RADIX {
-        *elem_mut(&mut st.counts, lane) = 0;
-    }
-}
-
-pub fn histogram_count<K: SortKey>(lane: u32, group: u32, st: &mut HistogramState, p: &BuildParams, keys: &[K]) {
-    let mut k = 0;
-    while k < ITEMS {
-        let first = group * TILE + k * WORKGROUP + lane;
-        let g = load4(keys, first, WORKGROUP, p.n);
-        for j in 0..GROUP {
-            if first + j * WORKGROUP < p.n {
-                sync::workgroup_add(elem_mut(&mut st.counts, g[j as usize].digit(p.shift)), 1);
-            }
-        }
-        k += GROUP;
-    }
-}
-
-pub fn histogram_store(
-    lane: u32,
-    group: u32,
-    st: &HistogramState,
-    p: &BuildParams,
-    counts: &mut [u32],
-    supers: &mut [u32],
-) {
-    if lane < RADIX {
-        let c = *elem(&st.counts, lane);
-        *at_mut(counts, lane * p.tiles() + group) = c;
-        if c != 0 {
-            sync::atomic_add_device::<false>(
-                at_mut(supers, supers_base(p) + lane * super_count(p) + group / SUPER),
-                c,
-            );
-        }
     }
 }
 
@@ -327,20 +231,25 @@ pub struct ScatterState {
     /// Per (digit, lane) key counts, packed two to a word, column-major and padded (see
     /// [`slot`] and [`column`]); then their exclusive prefix sums.
     pub counts: [u32; COUNTERS],
-    /// Per lane: its share of the tables' sums (all of its digit; before this tile).
-    pub total: [u32; WORKGROUP as usize],
-    pub before: [u32; WORKGROUP as usize],
-    /// Per digit: keys in all tiles; keys in the tiles before this one.
+    /// The look-back's chunk sums and stops ([`lookback_load`]), two words per lane.
+    pub window: [u32; 2 * WORKGROUP as usize],
+    /// Per digit: keys in all tiles; this tile's keys; keys in the tiles before it.
     pub digit_total: [u32; RADIX as usize],
+    pub own: [u32; RADIX as usize],
     pub digit_before: [u32; RADIX as usize],
+    /// Per digit: the tile the look-back reads back from (exclusive).
+    pub end: [u32; RADIX as usize],
     /// Per digit: global offset of this tile's first key with that digit, minus the tile's
     /// count of keys with a smaller digit (the digit's first place in the tile's order).
     pub base: [u32; RADIX as usize],
+    /// The tile this workgroup claimed; the digits whose look-back is not done.
+    pub tile: u32,
+    pub pending: u32,
     pub scan: BlockScan,
 }
 
-fn owned(lane: u32, group: u32) -> u32 {
-    group * TILE + lane * ITEMS
+fn owned(lane: u32, tile: u32) -> u32 {
+    tile * TILE + lane * ITEMS
 }
 
 // A lane owns two groups of four keys; the item loops below are written out so that every
@@ -378,50 +287,38 @@ fn rank_key<K: SortKey>(st: &mut ScatterState, lane: u32, p: &BuildParams, i: u3
     }
 }
 
-/// Super-tile `x`'s sum `v` as (its share of the digit's total, of the count before super-tile
-/// `s`); nothing past the last super-tile.
-fn super_share(x: u32, v: u32, n_supers: u32, s: u32) -> (u32, u32) {
-    if x >= n_supers {
-        (0, 0)
-    } else if x < s {
-        (v, v)
-    } else {
-        (v, 0)
+/// Phase 0: lane 0 claims the workgroup's tile, the next of the pass in start order (so
+/// that every tile it waits for in the look-back has started).
+pub fn scatter_claim(lane: u32, st: &mut ScatterState, p: &BuildParams, totals: &mut [u32]) {
+    if lane == 0 {
+        st.tile = sync::atomic_add_device::<false>(at_mut(totals, tile_counter(p)), 1);
     }
 }
 
-/// Tile `t`'s count `v` if it comes before this tile (`group`), else 0.
-fn tile_share(t: u32, v: u32, group: u32) -> u32 {
-    if t < group {
-        v
-    } else {
-        0
-    }
-}
-
-/// Phase 1: lane counts the digits of the keys it owns into its column, and sums its share
-/// of the tables for the tile offsets. Returns the keys and their values for [`scatter_rank`]
-/// (held in registers: reloading them there cost a round trip a pass, 1M 99 -> 93 us).
-#[allow(clippy::too_many_arguments)]
+/// Phase 1 (after a barrier): lane counts the digits of the keys it owns into its column;
+/// lanes below `RADIX` load their digit's total. Returns the keys and their values for
+/// [`scatter_rank`] (held in registers: reloading them there cost a round trip a pass, 1M
+/// 99 -> 93 us).
 #[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
 pub fn scatter_count<K: SortKey>(
     lane: u32,
-    group: u32,
     st: &mut ScatterState,
     p: &BuildParams,
     keys: &[K],
     vals: &[u32],
-    counts: &[u32],
-    supers: &[u32],
+    totals: &[u32],
 ) -> Owned<K> {
     seq!(C in 0..16 {
         *elem_mut(&mut st.counts, slot(C * WORKGROUP + lane)) = 0;
     });
-    let start = owned(lane, group);
+    let start = owned(lane, st.tile);
     let (a, b) = (load4(keys, start, 1, p.n), load4(keys, start + GROUP, 1, p.n));
-    // The values are loaded now, in the shadow of the counting and the table sums, and held
-    // with the keys until the ranking.
+    // The values are loaded now, in the shadow of the counting, and held with the keys until
+    // the ranking.
     let (va, vb) = (load4(vals, start, 1, p.n), load4(vals, start + GROUP, 1, p.n));
+    if lane < RADIX {
+        *elem_mut(&mut st.digit_total, lane) = *at(totals, p.shift / RADIX_BITS * RADIX + lane);
+    }
     count_key(st, lane, p, start, a[0]);
     count_key(st, lane, p, start + 1, a[1]);
     count_key(st, lane, p, start + 2, a[2]);
@@ -430,38 +327,6 @@ pub fn scatter_count<K: SortKey>(
     count_key(st, lane, p, start + 5, b[1]);
     count_key(st, lane, p, start + 6, b[2]);
     count_key(st, lane, p, start + 7, b[3]);
-    // Table sums: lane = digit * LANES_PER_DIGIT + j takes every LANES_PER_DIGIT-th entry.
-    let d = lane / LANES_PER_DIGIT;
-    let j = lane % LANES_PER_DIGIT;
-    let n_supers = super_count(p);
-    let row = supers_base(p) + d * n_supers;
-    let s = group / SUPER;
-    // Four table entries per round, loaded before any is used (see `load4`).
-    let mut total = 0;
-    let mut before = 0;
-    let mut x = j;
-    while x < n_supers {
-        let v = load4(supers, row + x, LANES_PER_DIGIT, row + n_supers);
-        let (t0, b0) = super_share(x, v[0], n_supers, s);
-        let (t1, b1) = super_share(x + LANES_PER_DIGIT, v[1], n_supers, s);
-        let (t2, b2) = super_share(x + 2 * LANES_PER_DIGIT, v[2], n_supers, s);
-        let (t3, b3) = super_share(x + 3 * LANES_PER_DIGIT, v[3], n_supers, s);
-        total += t0 + t1 + t2 + t3;
-        before += b0 + b1 + b2 + b3;
-        x += GROUP * LANES_PER_DIGIT;
-    }
-    let tile_row = table_base(p, p.shift) + d * p.tiles();
-    let mut t = s * SUPER + j;
-    while t < group {
-        let v = load4(counts, tile_row + t, LANES_PER_DIGIT, tile_row + group);
-        before += tile_share(t, v[0], group)
-            + tile_share(t + LANES_PER_DIGIT, v[1], group)
-            + tile_share(t + 2 * LANES_PER_DIGIT, v[2], group)
-            + tile_share(t + 3 * LANES_PER_DIGIT, v[3], group);
-        t += GROUP * LANES_PER_DIGIT;
-    }
-    *elem_mut(&mut st.total, lane) = total;
-    *elem_mut(&mut st.before, lane) = before;
     Owned {
         keys: [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]],
         vals: [va[0], va[1], va[2], va[3], vb[0], vb[1], vb[2], vb[3]],
@@ -474,8 +339,7 @@ pub struct Owned<K> {
     pub vals: [u32; ITEMS as usize],
 }
 
-/// Phase 2: lane sums its `HALF` consecutive counter words for the block scan; lanes below
-/// `RADIX` also finish the table sums of their digit.
+/// Phase 2: lane sums its `HALF` consecutive counter words for the block scan.
 #[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
 pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
     let mut s = 0;
@@ -483,21 +347,21 @@ pub fn scatter_sums(lane: u32, st: &mut ScatterState) {
         s += *elem(&st.counts, slot(lane * HALF + K));
     });
     *elem_mut(&mut st.scan.sums, lane) = s;
-    if lane < RADIX {
-        let (mut total, mut before) = (0, 0);
-        seq!(J in 0..8 {
-            total += *elem(&st.total, lane * LANES_PER_DIGIT + J);
-            before += *elem(&st.before, lane * LANES_PER_DIGIT + J);
-        });
-        *elem_mut(&mut st.digit_total, lane) = total;
-        *elem_mut(&mut st.digit_before, lane) = before;
-    }
 }
 
-/// Phase 3 (after the block scan): the counters become exclusive prefix sums, and lanes
-/// below `RADIX` find the global offset of their digit for this tile (see the module docs).
+/// The block scan's value in digit `d`'s half at the start of its column: the tile's keys
+/// with a smaller digit in that half.
+fn smaller(st: &ScatterState, d: u32) -> u32 {
+    let (c, half) = column(d);
+    // Block-scan lane `column * WORKGROUP / HALF` starts with word (column, lane 0).
+    (scan::exclusive(c * WORKGROUP / HALF, &st.scan) >> half) & 0xffff
+}
+
+/// Phase 3 (after the block scan): the counters become exclusive prefix sums; lanes below
+/// `RADIX` publish the tile's count of their digit (tile 0: as its prefix, ending its
+/// look-back) and start their digit's base (see the module docs) from the totals.
 #[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
-pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
+pub fn scatter_offsets(lane: u32, st: &mut ScatterState, p: &BuildParams, counts: &mut [u32]) {
     let mut run = scan::exclusive(lane, &st.scan);
     seq!(K in 0..16 {
         let c~K = *elem(&st.counts, slot(lane * HALF + K));
@@ -506,16 +370,138 @@ pub fn scatter_offsets(lane: u32, st: &mut ScatterState) {
         *elem_mut(&mut st.counts, slot(lane * HALF + K)) = run;
         run += c~K;
     });
+    let tile = st.tile;
     if lane < RADIX {
-        // The scan's value in this digit's half at word (column, lane 0); block-scan lane
-        // `column * WORKGROUP / HALF` starts with that word.
         let (c, half) = column(lane);
-        let smaller = (scan::exclusive(c * WORKGROUP / HALF, &st.scan) >> half) & 0xffff;
-        let mut offset = *elem(&st.digit_before, lane);
+        let first = smaller(st, lane);
+        let next = if c + 1 < HALF {
+            smaller(st, lane + 1)
+        } else {
+            (scan::total(&st.scan) >> half) & 0xffff
+        };
+        let own = next - first;
+        let flag = if tile == 0 { PREFIX } else { AGGREGATE };
+        sync::atomic_store_u32(at_mut(counts, status(p, tile, lane)), flag | own);
+        *elem_mut(&mut st.own, lane) = own;
+        *elem_mut(&mut st.digit_before, lane) = 0;
+        *elem_mut(&mut st.end, lane) = tile;
+        let mut offset = 0u32;
         seq!(D in 0..32 {
             offset += if D < lane { *elem(&st.digit_total, D) } else { 0 };
         });
-        *elem_mut(&mut st.base, lane) = offset.wrapping_sub(smaller + lower_half(st, half));
+        *elem_mut(&mut st.base, lane) = offset.wrapping_sub(first + lower_half(st, half));
+    }
+    if lane == 0 {
+        st.pending = if tile == 0 { 0 } else { RADIX };
+    }
+}
+
+/// Whether a look-back step is due (every lane reads the same, after a barrier).
+pub fn looking_back(st: &ScatterState) -> bool {
+    st.pending != 0
+}
+
+/// Status words a lane reads in a look-back step, and the tiles a step covers per digit.
+pub const CHUNK: u32 = 8;
+pub const WINDOW: u32 = CHUNK * LANES_PER_DIGIT;
+const _: () = assert!(CHUNK == 8);
+
+/// `end` of a digit whose look-back is done.
+const DONE: u32 = u32::MAX;
+
+/// What a chunk of status words (newest first) adds to the count before the tile:
+/// `(sum, stop)`, `sum` of the counts up to and including the first prefix, or up to the
+/// first word not yet published, `stop` that word's place in the chunk and a flag
+/// ([`PREFIX`] or 0), or `CHUNK` if the chunk has neither.
+#[allow(clippy::identity_op)] // `seq!` starts at 0
+fn chunk_sum(v: [u32; CHUNK as usize]) -> (u32, u32) {
+    let mut sum = 0;
+    let mut stop = CHUNK;
+    // Written out (see `RADIX`).
+    seq!(K in 0..8 {
+        if stop == CHUNK {
+            let w = v[K];
+            if w == 0 {
+                stop = K;
+            } else {
+                sum += w & COUNT;
+                if w & PREFIX != 0 {
+                    stop = K | PREFIX;
+                }
+            }
+        }
+    });
+    (sum, stop)
+}
+
+/// Digit `d`'s status word of tile `end - 1 - k`; a prefix of 0 before tile 0.
+fn status_word(p: &BuildParams, counts: &[u32], end: u32, k: u32, d: u32) -> u32 {
+    if k < end {
+        sync::atomic_load_u32(at(counts, status(p, end - 1 - k, d)))
+    } else {
+        PREFIX
+    }
+}
+
+/// Look-back phase 1: lane `q * RADIX + d` sums digit `d`'s status words of the chunk of
+/// tiles `end - 1 - q * CHUNK - m`, `m` in `0..CHUNK` ([`chunk_sum`]; 32 neighbouring lanes
+/// read one tile's row at a time), into `window[d * LANES_PER_DIGIT + q]`. Before tile
+/// 0 it reads a prefix of 0 (never reached: tile 0's word is a prefix).
+pub fn lookback_load(lane: u32, st: &mut ScatterState, p: &BuildParams, counts: &[u32]) {
+    let (q, d) = (lane / RADIX, lane % RADIX);
+    let end = *elem(&st.end, d);
+    if end == DONE {
+        return;
+    }
+    let k = q * CHUNK;
+    let v = [
+        status_word(p, counts, end, k, d),
+        status_word(p, counts, end, k + 1, d),
+        status_word(p, counts, end, k + 2, d),
+        status_word(p, counts, end, k + 3, d),
+        status_word(p, counts, end, k + 4, d),
+        status_word(p, counts, end, k + 5, d),
+        status_word(p, counts, end, k + 6, d),
+        status_word(p, counts, end, k + 7, d),
+    ];
+    let (sum, stop) = chunk_sum(v);
+    let at = 2 * (d * LANES_PER_DIGIT + q);
+    *elem_mut(&mut st.window, at) = sum;
+    *elem_mut(&mut st.window, at + 1) = stop;
+}
+
+/// Look-back phase 2 (after a barrier): lane `d < RADIX` adds its digit's chunk sums in
+/// order up to the first chunk that stopped: at a prefix it knows the count before its
+/// tile and publishes its own prefix; at a word not yet published the next step reloads
+/// from there.
+pub fn lookback_sum(lane: u32, st: &mut ScatterState, p: &BuildParams, counts: &mut [u32]) {
+    if lane >= RADIX {
+        return;
+    }
+    let end = *elem(&st.end, lane);
+    if end == DONE {
+        return;
+    }
+    let mut before = *elem(&st.digit_before, lane);
+    let mut read = 0;
+    let mut stop = CHUNK;
+    let mut q = 0;
+    while q < LANES_PER_DIGIT && stop == CHUNK {
+        let at = 2 * (lane * LANES_PER_DIGIT + q);
+        before += *elem(&st.window, at);
+        stop = *elem(&st.window, at + 1);
+        read += if stop == CHUNK { CHUNK } else { stop & !PREFIX };
+        q += 1;
+    }
+    *elem_mut(&mut st.digit_before, lane) = before;
+    if stop & PREFIX != 0 {
+        let own = *elem(&st.own, lane);
+        sync::atomic_store_u32(at_mut(counts, status(p, st.tile, lane)), PREFIX | (before + own));
+        *elem_mut(&mut st.end, lane) = DONE;
+        *elem_mut(&mut st.base, lane) = elem(&st.base, lane).wrapping_add(before);
+        sync::workgroup_add(&mut st.pending, u32::MAX);
+    } else {
+        *elem_mut(&mut st.end, lane) = end - read;
     }
 }
 
@@ -528,14 +514,8 @@ pub struct Ranked<K> {
 }
 
 /// Phase 4: lane ranks its keys within the tile (stably: in order).
-pub fn scatter_rank<K: SortKey>(
-    lane: u32,
-    group: u32,
-    st: &mut ScatterState,
-    p: &BuildParams,
-    o: Owned<K>,
-) -> Ranked<K> {
-    let start = owned(lane, group);
+pub fn scatter_rank<K: SortKey>(lane: u32, st: &mut ScatterState, p: &BuildParams, o: Owned<K>) -> Ranked<K> {
+    let start = owned(lane, st.tile);
     let k = o.keys;
     let ranks = [
         rank_key(st, lane, p, start, k[0]),
@@ -583,18 +563,9 @@ pub fn scatter_stage_keys<K: SortKey>(st: &mut ScatterState, s: &Ranked<K>) {
 }
 
 /// Writes the staged key at `place` (if the tile has one there) to its global place, which
-/// it returns (`u32::MAX` if none); in a counted sort, counts it into the next pass's tile
-/// table (`next` is that table's start, `u32::MAX` after the last pass).
-fn write_key<K: SortKey>(
-    st: &ScatterState,
-    p: &BuildParams,
-    group: u32,
-    place: u32,
-    next: u32,
-    keys_out: &mut [K],
-    counts: &mut [u32],
-) -> u32 {
-    if group * TILE + place >= p.n {
+/// it returns (`u32::MAX` if none).
+fn write_key<K: SortKey>(st: &ScatterState, p: &BuildParams, place: u32, keys_out: &mut [K]) -> u32 {
+    if st.tile * TILE + place >= p.n {
         return u32::MAX;
     }
     let hi = if K::WORDS == 2 {
@@ -605,39 +576,26 @@ fn write_key<K: SortKey>(
     let key = K::from_words(*elem(&st.counts, place * K::WORDS), hi);
     let to = elem(&st.base, key.digit(p.shift)).wrapping_add(place);
     *at_mut(keys_out, to) = key;
-    if next != u32::MAX {
-        let d = key.digit(p.shift + RADIX_BITS);
-        sync::atomic_add_device::<false>(at_mut(counts, next + d * p.tiles() + to / TILE), 1);
-    }
     to
 }
 
 /// Phase 6 (after a barrier): lane writes the tile's sorted places `lane + k * WORKGROUP`
 /// out, so that neighbouring lanes write neighbouring words of a digit's run; returns where.
-/// A counted sort's keys are counted into the next pass's table here (see the module docs).
 pub fn scatter_write_keys<K: SortKey>(
     lane: u32,
-    group: u32,
     st: &ScatterState,
     p: &BuildParams,
     keys_out: &mut [K],
-    counts: &mut [u32],
 ) -> [u32; ITEMS as usize] {
-    let next_shift = p.shift + RADIX_BITS;
-    let next = if counted(p) && next_shift < p.passes * RADIX_BITS {
-        table_base(p, next_shift)
-    } else {
-        u32::MAX
-    };
     [
-        write_key(st, p, group, lane, next, keys_out, counts),
-        write_key(st, p, group, lane + WORKGROUP, next, keys_out, counts),
-        write_key(st, p, group, lane + 2 * WORKGROUP, next, keys_out, counts),
-        write_key(st, p, group, lane + 3 * WORKGROUP, next, keys_out, counts),
-        write_key(st, p, group, lane + 4 * WORKGROUP, next, keys_out, counts),
-        write_key(st, p, group, lane + 5 * WORKGROUP, next, keys_out, counts),
-        write_key(st, p, group, lane + 6 * WORKGROUP, next, keys_out, counts),
-        write_key(st, p, group, lane + 7 * WORKGROUP, next, keys_out, counts),
+        write_key(st, p, lane, keys_out),
+        write_key(st, p, lane + WORKGROUP, keys_out),
+        write_key(st, p, lane + 2 * WORKGROUP, keys_out),
+        write_key(st, p, lane + 3 * WORKGROUP, keys_out),
+        write_key(st, p, lane + 4 * WORKGROUP, keys_out),
+        write_key(st, p, lane + 5 * WORKGROUP, keys_out),
+        write_key(st, p, lane + 6 * WORKGROUP, keys_out),
+        write_key(st, p, lane + 7 * WORKGROUP, keys_out),
     ]
 }
 

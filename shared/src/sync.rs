@@ -265,6 +265,18 @@ pub fn workgroup_load_u64(p: &u64) -> u64 {
     }
 }
 
+/// Relaxed device-scope 32-bit store, the partner of [`atomic_load_u32`].
+pub fn atomic_store_u32(p: &mut u32, v: u32) {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        spirv_std::arch::atomic_store::<u32, DEVICE, RELAXED>(p, v)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        *p = v;
+    }
+}
+
 /// Relaxed device-scope 64-bit store, the partner of [`atomic_load_u64`].
 pub fn atomic_store_u64(p: &mut u64, v: u64) {
     #[cfg(target_arch = "spirv")]

@@ -107,16 +107,11 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
             }
         }
     }
-    // More than one super-tile of the sort's offset tables (histogram dispatches), then the
-    // largest and smallest counted sorts, which need the tables that sort left cleared,
-    // then one key past the counted sorts.
-    let counted_max = sort::COUNTED_MAX as usize;
-    for n in [
-        2 * (sort::SUPER as usize) * tile + 1,
-        counted_max,
-        tile + 1,
-        counted_max + 1,
-    ] {
+    // Look-backs over many windows of status words, then smaller sorts, which need the
+    // status tables, totals and tile counters that sort left cleared (a left-over word
+    // breaks them).
+    let window = sort::WINDOW as usize;
+    for n in [3 * window * tile + 1, tile + 1, 2 * tile + 1] {
         for opts in BUILDS {
             let (t, s) = generate(n, Distribution::Random, true, 77);
             check(&mut lbvh, &format!("Random-{n}"), &t, &s, opts);

@@ -6,16 +6,16 @@ use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
 use raytrace::validate::validate;
 use shared::karras::range_and_split;
-use shared::radix_sort::{COUNTED_MAX, SUPER};
-use shared::types::{Node, TILE, WORKGROUP};
+use shared::radix_sort::WINDOW;
+use shared::types::{BuildParams, Node, TILE, WORKGROUP};
 
 #[test]
 fn the_sort_is_a_stable_sort_of_the_morton_codes() {
-    // Up to `RANK_MAX` keys the rank sort, above the radix passes: counted up to
-    // `COUNTED_MAX` keys, then with histograms.
+    // Up to `RANK_MAX` keys the rank sort, above the radix passes, whose look-backs read
+    // `WINDOW` tiles a step.
     for bits in [MortonBits::B30, MortonBits::B63] {
         for dist in Distribution::ALL {
-            // The last size spans three super-tiles of the scatter's offset tables.
+            // The last size takes look-backs of several steps.
             for n in [
                 0,
                 1,
@@ -24,10 +24,10 @@ fn the_sort_is_a_stable_sort_of_the_morton_codes() {
                 257,
                 TILE as usize,
                 TILE as usize + 1,
-                COUNTED_MAX as usize,
-                COUNTED_MAX as usize + 1,
+                4 * TILE as usize,
+                4 * TILE as usize + 1,
                 20_000,
-                (2 * SUPER * TILE + 1) as usize,
+                (3 * WINDOW * TILE + 1) as usize,
             ] {
                 let (t, s) = generate(n, dist, true, 3);
                 let (r, _) = cpu::build(&t, &s, BuildOptions::lbvh(bits));
@@ -38,6 +38,85 @@ fn the_sort_is_a_stable_sort_of_the_morton_codes() {
                 assert_eq!(r.sorted_keys, keys);
             }
         }
+    }
+}
+
+#[test]
+fn the_look_back_waits_for_unpublished_tiles_and_stops_at_a_prefix() {
+    // The CPU executor runs tiles in turn, so its look-backs never meet a word not yet
+    // published: here they do. Tile 199 looks back over tiles with their own counts, a
+    // prefix at tile 0, every digit's word of tile 150 unpublished at first and digit 3's of
+    // tile 40; digit 7 has a prefix at tile 100 and nothing published below it.
+    use shared::radix_sort::{self as sort, ScatterState, AGGREGATE, PREFIX, RADIX};
+    use shared::scan::{BlockScan, RAKES};
+    let tiles = 200u32;
+    let p = BuildParams {
+        n_tris: 0,
+        n: tiles * TILE,
+        shift: 2 * sort::RADIX_BITS,
+        passes: 6,
+    };
+    let me = tiles - 1;
+    let count = |t: u32, d: u32| (t * 7 + d * 3) % 50;
+    let at = |t: u32, d: u32| sort::status(&p, t, d) as usize;
+    let mut counts = vec![0u32; sort::table_words(p.n) as usize];
+    for t in 0..me {
+        for d in 0..RADIX {
+            counts[at(t, d)] = if t == 0 { PREFIX } else { AGGREGATE } | count(t, d);
+        }
+    }
+    for d in 0..RADIX {
+        counts[at(150, d)] = 0;
+    }
+    counts[at(40, 3)] = 0;
+    let before = |d: u32| (0..me).map(|t| count(t, d)).sum::<u32>();
+    counts[at(100, 7)] = PREFIX | (0..=100).map(|t| count(t, 7)).sum::<u32>();
+    for t in 0..100 {
+        counts[at(t, 7)] = 0;
+    }
+    let mut st = Box::new(ScatterState {
+        counts: [0; sort::COUNTERS],
+        window: [0; 2 * WORKGROUP as usize],
+        digit_total: [0; RADIX as usize],
+        own: std::array::from_fn(|d| count(me, d as u32)),
+        digit_before: [0; RADIX as usize],
+        end: [me; RADIX as usize],
+        base: [0; RADIX as usize],
+        tile: me,
+        pending: RADIX,
+        scan: BlockScan {
+            sums: [0; WORKGROUP as usize],
+            totals: [0; RAKES as usize],
+        },
+    });
+    let step = |st: &mut ScatterState, counts: &mut [u32]| {
+        (0..WORKGROUP).for_each(|l| sort::lookback_load(l, st, &p, counts));
+        (0..WORKGROUP).for_each(|l| sort::lookback_sum(l, st, &p, counts));
+    };
+    // Every digit stops at tile 150's hole (its first window reads back 64 tiles), and
+    // again until it is published.
+    for _ in 0..3 {
+        step(&mut st, &mut counts);
+        assert_eq!(st.pending, RADIX);
+        assert!(st.end.iter().all(|&e| e == 151), "{:?}", st.end);
+    }
+    for d in 0..RADIX {
+        counts[at(150, d)] = AGGREGATE | count(150, d);
+    }
+    let mut steps = 0;
+    while st.pending != 0 {
+        step(&mut st, &mut counts);
+        steps += 1;
+        assert!(steps < 10, "look-back did not finish: ends {:?}", st.end);
+        if steps == 4 {
+            assert_eq!(st.end[3], 41, "digit 3 waits at tile 40");
+            counts[at(40, 3)] = AGGREGATE | count(40, 3);
+        }
+    }
+    for d in 0..RADIX {
+        assert_eq!(st.digit_before[d as usize], before(d), "digit {d}");
+        assert_eq!(st.base[d as usize], before(d), "digit {d}");
+        assert_eq!(counts[at(me, d)], PREFIX | (before(d) + count(me, d)), "digit {d}");
     }
 }
 

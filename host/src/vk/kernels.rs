@@ -22,8 +22,6 @@ pub enum Kernel {
     Morton63,
     Morton30Counted,
     Morton63Counted,
-    SortHistogramU32,
-    SortHistogramU64,
     SortScatterU32,
     SortScatterU64,
     SortRankU32,
@@ -41,14 +39,12 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    pub const ALL: [Kernel; 21] = [
+    pub const ALL: [Kernel; 19] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
-        Kernel::SortHistogramU32,
-        Kernel::SortHistogramU64,
         Kernel::SortScatterU32,
         Kernel::SortScatterU64,
         Kernel::SortRankU32,
@@ -73,8 +69,6 @@ impl Kernel {
             Kernel::Morton63 => "morton63",
             Kernel::Morton30Counted => "morton30_counted",
             Kernel::Morton63Counted => "morton63_counted",
-            Kernel::SortHistogramU32 => "sort_histogram_u32",
-            Kernel::SortHistogramU64 => "sort_histogram_u64",
             Kernel::SortScatterU32 => "sort_scatter_u32",
             Kernel::SortScatterU64 => "sort_scatter_u64",
             Kernel::SortRankU32 => "sort_rank_u32",
