@@ -196,8 +196,10 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
             let mut st = refit::FitState {
                 boxes: [0.0; 6 * refit::BLOCK as usize],
                 links: [0; refit::BLOCK as usize],
+                leaf_links: [0; refit::BLOCK as usize],
             };
-            lanes(|l| refit::fit_links(l, g, &mut st, &p, &parents, &visits, &words));
+            lanes(|l| refit::fit_clear(l, &mut st));
+            lanes(|l| refit::fit_links(l, g, &mut st, &p, &visits, &words));
             lanes(|l| refit::fit::<true>(l, g, &mut st, &p, prims, &parents, &visits, &mut words));
         }
         bytemuck::pod_collect_to_vec(&words)

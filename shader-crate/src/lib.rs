@@ -89,7 +89,9 @@ pub fn fit(
     #[spirv(workgroup)] st: &mut FitState,
 ) {
     let group = flat_group(gid.x, gid.y);
-    refit::fit_links(lid.x, group, st, p, parents, visits, node_words);
+    refit::fit_clear(lid.x, st);
+    barrier();
+    refit::fit_links(lid.x, group, st, p, visits, node_words);
     barrier();
     let prims = refit::Prims { order, tris, spheres };
     if ordered != 0 {

@@ -191,15 +191,17 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
     }
 }
 
-/// Workgroup memory of [`fit`]: a box slot per lane and a link word per internal node
-/// `BLOCK * group + s` (7 KB).
+/// Workgroup memory of [`fit`]: a box slot per lane and a link word per internal node and
+/// leaf of the block (8 KB).
 pub struct FitState {
     /// The box `(lo, hi)` of the node where lane `l` arrived last: `boxes[6 * l..6 * l + 6]`.
     pub boxes: [f32; 6 * BLOCK as usize],
-    /// Node `BLOCK * group + s`'s way up ([`LOCAL`], [`LEFT`] and its parent's slot in the
-    /// low byte, or 0 where its parent is outside the block), and in bits 16.. the lane + 1
-    /// of the first child to arrive at it.
+    /// Internal node `BLOCK * group + s`'s way up ([`LOCAL`], [`LEFT`] and its parent's slot
+    /// in the low byte, or 0 where its parent is outside the block), and in bits 16.. the
+    /// lane + 1 of the first child to arrive at it.
     pub links: [u32; BLOCK as usize],
+    /// Leaf `BLOCK * group + s`'s way up, as in `links`.
+    pub leaf_links: [u32; BLOCK as usize],
 }
 
 /// Ancestors whose leaf range spans this many leaves or more are tested before the merges
@@ -217,22 +219,6 @@ const LEFT: u32 = 1 << 9;
 const ARRIVAL: u32 = 16;
 const _: () = assert!(BLOCK <= 256 && BLOCK < 1 << (32 - ARRIVAL));
 
-/// Node `c`'s way up from the block starting at leaf `base` (see [`FitState::links`]).
-/// `words` is the node buffer as 32-bit words, 8 per [`crate::types::Node`] (`a`, the left
-/// child, at `8 * p + 3`).
-fn link(c: u32, base: u32, n: u32, parents: &[u32], visits: &[u32], words: &[u32]) -> u32 {
-    let p = *at(parents, c);
-    if p == INVALID {
-        return 0;
-    }
-    let far = *at(visits, n + p);
-    if p.wrapping_sub(base) >= BLOCK || far.wrapping_sub(base) >= BLOCK {
-        return 0;
-    }
-    let left = if *at(words, 8 * p + 3) == c { LEFT } else { 0 };
-    LOCAL | left | (p - base)
-}
-
 /// Writes node `node`'s box (its 32-bit words 0-2 and 4-6; the links are the tree kernel's).
 #[allow(clippy::identity_op)] // `seq!` starts at 0
 fn store_box(words: &mut [u32], node: u32, lo: [f32; 3], hi: [f32; 3]) {
@@ -243,27 +229,40 @@ fn store_box(words: &mut [u32], node: u32, lo: [f32; 3], hi: [f32; 3]) {
     });
 }
 
-/// Phase 1 of [`fit`]: lane `s` records internal node `BLOCK * group + s`'s way up.
-pub fn fit_links(
-    lane: u32,
-    group: u32,
-    st: &mut FitState,
-    p: &BuildParams,
-    parents: &[u32],
-    visits: &[u32],
-    words: &[u32],
-) {
-    let base = group * BLOCK;
-    let x = base + lane;
-    let up = if x + 1 < p.n {
-        link(x, base, p.n, parents, visits, words)
-    } else {
-        0
-    };
-    *elem_mut(&mut st.links, lane) = up;
+/// Phase 1 of [`fit`]: clears the block's links.
+pub fn fit_clear(lane: u32, st: &mut FitState) {
+    *elem_mut(&mut st.links, lane) = 0;
+    *elem_mut(&mut st.leaf_links, lane) = 0;
 }
 
-/// Phase 2: the box fit without the visit counters' chain across the GPU. Lane `l` writes
+/// Phase 2 (after a barrier): lane `s` writes the way up of internal node
+/// `BLOCK * group + s`'s children if the node is local (its leaves, and so its children,
+/// lie in the block; its index is one end of its leaf range, so a local node's lane is
+/// in the block's workgroup). `words` is the node buffer as 32-bit words, 8 per
+/// [`crate::types::Node`] (children `a` and `b` at 3 and 7).
+pub fn fit_links(lane: u32, group: u32, st: &mut FitState, p: &BuildParams, visits: &[u32], words: &[u32]) {
+    let base = group * BLOCK;
+    let x = base + lane;
+    if x + 1 >= p.n {
+        return;
+    }
+    let (a, b, far) = (*at(words, 8 * x + 3), *at(words, 8 * x + 7), *at(visits, p.n + x));
+    if far.wrapping_sub(base) < BLOCK {
+        set_link(st, p.n, base, a, LOCAL | LEFT | lane);
+        set_link(st, p.n, base, b, LOCAL | lane);
+    }
+}
+
+/// Records child `c`'s (an internal node or a leaf of the block) way up.
+fn set_link(st: &mut FitState, n: u32, base: u32, c: u32, link: u32) {
+    if c >= n - 1 {
+        *elem_mut(&mut st.leaf_links, c - (n - 1) - base) = link;
+    } else {
+        *elem_mut(&mut st.links, c - base) = link;
+    }
+}
+
+/// Phase 3 (after a barrier): the box fit without the visit counters' chain across the GPU. Lane `l` writes
 /// leaf `BLOCK * group + l` and climbs while the parent's leaves all lie in the block (a
 /// *local* node), meeting its sibling in workgroup memory: it leaves its box in its slot and
 /// sets its lane in the parent's link word; the first to arrive stops, the second reads
@@ -310,7 +309,7 @@ pub fn fit<const ORDERED: bool>(
     store_box(words, node, lo, hi);
     *at_mut(words, 8 * node + 3) = prim;
     *at_mut(words, 8 * node + 7) = INVALID;
-    let mut up = link(node, base, n, parents, visits, words);
+    let mut up = *elem(&st.leaf_links, lane);
     while up & LOCAL != 0 {
         let slot = 6 * lane;
         seq!(K in 0..3 {
