@@ -33,10 +33,14 @@ pub fn range_and_split<K: SortKey>(keys: &[K], n: u32, i: u32) -> (u32, u32, u32
         -1
     };
     let d_min = delta(keys, n, i, ii - d);
-    // Upper bound on the range length, then binary search for the other end.
+    // Upper bound on the range length (a power of two), then binary search for the other
+    // end. The bound grows 8x a step, not Karras's 2x: the top nodes' dependent key loads
+    // are the kernel's critical path, and this takes ~log2(range) / 1.5 fewer for a few more
+    // in the binary search (H100: tree stage bunny 15.6 -> 14.2 us, 16M 662 -> 627; 4x:
+    // 14.8 / 631).
     let mut l_max: i32 = 2;
     while delta(keys, n, i, ii + l_max * d) > d_min {
-        l_max *= 2;
+        l_max *= 8;
     }
     let mut l: i32 = 0;
     let mut t = l_max / 2;
