@@ -4,8 +4,8 @@
 //! - [`fit`], the build's: a workgroup fits the nodes whose leaves all lie in its block of
 //!   `BLOCK` leaves, siblings meeting in workgroup memory, and merges the boxes of those
 //!   subtrees' roots into the nodes above with atomic float `min`/`max` (no invocation
-//!   waits for another across workgroups). H100, refit stage, B30: Suzanne 34 -> 18 us,
-//!   bunny 42 -> 27, 1M 157 -> 157, 16M 1751 -> 1892 against [`refit`]'s counters.
+//!   waits for another across workgroups). H100, refit stage, B30: Suzanne 34 -> 17 us,
+//!   bunny 42 -> 26, 1M 157 -> 151, 16M 1751 -> 1840 against [`refit`]'s counters.
 //! - [`refit`], the treelet builds' (a treelet is restructured when its root is fitted, so
 //!   these need to know when a node is complete): at each internal node an acquire-release
 //!   visit counter lets the first arrival stop and the second, which then sees both
@@ -99,6 +99,13 @@ pub struct Prims<'a> {
     pub spheres: &'a [Sphere],
 }
 
+/// Leaf `i`'s primitive and its box `(lo, hi)`.
+fn leaf_box(i: u32, p: &BuildParams, prims: Prims) -> (u32, [f32; 3], [f32; 3]) {
+    let prim = *at(prims.order, i);
+    let (l, h) = prim_box(prim, p.n_tris, prims.tris, prims.spheres);
+    (prim, l.to_array(), h.to_array())
+}
+
 /// Phase 2: writes leaf `BLOCK * group + lane` (its primitive's box) and climbs from it,
 /// fitting every internal node this invocation arrives at second. The invocation carries the box it just fitted and reads only
 /// the sibling's; children are combined in (left, right) order so that `min(-0.0, +0.0)` is
@@ -131,9 +138,7 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         return;
     }
     let mut node = n - 1 + i;
-    let prim = *at(prims.order, i);
-    let (l, h) = prim_box(prim, p.n_tris, prims.tris, prims.spheres);
-    let (mut lo, mut hi) = (l.to_array(), h.to_array());
+    let (prim, mut lo, mut hi) = leaf_box(i, p, prims);
     store(words, node, lo, hi, prim, INVALID);
     let mut parent = *at(parents, node);
     while parent != INVALID {
@@ -262,18 +267,19 @@ fn set_link(st: &mut FitState, n: u32, base: u32, c: u32, link: u32) {
     }
 }
 
-/// Phase 3 (after a barrier): the box fit without the visit counters' chain across the GPU. Lane `l` writes
-/// leaf `BLOCK * group + l` and climbs while the parent's leaves all lie in the block (a
-/// *local* node), meeting its sibling in workgroup memory: it leaves its box in its slot and
-/// sets its lane in the parent's link word; the first to arrive stops, the second reads
-/// the first's box from its slot, fits the parent (children in (left, right) order, so that
-/// `min(-0.0, +0.0)` is the same on every backend) and goes on. A lane stops at most once,
-/// so its slot is read at most once, after its last write.
+/// Phase 3 (after a barrier): the box fit without the visit counters' chain across the
+/// GPU. Lane `l` writes leaf `BLOCK * group + l` and climbs while the parent's leaves all
+/// lie in the block (a *local* node), meeting its sibling in workgroup memory: it leaves
+/// its box in its slot and sets its lane in the parent's link word; the first to arrive
+/// stops, the second reads the first's box from its slot, fits the parent (children in
+/// (left, right) order, so that `min(-0.0, +0.0)` is the same on every backend) and goes
+/// on. A lane stops at most once, so its slot is read at most once, after its last write.
 ///
 /// At a node whose parent is not local (a *local root*), the lane merges its box into its
 /// ancestors with atomic float `min`/`max` on their bits ([`sync::atomic_fmin_bits`]; the
-/// tree kernel left them empty), from the parent up, and stops at the first ancestor whose
-/// box (as loaded: it only grows) already holds its own. No invocation waits for another,
+/// tree kernel left them empty), from the parent up, and stops at the first ancestor of
+/// [`CHECK_SPAN`] leaves or more whose box (as loaded: it only grows) already holds its
+/// own. No invocation waits for another,
 /// so a level above the blocks costs a load of the parent and its box instead of a
 /// device-scope counter, a fence and the sibling's box; the early stop keeps the merges off
 /// the top of the tree, which every local root reaches. Each node's box is still exactly
@@ -303,9 +309,7 @@ pub fn fit<const ORDERED: bool>(
         return;
     }
     let mut node = n - 1 + i;
-    let prim = *at(prims.order, i);
-    let (l, h) = prim_box(prim, p.n_tris, prims.tris, prims.spheres);
-    let (mut lo, mut hi) = (l.to_array(), h.to_array());
+    let (prim, mut lo, mut hi) = leaf_box(i, p, prims);
     store_box(words, node, lo, hi);
     *at_mut(words, 8 * node + 3) = prim;
     *at_mut(words, 8 * node + 7) = INVALID;

@@ -123,20 +123,13 @@ pub fn workgroup_or_ordered<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
 /// signed integer `min` where `v` is non-negative, an unsigned `max` where it is negative
 /// (negative floats order backwards as integers, and above every non-negative one
 /// unsigned). The result is the minimum under the order in which -0.0 < +0.0 whatever the
-/// order of the updates. No value comes back: a reduction the GPU need not wait for.
+/// order of the updates. Its value is not used: a reduction the GPU need not wait for.
 pub fn atomic_fmin_bits(p: &mut u32, v: f32) {
     let b = v.to_bits();
     if (b as i32) >= 0 {
         smin_u32(p, b);
     } else {
-        #[cfg(target_arch = "spirv")]
-        unsafe {
-            spirv_std::arch::atomic_u_max::<u32, DEVICE, RELAXED>(p, b);
-        }
-        #[cfg(not(target_arch = "spirv"))]
-        {
-            *p = (*p).max(b);
-        }
+        atomic_max(p, b);
     }
 }
 
@@ -146,61 +139,38 @@ pub fn atomic_fmax_bits(p: &mut u32, v: f32) {
     if (b as i32) >= 0 {
         smax_u32(p, b);
     } else {
-        #[cfg(target_arch = "spirv")]
-        unsafe {
-            spirv_std::arch::atomic_u_min::<u32, DEVICE, RELAXED>(p, b);
-        }
-        #[cfg(not(target_arch = "spirv"))]
-        {
-            *p = (*p).min(b);
-        }
+        atomic_min(p, b);
     }
 }
 
-/// Relaxed device-scope signed `min` on a `u32` (spirv-std types `OpAtomicSMin` by signed
-/// integers only, and the node words are unsigned).
-fn smin_u32(p: &mut u32, v: u32) {
-    #[cfg(target_arch = "spirv")]
-    unsafe {
-        core::arch::asm! {
-            "%u32 = OpTypeInt 32 0",
-            "%scope = OpConstant %u32 {scope}",
-            "%semantics = OpConstant %u32 {semantics}",
-            "%value = OpLoad _ {value}",
-            "%old = OpAtomicSMin %u32 {ptr} %scope %semantics %value",
-            scope = const DEVICE,
-            semantics = const RELAXED,
-            ptr = in(reg) p,
-            value = in(reg) &v,
+/// Relaxed device-scope signed `min` and `max` on a `u32` (spirv-std types `OpAtomicSMin`
+/// and `OpAtomicSMax` by signed integers only, and the node words are unsigned).
+macro_rules! signed_atomic {
+    ($name:ident, $op:literal, $cpu:ident) => {
+        fn $name(p: &mut u32, v: u32) {
+            #[cfg(target_arch = "spirv")]
+            unsafe {
+                core::arch::asm! {
+                    "%u32 = OpTypeInt 32 0",
+                    "%scope = OpConstant %u32 {scope}",
+                    "%semantics = OpConstant %u32 {semantics}",
+                    "%value = OpLoad _ {value}",
+                    concat!("%old = ", $op, " %u32 {ptr} %scope %semantics %value"),
+                    scope = const DEVICE,
+                    semantics = const RELAXED,
+                    ptr = in(reg) p,
+                    value = in(reg) &v,
+                }
+            }
+            #[cfg(not(target_arch = "spirv"))]
+            {
+                *p = (*p as i32).$cpu(v as i32) as u32;
+            }
         }
-    }
-    #[cfg(not(target_arch = "spirv"))]
-    {
-        *p = (*p as i32).min(v as i32) as u32;
-    }
+    };
 }
-
-/// Relaxed device-scope signed `max` on a `u32` (see [`smin_u32`]).
-fn smax_u32(p: &mut u32, v: u32) {
-    #[cfg(target_arch = "spirv")]
-    unsafe {
-        core::arch::asm! {
-            "%u32 = OpTypeInt 32 0",
-            "%scope = OpConstant %u32 {scope}",
-            "%semantics = OpConstant %u32 {semantics}",
-            "%value = OpLoad _ {value}",
-            "%old = OpAtomicSMax %u32 {ptr} %scope %semantics %value",
-            scope = const DEVICE,
-            semantics = const RELAXED,
-            ptr = in(reg) p,
-            value = in(reg) &v,
-        }
-    }
-    #[cfg(not(target_arch = "spirv"))]
-    {
-        *p = (*p as i32).max(v as i32) as u32;
-    }
-}
+signed_atomic!(smin_u32, "OpAtomicSMin", min);
+signed_atomic!(smax_u32, "OpAtomicSMax", max);
 
 /// Relaxed workgroup-scope add on workgroup memory; returns the old value.
 pub fn workgroup_add(p: &mut u32, v: u32) -> u32 {
