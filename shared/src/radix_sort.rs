@@ -626,7 +626,7 @@ pub fn scatter_write_vals(lane: u32, st: &ScatterState, at: &[u32; ITEMS as usiz
 /// dispatch gives every key its stable rank, the number of keys that are smaller or equal and
 /// earlier ([`rank`]), and after a barrier writes it there ([`place`]). The same order as the
 /// radix passes (a stable sort's output is unique) for one dispatch instead of
-/// `2 * passes(bits)`: the fixed cost that dominates small scenes' builds.
+/// `passes(bits)`: the fixed cost that dominates small scenes' builds.
 pub const RANK_MAX: u32 = TILE;
 
 /// Rank sort, phase 1: ranks the keys lane owns against all `p.n` keys, each rank counted in
