@@ -209,12 +209,21 @@ pub struct FitState {
     pub leaf_links: [u32; BLOCK as usize],
 }
 
-/// Ancestors whose leaf range spans this many leaves or more are tested before the merges
-/// (see [`fit`]); below, merged into blindly (few local roots meet there). H100, refit
-/// stage: merging blindly everywhere, bunny 25 us, 1M 322, 16M 5718 (the root takes every
-/// local root's merges); testing every ancestor 32 / 166 / 2017 (each test waits for the
-/// boxes' loads); from 4 blocks 27 / 157 / 1892; from 32 blocks 25 / 170 / 2141.
-pub const CHECK_SPAN: u32 = 4 * BLOCK;
+/// Ancestors whose leaf range spans `check_span(n)` leaves or more are tested before the
+/// merges (see [`fit`]); below, merged into blindly (few local roots meet there). H100,
+/// refit stage: merging blindly everywhere, bunny 25 us, 1M 322, 16M 5718 (the root takes
+/// every local root's merges); testing every ancestor 32 / 166 / 2017 (each test waits for
+/// the boxes' loads); from 4 blocks 27 / 157 / 1892; from 32 blocks 25 / 170 / 2141. A
+/// small input's refit is a latency chain, a large one's a stream of atomics: from 32
+/// blocks below `SMALL_FIT` primitives, from 4 above.
+pub fn check_span(n: u32) -> u32 {
+    if n < SMALL_FIT {
+        32 * BLOCK
+    } else {
+        4 * BLOCK
+    }
+}
+const SMALL_FIT: u32 = 1 << 18;
 
 /// A link's flag: the parent's leaves all lie in the block (its slot is the low byte).
 const LOCAL: u32 = 1 << 8;
@@ -278,7 +287,7 @@ fn set_link(st: &mut FitState, n: u32, base: u32, c: u32, link: u32) {
 /// At a node whose parent is not local (a *local root*), the lane merges its box into its
 /// ancestors with atomic float `min`/`max` on their bits ([`sync::atomic_fmin_bits`]; the
 /// tree kernel left them empty), from the parent up, and stops at the first ancestor of
-/// [`CHECK_SPAN`] leaves or more whose box (as loaded: it only grows) already holds its
+/// [`check_span`] leaves or more whose box (as loaded: it only grows) already holds its
 /// own. No invocation waits for another,
 /// so a level above the blocks costs a load of the parent and its box instead of a
 /// device-scope counter, a fence and the sibling's box; the early stop keeps the merges off
@@ -346,7 +355,7 @@ pub fn fit<const ORDERED: bool>(
         let w = 8 * a;
         let next = *at(parents, a);
         let far = *at(visits, n + a);
-        if a.abs_diff(far) >= CHECK_SPAN {
+        if a.abs_diff(far) >= check_span(n) {
             let mut covered = true;
             seq!(K in 0..3 {
                 let (a_lo, a_hi) = (sync::atomic_load_u32(at(words, w + K)), sync::atomic_load_u32(at(words, w + 4 + K)));
