@@ -5,7 +5,7 @@
 //!   `BLOCK` leaves, siblings meeting in workgroup memory, and merges the boxes of those
 //!   subtrees' roots into the nodes above with atomic float `min`/`max` (no invocation
 //!   waits for another across workgroups). H100, refit stage, B30: Suzanne 34 -> 17 us,
-//!   bunny 42 -> 26, 1M 157 -> 151, 16M 1751 -> 1840 against [`refit`]'s counters.
+//!   bunny 42 -> 24, 1M 157 -> 151, 16M 1751 -> 1840 against [`refit`]'s counters.
 //! - [`refit`], the treelet builds' (a treelet is restructured when its root is fitted, so
 //!   these need to know when a node is complete): at each internal node an acquire-release
 //!   visit counter lets the first arrival stop and the second, which then sees both
