@@ -6,7 +6,7 @@ use bytemuck::Pod;
 use shared::bounds::{self, BoundsState};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState, SortKey, RADIX};
 use shared::scan::{self, BlockScan};
-use shared::types::{item_groups, items_per_lane, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
+use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::{karras, morton, refit};
 use std::time::Instant;
 
@@ -73,19 +73,12 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let mut vals = vec![0u32; n as usize];
     if n > sort::RANK_MAX {
         // The counting Morton kernel (for the radix passes).
-        let items = items_per_lane(n);
         for g in 0..item_groups(n) {
             let mut st = Box::new(DigitCounts {
                 counts: [0; sort::DIGIT_WORDS],
             });
             lanes(|l| sort::digits_clear(l, &mut st));
-            for k in 0..items {
-                lanes(|l| {
-                    let i = (g * items + k) * WORKGROUP + l;
-                    let key = morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
-                    sort::digits_count(i, &mut st, &p, key);
-                });
-            }
+            lanes(|l| sort::count_codes(l, g, &mut st, &p, &b, &summaries, &mut keys, &mut vals, morton_fn));
             lanes(|l| sort::digits_store(l, &st, &p, &mut totals));
         }
     } else {

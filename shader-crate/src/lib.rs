@@ -9,10 +9,9 @@ use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
 use shared::refit::{FitState, RefitState};
 use shared::scan;
 use shared::traverse::Scene;
-use shared::types::items_per_lane;
 use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,
-    Triangle, FEATURES_ALL, WORKGROUP,
+    Triangle, FEATURES_ALL,
 };
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
@@ -133,14 +132,7 @@ macro_rules! key_kernels {
             let group = flat_group(gid.x, gid.y);
             sort::digits_clear(lid.x, st);
             barrier();
-            let items = items_per_lane(p.n);
-            let mut k = 0;
-            while k < items {
-                let i = (group * items + k) * WORKGROUP + lid.x;
-                let key = morton::$morton(i, p, b, summaries, keys, vals);
-                sort::digits_count(i, st, p, key);
-                k += 1;
-            }
+            sort::count_codes(lid.x, group, st, p, b, summaries, keys, vals, morton::$morton);
             barrier();
             sort::digits_store(lid.x, st, p, totals);
         }

@@ -2,7 +2,7 @@
 //! one dispatch per `RADIX_BITS`-bit digit (Adinets & Merrill 2022, "Onesweep", without its
 //! subgroup tricks):
 //!
-//! 1. The Morton stage counts every pass's digits ([`digits_count`]): a digit's total is the
+//! 1. The Morton stage counts every pass's digits ([`count_codes`]): a digit's total is the
 //!    same in every order, so one sweep gives every pass its digit totals (`totals`, zero when
 //!    a build starts: see [`clear_tables`]).
 //! 2. Each pass's scatter claims its tile in start order ([`scatter_claim`]), counts its
@@ -35,7 +35,7 @@
 //! among the tile's keys of digit `d`.
 use crate::scan::{self, BlockScan};
 use crate::sync::{self, at, at_mut, elem, elem_mut};
-use crate::types::{load4, BuildParams, GROUP, ITEMS, TILE, WORKGROUP};
+use crate::types::{items_per_lane, load4, BuildParams, OrderedBounds, GROUP, ITEMS, TILE, WORKGROUP};
 use seq_macro::seq;
 
 pub const RADIX_BITS: u32 = 5;
@@ -186,16 +186,35 @@ pub fn digits_clear(lane: u32, st: &mut DigitCounts) {
     }
 }
 
-/// Morton stage, phase 2 (after a barrier): counts key `i`'s digit of every pass, if it
-/// exists.
-pub fn digits_count<K: SortKey>(i: u32, st: &mut DigitCounts, p: &BuildParams, key: K) {
-    if i < p.n {
-        let mut pass = 0;
-        while pass < p.passes {
-            let d = key.digit(pass * RADIX_BITS);
-            sync::workgroup_add(elem_mut(&mut st.counts, pass * RADIX + d), 1);
-            pass += 1;
+/// Morton stage, phase 2 (after a barrier): lane's primitives of workgroup `group`
+/// ([`items_per_lane`] of them, `WORKGROUP` apart) get their keys from `code` (the Morton
+/// step, `morton::morton30` or `morton63`), and each key's digit of every pass is counted.
+#[allow(clippy::too_many_arguments)]
+pub fn count_codes<K: SortKey>(
+    lane: u32,
+    group: u32,
+    st: &mut DigitCounts,
+    p: &BuildParams,
+    b: &OrderedBounds,
+    summaries: &[[f32; 4]],
+    keys: &mut [K],
+    vals: &mut [u32],
+    code: impl Fn(u32, &BuildParams, &OrderedBounds, &[[f32; 4]], &mut [K], &mut [u32]) -> K,
+) {
+    let items = items_per_lane(p.n);
+    let mut k = 0;
+    while k < items {
+        let i = (group * items + k) * WORKGROUP + lane;
+        let key = code(i, p, b, summaries, keys, vals);
+        if i < p.n {
+            let mut pass = 0;
+            while pass < p.passes {
+                let d = key.digit(pass * RADIX_BITS);
+                sync::workgroup_add(elem_mut(&mut st.counts, pass * RADIX + d), 1);
+                pass += 1;
+            }
         }
+        k += 1;
     }
 }
 
