@@ -24,6 +24,7 @@ use shared::types::{
     Frame, Node, Ray, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, VARIANT_MOLLER_TRUMBORE,
     VARIANT_PLAIN_SLAB,
 };
+use shared::wide::WideNode;
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -143,6 +144,44 @@ pub fn sah_cost(nodes: &[Node]) -> f64 {
     nodes.iter().map(area).sum::<f64>() / root_area
 }
 
+/// [`sah_cost`] of a wide BVH (`shared::wide`): each node's area (its slots' union) once,
+/// each leaf's area once per primitive, relative to the root's area.
+pub fn sah_cost_wide(wide: &[WideNode]) -> f64 {
+    let area = |lo: [f32; 3], hi: [f32; 3]| {
+        let d = Vec3::from(hi) - Vec3::from(lo);
+        2.0 * (d.x as f64 * d.y as f64 + d.y as f64 * d.z as f64 + d.z as f64 * d.x as f64)
+    };
+    let Some(root) = wide.first() else {
+        return 0.0;
+    };
+    let union = |w: &WideNode| {
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for k in (0..shared::wide::WIDTH).filter(|&k| w.child[k] != INVALID) {
+            let (l, h) = w.child_box(k);
+            for a in 0..3 {
+                lo[a] = lo[a].min(l[a]);
+                hi[a] = hi[a].max(h[a]);
+            }
+        }
+        (lo, hi)
+    };
+    let (lo, hi) = union(root);
+    let root_area = area(lo, hi).max(f64::MIN_POSITIVE);
+    let mut cost = root_area;
+    for w in wide {
+        for k in (0..shared::wide::WIDTH).filter(|&k| w.child[k] != INVALID) {
+            let (l, h) = w.child_box(k);
+            let c = w.child[k];
+            cost += if c & shared::wide::LEAF != 0 {
+                area(l, h) * shared::wide::leaf_range(c).1 as f64
+            } else {
+                area(l, h)
+            };
+        }
+    }
+    cost / root_area
+}
+
 fn prepare(scene: &str, size: (u32, u32)) -> Result<Prepared> {
     let size = format!("{}x{}", size.0, size.1);
     <SceneArgs as clap::Parser>::try_parse_from(["raytrace", scene, "--size", &size])?.prepare()
@@ -259,10 +298,11 @@ fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow
         (
             "LBVH + treelets, 30-bit",
             BuildOptions {
-                bits: MortonBits::B30,
                 treelets: true,
+                ..BuildOptions::lbvh(MortonBits::B30)
             },
         ),
+        ("Wide (4-ary collapse), 30-bit", BuildOptions::wide(MortonBits::B30)),
     ] {
         r.set_build(build);
         r.load(&p.data, &p.frame)?;
@@ -277,11 +317,18 @@ fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow
         let (tris, spheres) = r.world()?;
         let stats = crate::validate::validate(&bvh.nodes, &bvh.parents, &tris, &spheres)
             .map_err(|e| anyhow::anyhow!("{name}: the BVH is invalid: {e}"))?;
+        let (sah, depth) = if build.wide {
+            let w = crate::validate::validate_wide(&bvh.wide, &bvh.sorted_prims, &tris, &spheres)
+                .map_err(|e| anyhow::anyhow!("{name}: the wide BVH is invalid: {e}"))?;
+            (sah_cost_wide(&bvh.wide), w.depth)
+        } else {
+            (sah_cost(&bvh.nodes), stats.depth)
+        };
         rows.push(BvhRow {
             name: name.into(),
             build_ms: percentile(&ms, 0.5),
-            sah: sah_cost(&bvh.nodes),
-            depth: stats.depth,
+            sah,
+            depth,
             rays_per_s: rays_per_s(r, &p.frame, o.speed_spp, o.runs)?,
         });
     }

@@ -4,12 +4,13 @@
 //! timing. Writes Markdown and JSON.
 use crate::bvh::{BuildOptions, MortonBits, STAGES};
 
-/// Reported columns: the stages.
-const COLUMNS: [&str; 5] = STAGES;
+/// Reported columns: the stages, and the wide collapse (0 for binary builds).
+const COLUMNS: [&str; 6] = [STAGES[0], STAGES[1], STAGES[2], STAGES[3], STAGES[4], "wide"];
+use crate::accuracy::{sah_cost, sah_cost_wide};
 use crate::cpu;
 use crate::inputs::{assets_dir, generate, load_obj, Distribution};
 use crate::lbvh::GpuLbvh;
-use crate::validate::validate;
+use crate::validate::{validate, validate_wide};
 use crate::vk::{Gpu, Kernels};
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
@@ -32,6 +33,10 @@ pub struct BuildRow {
     pub bits: MortonBits,
     /// Whether the refit restructured treelets (its time is in the `refit` column).
     pub treelets: bool,
+    /// Whether the tree was collapsed into the wide BVH (its time is the `wide` column).
+    pub wide: bool,
+    /// Surface-area cost of the tree traced (`accuracy::sah_cost`, `sah_cost_wide`).
+    pub sah: f64,
     pub runs: usize,
     /// Median GPU microseconds per column of `COLUMNS`.
     pub stage_us: Vec<(String, f64)>,
@@ -159,7 +164,7 @@ pub fn bench_build(
 
         // Check after timing: the GPU's output must equal the CPU executor's, and be valid.
         lbvh.build(opts, true)?;
-        let gpu_result = lbvh.result(opts.bits)?;
+        let gpu_result = lbvh.result(opts)?;
         let cpu_runs = if n >= 1_000_000 { 1 } else { 3 };
         let mut cpu_times = Vec::new();
         let mut cpu_result = None;
@@ -170,8 +175,19 @@ pub fn bench_build(
             cpu_result = Some(r);
         }
         let matches_cpu = cpu_result.as_ref() == Some(&gpu_result);
-        let stats = validate(&gpu_result.nodes, &gpu_result.parents, &input.tris, &input.spheres)
+        let mut stats = validate(&gpu_result.nodes, &gpu_result.parents, &input.tris, &input.spheres)
             .map_err(|e| anyhow::anyhow!("GPU BVH of {} is invalid:\n{e}", input.name))?;
+        let (sah, bvh_bytes) = if opts.wide {
+            let w = validate_wide(&gpu_result.wide, &gpu_result.sorted_prims, &input.tris, &input.spheres)
+                .map_err(|e| anyhow::anyhow!("GPU wide BVH of {} is invalid:\n{e}", input.name))?;
+            stats.depth = w.depth;
+            (
+                sah_cost_wide(&gpu_result.wide),
+                gpu_result.wide.len() * size_of::<shared::wide::WideNode>(),
+            )
+        } else {
+            (sah_cost(&gpu_result.nodes), bvh_bytes_for(n))
+        };
         if !matches_cpu {
             bail!("GPU build of {} differs from the CPU executor's", input.name);
         }
@@ -180,7 +196,9 @@ pub fn bench_build(
             input: input.name.clone(),
             primitives: n,
             bits: opts.bits,
-            treelets: opts.treelets,
+            treelets: opts.restructures(),
+            wide: opts.wide,
+            sah,
             runs,
             stage_us: COLUMNS
                 .iter()
@@ -192,7 +210,7 @@ pub fn bench_build(
             total_p90_us: percentile(&totals, 0.9),
             streamed_us: median(streamed),
             mprims_per_s: n as f64 / total_us,
-            bvh_bytes_per_prim: bvh_bytes_for(n) as f64 / n.max(1) as f64,
+            bvh_bytes_per_prim: bvh_bytes as f64 / n.max(1) as f64,
             scratch_bytes_per_prim: scratch as f64 / n.max(1) as f64,
             cpu_ms: median(cpu_times),
             matches_cpu,
@@ -218,7 +236,11 @@ pub fn markdown(r: &BuildReport) -> String {
          (each timestamp costs about a microsecond), each its own submission with a CPU wait \
          after it; `streamed` is the median over builds run back to back in one submission, \
          as the renderer's frames run them (no idle GPU between builds). BVH bytes count the \
-         nodes only; scratch is everything else the builder holds (inputs included).\n"
+         nodes traced only (a wide build: the wide nodes it wrote; its buffer has room for \
+         the worst case, a node per binary internal node, counted under scratch with the \
+         binary tree); scratch is everything else the builder holds (inputs included). SAH: \
+         surface-area cost of the tree traced (node areas, and leaf areas once per primitive, \
+         over the root's).\n"
     );
     let _ = write!(s, "| input | prims | bits | runs |");
     for st in COLUMNS {
@@ -226,17 +248,18 @@ pub fn markdown(r: &BuildReport) -> String {
     }
     let _ = writeln!(
         s,
-        " total (p10-p90) | streamed | Mprims/s | BVH B/prim | scratch B/prim | depth | CPU executor ms | equals CPU |"
+        " total (p10-p90) | streamed | Mprims/s | BVH B/prim | scratch B/prim | SAH | depth | CPU executor ms | equals CPU |"
     );
-    let _ = writeln!(s, "|{}", "---|".repeat(4 + COLUMNS.len() + 8));
+    let _ = writeln!(s, "|{}", "---|".repeat(4 + COLUMNS.len() + 9));
     for row in &r.rows {
         let _ = write!(
             s,
-            "| {} | {} | {:?}{} | {} |",
+            "| {} | {} | {:?}{}{} | {} |",
             row.input,
             row.primitives,
             row.bits,
             if row.treelets { " + treelets" } else { "" },
+            if row.wide { " wide" } else { "" },
             row.runs
         );
         for (_, us) in &row.stage_us {
@@ -244,7 +267,7 @@ pub fn markdown(r: &BuildReport) -> String {
         }
         let _ = writeln!(
             s,
-            " {:.1} ({:.1}-{:.1}) | {:.1} | {:.0} | {:.1} | {:.1} | {} | {:.1} | {} |",
+            " {:.1} ({:.1}-{:.1}) | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {} |",
             row.total_us,
             row.total_p10_us,
             row.total_p90_us,
@@ -252,6 +275,7 @@ pub fn markdown(r: &BuildReport) -> String {
             row.mprims_per_s,
             row.bvh_bytes_per_prim,
             row.scratch_bytes_per_prim,
+            row.sah,
             row.depth,
             row.cpu_ms,
             if row.matches_cpu { "yes" } else { "NO" }

@@ -1,5 +1,6 @@
 //! What a BVH build produces, on either backend, and the choice of Morton code width.
 use shared::types::{Node, OrderedBounds};
+use shared::wide::WideNode;
 
 /// Morton code width: 30 bits in `u32` keys (Karras 2012) or 63 bits in `u64` keys.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
@@ -17,20 +18,50 @@ impl MortonBits {
     }
 }
 
-/// How a BVH is built: the Morton code width, and whether the refit also restructures
-/// treelets for surface-area cost (`shared::treelet`; Karras & Aila 2013), which makes the
-/// build slower and the tree cheaper to trace.
+/// How a BVH is built: the Morton code width; whether the refit also restructures treelets
+/// for surface-area cost (`shared::treelet`; Karras & Aila 2013), which makes the build
+/// slower and the tree cheaper to trace; and whether the binary tree is then collapsed into
+/// the 4-wide BVH that the tracer walks instead (`shared::wide`). The collapse needs the
+/// Karras tree's key ranges, so a wide build never restructures treelets.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct BuildOptions {
     pub bits: MortonBits,
     pub treelets: bool,
+    pub wide: bool,
 }
 
 impl BuildOptions {
     /// The thesis's build: Karras 2012 and a plain refit.
     pub fn lbvh(bits: MortonBits) -> BuildOptions {
-        BuildOptions { bits, treelets: false }
+        BuildOptions {
+            bits,
+            treelets: false,
+            wide: false,
+        }
     }
+
+    /// The binary LBVH collapsed into the 4-wide BVH.
+    pub fn wide(bits: MortonBits) -> BuildOptions {
+        BuildOptions {
+            wide: true,
+            ..BuildOptions::lbvh(bits)
+        }
+    }
+
+    /// Whether the refit restructures treelets (never for a wide build).
+    pub fn restructures(&self) -> bool {
+        self.treelets && !self.wide
+    }
+}
+
+/// Which BVH the tracer walks (`--bvh`).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+pub enum Layout {
+    /// The binary LBVH: 32-byte nodes, one primitive per leaf.
+    Binary,
+    /// The 4-wide BVH collapsed from it every build: 128-byte nodes holding their children's
+    /// boxes, up to two primitives per leaf.
+    Wide,
 }
 
 /// Every stage's output of one build, for comparing backends and validating.
@@ -46,6 +77,8 @@ pub struct BuildResult {
     /// Internal nodes `0..n-1`, then leaves.
     pub nodes: Vec<Node>,
     pub parents: Vec<u32>,
+    /// The wide BVH (wide builds only), root first.
+    pub wide: Vec<WideNode>,
 }
 
 /// Stage names in build order, as reported by both backends.

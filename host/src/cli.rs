@@ -1,6 +1,6 @@
 //! The `render` and `compare` commands: scene options shared by both, progress and summary
 //! lines, and the side-by-side comparison of the CPU and GPU backends.
-use crate::bvh::{BuildOptions, MortonBits};
+use crate::bvh::{BuildOptions, Layout, MortonBits};
 use crate::features::{self, Features, Forced};
 use crate::picture::{self, Picture};
 use crate::render::{self, render_cpu, Backend, GpuRenderer};
@@ -54,8 +54,13 @@ pub struct SceneArgs {
     /// Morton code width of the BVH.
     #[arg(long, value_enum, default_value = "b30")]
     pub bits: Bits,
-    /// Restructure BVH treelets for surface-area cost: a slower build, a faster trace. `auto`
-    /// does when a frame has at least 16 samples per pixel.
+    /// Which BVH the tracer walks: the binary LBVH, or the 4-wide BVH collapsed from it on
+    /// every build (children's boxes in their parent, up to two primitives a leaf). Binary is
+    /// the default: on the H100 the wide one traces no faster and builds slower (bench/NOTES.md).
+    #[arg(long, value_enum, default_value = "binary")]
+    pub bvh: Layout,
+    /// Restructure BVH treelets for surface-area cost (binary BVH only): a slower build, a
+    /// faster trace. `auto` does when a frame has at least 16 samples per pixel.
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: Treelets,
     /// Kernel features beyond what the scene needs: `all`, or +NAME / -NAME for triangles,
@@ -127,6 +132,7 @@ pub struct Prepared {
     pub spp: u32,
     pub bits: MortonBits,
     pub treelets: Treelets,
+    pub layout: Layout,
     /// The kernel features the frame runs with, and why.
     pub features: Features,
 }
@@ -176,6 +182,7 @@ impl SceneArgs {
             frame,
             bits: self.bits.into(),
             treelets: self.treelets,
+            layout: self.bvh,
         })
     }
 }
@@ -186,6 +193,7 @@ impl Prepared {
         BuildOptions {
             bits: self.bits,
             treelets: self.treelets.resolve(spp),
+            wide: self.layout == Layout::Wide,
         }
     }
 }

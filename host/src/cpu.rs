@@ -7,6 +7,7 @@ use shared::bounds::{self, BoundsState};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState, SortKey, RADIX};
 use shared::scan::{self, BlockScan};
 use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
+use shared::wide::{self, WideNode};
 use shared::{karras, morton, refit};
 use std::time::Instant;
 
@@ -171,7 +172,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         spheres,
     };
     let groups = n.div_ceil(refit::BLOCK);
-    let nodes: Vec<Node> = if opts.treelets {
+    let nodes: Vec<Node> = if opts.restructures() {
         // The treelet refit sees the nodes as 64-bit words (`Node` is only 4-aligned: copy, not cast).
         let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&nodes);
         for g in 0..groups {
@@ -198,7 +199,44 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         bytemuck::pod_collect_to_vec(&words)
     };
     lap("refit", &mut times);
+    if opts.wide && n > 0 {
+        out.wide = collapse(&p, &nodes, &parents, &mut visits);
+        lap("wide", &mut times);
+    }
     out.nodes = nodes;
     out.parents = parents;
     (out, times)
+}
+
+/// The wide collapse (`shared::wide`): mark, scan and write, as the GPU runs them.
+fn collapse(p: &BuildParams, nodes: &[Node], parents: &[u32], visits: &mut [u32]) -> Vec<WideNode> {
+    let s = wide::Scratch::new(p.n);
+    let mut scratch = vec![0u32; s.len() as usize];
+    for k in 0..p.n {
+        wide::climb::<true>(k, p, nodes, parents, visits, &mut scratch);
+    }
+    let ends = &*visits;
+    for g in 0..s.groups {
+        let mut st = wide::MarkState {
+            bits: [0; 8],
+            counts: [0; 8],
+        };
+        lanes(|l| wide::mark_clear(l, &mut st));
+        lanes(|l| wide::mark(l, g, &mut st, p, nodes, parents, ends, &scratch));
+        lanes(|l| wide::mark_words(l, g, &mut st, p, &mut scratch));
+        lanes(|l| wide::mark_counts(l, g, &st, p, &mut scratch));
+    }
+    let mut st = wide::ScanState {
+        sums: [0; wide::SCAN_LANES as usize],
+    };
+    (0..wide::SCAN_LANES).for_each(|l| wide::scan_sum(l, &mut st, p, &scratch));
+    (0..wide::SCAN_LANES).for_each(|l| wide::scan_lanes(l, &mut st, p, &mut scratch));
+    (0..wide::SCAN_LANES).for_each(|l| wide::scan_write(l, &st, p, &mut scratch));
+    let count = scratch[s.count() as usize] as usize;
+    let mut out = vec![WideNode::EMPTY; s.slots as usize];
+    for i in 0..s.slots {
+        wide::write(i, p, nodes, ends, &scratch, &mut out);
+    }
+    out.truncate(count);
+    out
 }

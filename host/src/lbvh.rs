@@ -7,7 +7,8 @@ use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
 use shared::radix_sort as sort;
-use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
+use shared::types::{grid, item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
+use shared::wide::{self, WideNode};
 use std::sync::Arc;
 
 /// Device buffers of the build, sized for `capacity` primitives.
@@ -26,6 +27,10 @@ struct Buffers {
     nodes: Buffer,
     parents: Buffer,
     visits: Buffer,
+    /// The wide BVH (room for its worst case: a node per binary internal node) and the
+    /// collapse's scratch (`shared::wide::Scratch`).
+    wide: Buffer,
+    wide_scratch: Buffer,
     /// Unsorted Morton codes, copied out when a build is captured for comparison.
     capture: Buffer,
     staging: Buffer,
@@ -53,11 +58,27 @@ impl Buffers {
         let nodes = dev("nodes", (2 * n - 1) * size_of::<Node>() as u64)?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
+        let scratch = wide::Scratch::new(n as u32);
+        let wide = dev("wide BVH", scratch.slots as u64 * size_of::<WideNode>() as u64)?;
+        let wide_scratch = dev("wide collapse scratch", scratch.len() as u64 * 4)?;
         let capture = dev("captured codes", n * 8)?;
         let staging_bytes = (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
         let staging = Buffer::new(gpu, "staging", staging_bytes, MemoryLocation::CpuToGpu)?;
         let a_to_b: [&Buffer; BINDINGS] = [
-            &tris, &spheres, &bounds, &keys_a, &vals_a, &keys_b, &vals_b, &table, &nodes, &parents, &visits, &totals,
+            &tris,
+            &spheres,
+            &bounds,
+            &keys_a,
+            &vals_a,
+            &keys_b,
+            &vals_b,
+            &table,
+            &nodes,
+            &parents,
+            &visits,
+            &totals,
+            &wide,
+            &wide_scratch,
         ];
         let mut b_to_a = a_to_b;
         b_to_a[3..7].copy_from_slice(&[&keys_b, &vals_b, &keys_a, &vals_a]);
@@ -75,6 +96,8 @@ impl Buffers {
             nodes,
             parents,
             visits,
+            wide,
+            wide_scratch,
             capture,
             staging,
             sets,
@@ -122,10 +145,22 @@ impl GpuLbvh {
             None => (0, 0),
             Some(b) => {
                 let all = [
-                    &b.tris, &b.spheres, &b.bounds, &b.keys_a, &b.vals_a, &b.keys_b, &b.vals_b, &b.table, &b.totals,
-                    &b.parents, &b.visits, &b.capture, &b.staging,
+                    &b.tris,
+                    &b.spheres,
+                    &b.bounds,
+                    &b.keys_a,
+                    &b.vals_a,
+                    &b.keys_b,
+                    &b.vals_b,
+                    &b.table,
+                    &b.totals,
+                    &b.parents,
+                    &b.visits,
+                    &b.capture,
+                    &b.staging,
+                    &b.wide_scratch,
                 ];
-                (b.nodes.size, all.iter().map(|x| x.size).sum())
+                (b.nodes.size + b.wide.size, all.iter().map(|x| x.size).sum())
             }
         }
     }
@@ -277,14 +312,30 @@ impl GpuLbvh {
         cmds.dispatch(k, set_ab, build, &p, items);
         cmds.barrier();
         stamp(cmds, STAGES[3]);
-        let refit = match self.gpu.refit_kernel(opts.treelets) {
+        let refit = match self.gpu.refit_kernel(opts.restructures()) {
             (kernel, Some(constant)) => k.specialised(kernel, constant)?,
             (kernel, None) => k.pipeline(kernel),
         };
-        let (x, y) = shared::types::grid(items);
+        let (x, y) = grid(items);
         cmds.dispatch_pipeline(k, refit, &[set_ab], bytemuck::bytes_of(&p), x, y);
         cmds.barrier();
-        cmds.timestamp(if stages { STAGES[4] } else { "build" });
+        if opts.wide {
+            stamp(cmds, STAGES[4]);
+            let s = wide::Scratch::new(n);
+            let climb = k.specialised(Kernel::WideClimb, u32::from(!self.gpu.is_lavapipe()))?;
+            let (x, y) = grid(items);
+            cmds.dispatch_pipeline(k, climb, &[set_ab], bytemuck::bytes_of(&p), x, y);
+            cmds.barrier();
+            cmds.dispatch(k, set_ab, Kernel::WideMark, &p, s.groups);
+            cmds.barrier();
+            cmds.dispatch(k, set_ab, Kernel::WideScan, &p, 1);
+            cmds.barrier();
+            cmds.dispatch(k, set_ab, Kernel::WideWrite, &p, s.slots.div_ceil(WORKGROUP));
+            cmds.barrier();
+            cmds.timestamp(if stages { "wide" } else { "build" });
+        } else {
+            cmds.timestamp(if stages { STAGES[4] } else { "build" });
+        }
         Ok(())
     }
 
@@ -359,7 +410,8 @@ impl GpuLbvh {
 
     /// Reads back every stage's output of the last build (run it with `capture` to get the
     /// unsorted Morton codes).
-    pub fn result(&mut self, bits: MortonBits) -> Result<BuildResult> {
+    pub fn result(&mut self, opts: BuildOptions) -> Result<BuildResult> {
+        let bits = opts.bits;
         let n = self.n as usize;
         let widen = |v: Vec<u32>| v.into_iter().map(u64::from).collect::<Vec<u64>>();
         let keys = |s: &mut Self, which: fn(&Buffers) -> &Buffer| -> Result<Vec<u64>> {
@@ -380,6 +432,14 @@ impl GpuLbvh {
             sorted_prims: self.download(|b| &b.vals_a, n)?,
             nodes: self.download(|b| &b.nodes, total)?,
             parents: self.download(|b| &b.parents, total)?,
+            wide: if opts.wide && n > 0 {
+                let s = wide::Scratch::new(n as u32);
+                let words: Vec<u32> = self.download(|b| &b.wide_scratch, s.len() as usize)?;
+                let count = (words[s.count() as usize] as usize).min(s.slots as usize);
+                self.download(|b| &b.wide, count)?
+            } else {
+                Vec::new()
+            },
         })
     }
 }

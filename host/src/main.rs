@@ -306,10 +306,11 @@ fn main() -> Result<()> {
                     Bits::B63 => MortonBits::B63,
                 };
                 rows.extend(bench_build(&gpu, &inputs, BuildOptions::lbvh(b), runs, warmup)?);
+                rows.extend(bench_build(&gpu, &inputs, BuildOptions::wide(b), runs, warmup)?);
                 if treelets {
                     let opts = BuildOptions {
-                        bits: b,
                         treelets: true,
+                        ..BuildOptions::lbvh(b)
                     };
                     rows.extend(bench_build(&gpu, &inputs, opts, runs, warmup)?);
                 }

@@ -41,6 +41,8 @@ pub struct Row {
     pub spheres: usize,
     pub animated: bool,
     pub nee: bool,
+    /// The BVH built and traced.
+    pub bvh: crate::bvh::Layout,
     /// GPU time of a whole frame (timestamps, first to last), ms.
     pub gpu_ms: Percentiles,
     /// Transform + BVH rebuild, ms.
@@ -92,6 +94,9 @@ pub struct Options {
     /// Treelet restructuring of every frame's BVH (`auto`: from 16 samples per frame).
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: crate::cli::Treelets,
+    /// Which BVH every frame builds and traces (see `raytrace render --help`).
+    #[arg(long, value_enum, default_value = "binary")]
+    pub bvh: crate::bvh::Layout,
 }
 
 /// Runs every scene of `o` and returns the report.
@@ -111,6 +116,7 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             }
             let mut p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
             p.treelets = o.treelets;
+            p.layout = o.bvh;
             let mut r = GpuRenderer::new(gpu, &kernels)?;
             r.set_build(p.build(o.spf));
             let mut live = LiveScene::new(p.scene);
@@ -164,6 +170,11 @@ fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Opti
         spheres,
         animated: live.animated(),
         nee,
+        bvh: if r.build_options().wide {
+            crate::bvh::Layout::Wide
+        } else {
+            crate::bvh::Layout::Binary
+        },
         fps: 1e3 / gpu_ms.p50,
         gpu_ms,
         build_ms: Percentiles::of(build),
@@ -175,11 +186,12 @@ fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Opti
 
 fn row_line(r: &Row) -> String {
     format!(
-        "| {} | {} | {} | {} | {:.3} / {:.3} / {:.3} | {:.1} | {:.3} | {:.3} | {:.3} / {:.3} | {:.2} |",
+        "| {} | {} | {} | {} | {:?} | {:.3} / {:.3} / {:.3} | {:.1} | {:.3} | {:.3} | {:.3} / {:.3} | {:.2} |",
         r.scene,
         r.triangles + r.spheres,
         if r.animated { "yes" } else { "no" },
         if r.nee { "on" } else { "off" },
+        r.bvh,
         r.gpu_ms.p50,
         r.gpu_ms.p90,
         r.gpu_ms.p99,
@@ -208,9 +220,9 @@ pub fn markdown(r: &Report) -> String {
     );
     let _ = writeln!(
         s,
-        "| scene | primitives | animated | NEE | GPU frame p50 / p90 / p99 ms | fps (p50) | rebuild p50 ms | trace p50 ms | wall p50 / p99 ms | Grays/s (trace) |"
+        "| scene | primitives | animated | NEE | BVH | GPU frame p50 / p90 / p99 ms | fps (p50) | rebuild p50 ms | trace p50 ms | wall p50 / p99 ms | Grays/s (trace) |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
     for row in &r.rows {
         let _ = writeln!(s, "{}", row_line(row));
     }

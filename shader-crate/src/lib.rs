@@ -13,6 +13,7 @@ use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,
     Triangle, FEATURES_ALL,
 };
+use shared::wide::{self, MarkState, ScanState, WideNode};
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
 const _: () = assert!(FEATURES_ALL == 63);
@@ -232,6 +233,79 @@ key_kernels!(
     karras_build_u64
 );
 
+/// The wide collapse's first stage: frontier sizes, bottom-up (`shared::wide`);
+/// specialisation constant 0 is 1 for the ordered counters, 0 for relaxed ones (lavapipe).
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn wide_climb(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(spec_constant(id = 0, default = 1))] ordered: u32,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
+) {
+    let k = flat_index(id.x, id.y);
+    if ordered != 0 {
+        wide::climb::<true>(k, p, nodes, parents, visits, scratch);
+    } else {
+        wide::climb::<false>(k, p, nodes, parents, visits, scratch);
+    }
+}
+
+/// The wide collapse's second stage: which binary nodes root wide nodes.
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn wide_mark(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ends: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
+    #[spirv(workgroup)] st: &mut MarkState,
+) {
+    let group = flat_group(gid.x, gid.y);
+    wide::mark_clear(lid.x, st);
+    barrier();
+    wide::mark(lid.x, group, st, p, nodes, parents, ends, scratch);
+    barrier();
+    wide::mark_words(lid.x, group, st, p, scratch);
+    barrier();
+    wide::mark_counts(lid.x, group, st, p, scratch);
+}
+
+/// The wide collapse's third stage (one workgroup of `wide::SCAN_LANES`): where each
+/// group's wide nodes start.
+#[spirv(compute(threads(64)))]
+pub fn wide_scan(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
+    #[spirv(workgroup)] st: &mut ScanState,
+) {
+    wide::scan_sum(lid.x, st, p, scratch);
+    barrier();
+    wide::scan_lanes(lid.x, st, p, scratch);
+    barrier();
+    wide::scan_write(lid.x, st, p, scratch);
+}
+
+/// The wide collapse's last stage: every root writes its wide node.
+#[spirv(compute(threads(256)))]
+pub fn wide_write(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ends: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] out: &mut [WideNode],
+) {
+    wide::write(flat_index(id.x, id.y), p, nodes, ends, scratch, out);
+}
+
 /// A workgroup barrier that also orders this workgroup's storage-buffer accesses (the rank
 /// sort writes in place what other lanes read before).
 fn storage_barrier() {
@@ -260,12 +334,14 @@ pub fn transform(
 
 /// The scene as the render kernels see it (set 0: world primitives and BVH; set 1: the rest).
 macro_rules! world {
-    ($tris:ident, $spheres:ident, $nodes:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $features:expr) => {
+    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $features:expr) => {
         World {
             scene: Scene {
                 tris: $tris,
                 spheres: $spheres,
                 nodes: $nodes,
+                wide: $wide,
+                order: $order,
                 n_tris: $frame.n_tris,
                 n_prims: $frame.n_prims,
                 features: $features,
@@ -286,7 +362,9 @@ pub fn path_trace(
     #[spirv(push_constant)] p: &RenderPush,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
@@ -299,6 +377,8 @@ pub fn path_trace(
         tris,
         spheres,
         nodes,
+        wide,
+        order,
         objects,
         prim_object,
         materials,
@@ -328,7 +408,9 @@ pub fn cast_rays(
     #[spirv(push_constant)] p: &RenderPush,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
@@ -342,6 +424,8 @@ pub fn cast_rays(
         tris,
         spheres,
         nodes,
+        wide,
+        order,
         objects,
         prim_object,
         materials,

@@ -27,5 +27,6 @@ pub mod transform;
 pub mod traverse;
 pub mod treelet;
 pub mod types;
+pub mod wide;
 
 pub use spirv_std::glam;

@@ -14,6 +14,8 @@
 //! | 9       | parent of every node                        |
 //! | 10      | refit: visit counters (treelet builds); far end of every internal node's leaf range |
 //! | 11      | radix sort: digit totals and tile counter, every pass |
+//! | 12      | `[WideNode]` the wide BVH (`crate::wide`)   |
+//! | 13      | the wide collapse's scratch (`wide::Scratch`) |
 use bytemuck::{Pod, Zeroable};
 use core::mem::size_of;
 use spirv_std::glam::Vec3;
@@ -389,6 +391,10 @@ pub const FEATURES_ALL: u32 = (1 << 6) - 1;
 pub const VARIANT_MOLLER_TRUMBORE: u32 = 1 << 6;
 /// Boxes by the plain slab test (no NaN handling, no widening) instead of the robust one.
 pub const VARIANT_PLAIN_SLAB: u32 = 1 << 7;
+
+/// Trace through the 4-wide BVH (`crate::wide`) instead of the binary one: set by the host
+/// where the build collapsed it (`--bvh wide`).
+pub const VARIANT_WIDE_BVH: u32 = 1 << 9;
 
 /// Exact products without a fused multiply-add (`math::two_product_split`): set by the host
 /// where the device's `Fma` rounds twice (Vulkan allows it; llvmpipe's does), so the sphere

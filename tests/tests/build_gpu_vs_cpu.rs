@@ -1,13 +1,13 @@
 //! The BVH build on the Vulkan device equals the CPU executor's bit for bit, stage by stage,
 //! and both trees pass the validator: sizes around workgroup and tile edges, 100,000 and the
 //! bunny; random, all-equal, far-outlier, collinear and duplicate-heavy inputs; 30- and
-//! 63-bit codes, and treelet restructuring.
+//! 63-bit codes, the wide collapse, and treelet restructuring.
 use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu};
 use raytrace::bvh::{BuildOptions, BuildResult, MortonBits};
 use raytrace::cpu;
 use raytrace::inputs::{assets_dir, generate, load_obj, Distribution};
 use raytrace::lbvh::GpuLbvh;
-use raytrace::validate::validate;
+use raytrace::validate::{validate, validate_wide};
 use raytrace::vk::{Gpu, Kernels};
 use shared::radix_sort as sort;
 use shared::types::{Sphere, Triangle, TILE, WORKGROUP};
@@ -24,41 +24,55 @@ fn builder(test: &str) -> Option<(Arc<Gpu>, GpuLbvh)> {
 /// The bytes of one stage's output.
 type StageBytes = fn(&BuildResult) -> Vec<u8>;
 
-/// The builds every input is checked with: both code widths, and 30-bit codes with treelet
-/// restructuring.
-const BUILDS: [BuildOptions; 3] = [
+/// The builds every input is checked with: both code widths, binary and collapsed into the
+/// wide BVH, and 30-bit codes with treelet restructuring.
+const BUILDS: [BuildOptions; 5] = [
     BuildOptions {
         bits: MortonBits::B30,
         treelets: false,
+        wide: false,
     },
     BuildOptions {
         bits: MortonBits::B63,
         treelets: false,
+        wide: false,
     },
     BuildOptions {
         bits: MortonBits::B30,
         treelets: true,
+        wide: false,
+    },
+    BuildOptions {
+        bits: MortonBits::B30,
+        treelets: false,
+        wide: true,
+    },
+    BuildOptions {
+        bits: MortonBits::B63,
+        treelets: false,
+        wide: true,
     },
 ];
 
 fn check(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[Sphere], opts: BuildOptions) {
     lbvh.upload(tris, spheres).unwrap();
     lbvh.build(opts, true).unwrap();
-    let g = lbvh.result(opts.bits).unwrap();
+    let g = lbvh.result(opts).unwrap();
     let (c, _) = cpu::build(tris, spheres, opts);
-    let name = if opts.treelets {
-        format!("{name}-treelets")
-    } else {
-        name.to_string()
+    let name = match (opts.treelets, opts.wide) {
+        (true, _) => format!("{name}-treelets"),
+        (_, true) => format!("{name}-wide"),
+        _ => name.to_string(),
     };
     let bits = opts.bits;
-    let stages: [(&str, StageBytes); 6] = [
+    let stages: [(&str, StageBytes); 7] = [
         ("bounds", |r| bytemuck::bytes_of(&r.bounds).to_vec()),
         ("morton", |r| bytemuck::cast_slice(&r.morton).to_vec()),
         ("sorted keys", |r| bytemuck::cast_slice(&r.sorted_keys).to_vec()),
         ("sorted primitives", |r| bytemuck::cast_slice(&r.sorted_prims).to_vec()),
         ("nodes", |r| bytemuck::cast_slice(&r.nodes).to_vec()),
         ("parents", |r| bytemuck::cast_slice(&r.parents).to_vec()),
+        ("wide nodes", |r| bytemuck::cast_slice(&r.wide).to_vec()),
     ];
     for (stage, bytes) in stages {
         if bytes(&g) != bytes(&c) {
@@ -76,6 +90,15 @@ fn check(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[Sphere], 
                 "{name} ({bits:?}): {who} BVH invalid (written to {}):\n{e}",
                 file.display()
             );
+        }
+        if opts.wide {
+            if let Err(e) = validate_wide(&r.wide, &r.sorted_prims, tris, spheres) {
+                let file = dump_mismatch(&format!("{name}-{bits:?}-invalid"), who, r, "error", &e);
+                panic!(
+                    "{name} ({bits:?}): {who} wide BVH invalid (written to {}):\n{e}",
+                    file.display()
+                );
+            }
         }
     }
 }

@@ -145,7 +145,15 @@ fn every_input_shape_gives_a_valid_tree() {
         for dist in Distribution::ALL {
             for n in [0, 1, 2, 3, 4, 7, 8, wg - 1, wg, wg + 1, 5000] {
                 let (t, s) = generate(n, dist, n % 2 == 0, 9);
-                let (r, _) = cpu::build(&t, &s, BuildOptions { bits, treelets });
+                let (r, _) = cpu::build(
+                    &t,
+                    &s,
+                    BuildOptions {
+                        bits,
+                        treelets,
+                        wide: false,
+                    },
+                );
                 let stats = validate(&r.nodes, &r.parents, &t, &s)
                     .unwrap_or_else(|e| panic!("{dist:?} n={n} {bits:?} treelets {treelets}: {e}"));
                 assert_eq!(stats.leaves, n);
@@ -289,8 +297,8 @@ fn treelets_give_the_optimal_tree_of_few_primitives() {
             let (t, s) = generate(n, Distribution::Random, seed % 2 == 0, 100 + seed);
             let (plain, _) = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30));
             let opts = BuildOptions {
-                bits: MortonBits::B30,
                 treelets: true,
+                ..BuildOptions::lbvh(MortonBits::B30)
             };
             let (r, _) = cpu::build(&t, &s, opts);
             validate(&r.nodes, &r.parents, &t, &s).unwrap();
@@ -320,8 +328,8 @@ fn treelets_lower_the_surface_area_cost_of_every_input() {
     for (name, t, s) in inputs {
         let (plain, _) = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30));
         let opts = BuildOptions {
-            bits: MortonBits::B30,
             treelets: true,
+            ..BuildOptions::lbvh(MortonBits::B30)
         };
         let (r, _) = cpu::build(&t, &s, opts);
         let stats = validate(&r.nodes, &r.parents, &t, &s).unwrap_or_else(|e| panic!("{name}: {e}"));

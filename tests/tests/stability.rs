@@ -10,6 +10,11 @@
 //! 5. Every material conserves energy; every sampling routine passes a chi-square test.
 mod common;
 
+/// Whether this run of the suite traces through the wide BVH (`stability_wide.rs` runs this
+/// file again with it set).
+#[allow(dead_code)]
+const WIDE: bool = false;
+
 use common::*;
 use raytrace::hard_cases::closed_meshes;
 use shared::glam::{DVec3, Vec3};
@@ -1709,8 +1714,8 @@ fn lbvh_edge_cases_trace_like_brute_force() {
         // The restructured tree too (on the CPU: the GPU builds it bit for bit alike,
         // `build_gpu_vs_cpu`).
         let opts = raytrace::bvh::BuildOptions {
-            bits: raytrace::bvh::MortonBits::B30,
             treelets: true,
+            ..raytrace::bvh::BuildOptions::lbvh(raytrace::bvh::MortonBits::B30)
         };
         let restructured = raytrace::cpu::build(&world.tris, &world.spheres, opts).0;
         if let Err(e) =
@@ -1721,6 +1726,7 @@ fn lbvh_edge_cases_trace_like_brute_force() {
         }
         let treelet_scene = traverse::Scene {
             nodes: &restructured.nodes,
+            features: scene.features & !shared::types::VARIANT_WIDE_BVH,
             ..scene
         };
         let mut backends = vec![

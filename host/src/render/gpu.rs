@@ -11,7 +11,7 @@ use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
 use shared::types::{
     grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN, DISPLAY_BGRA,
-    TILE_SIDE, WORKGROUP,
+    TILE_SIDE, VARIANT_WIDE_BVH, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -81,6 +81,16 @@ pub fn stage_ms(timings: &[(&'static str, f64)], label: &str) -> f64 {
     timings.iter().filter(|(l, _)| *l == label).map(|(_, s)| s * 1e3).sum()
 }
 
+/// A frame's `features` with [`VARIANT_WIDE_BVH`] set where `build` collapses the tree into
+/// the wide BVH (the tracer then walks it).
+pub fn tracer_features(features: u32, build: BuildOptions) -> u32 {
+    if build.wide {
+        features | VARIANT_WIDE_BVH
+    } else {
+        features & !VARIANT_WIDE_BVH
+    }
+}
+
 /// Renders scenes on the GPU.
 pub struct GpuRenderer {
     gpu: Arc<Gpu>,
@@ -138,6 +148,17 @@ impl GpuRenderer {
     /// How the BVH is built every frame.
     pub fn set_build(&mut self, build: BuildOptions) {
         self.build = build;
+    }
+
+    /// How the BVH is built every frame.
+    pub fn build_options(&self) -> BuildOptions {
+        self.build
+    }
+
+    /// Specialisation constant 0 of the tracing kernels: the frame's `FEATURE_*` and
+    /// `VARIANT_*` bits, and the wide traversal where the build collapses the tree.
+    fn tracer_constant(&self) -> u32 {
+        tracer_features(self.frame.features, self.build)
     }
 
     /// Uploads a scene and its frame; accumulation starts again.
@@ -270,7 +291,7 @@ impl GpuRenderer {
             self.lbvh.record(cmds, self.build, false, false)?;
         }
         let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));
-        let trace = k.specialised(Kernel::PathTrace, f.features)?;
+        let trace = k.specialised(Kernel::PathTrace, self.tracer_constant())?;
         let mut done = 0;
         while done < samples {
             let n = (samples - done).min(SAMPLES_PER_DISPATCH);
@@ -331,7 +352,7 @@ impl GpuRenderer {
 
     /// The BVH of the last build, every stage's output.
     pub fn bvh(&mut self) -> Result<BuildResult> {
-        self.lbvh.result(self.build.bits)
+        self.lbvh.result(self.build)
     }
 
     /// World-space primitives of the last transform stage.
@@ -387,7 +408,7 @@ impl GpuRenderer {
         };
         let sets = [self.lbvh.set()?, b.set()?];
         let (x, y) = grid((count as u32).div_ceil(WORKGROUP));
-        let cast = self.kernels.specialised(Kernel::CastRays, self.frame.features)?;
+        let cast = self.kernels.specialised(Kernel::CastRays, self.tracer_constant())?;
         self.cmds.begin()?;
         self.cmds
             .dispatch_pipeline(&self.kernels, cast, &sets, bytemuck::bytes_of(&push), x, y);

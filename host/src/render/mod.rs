@@ -5,7 +5,7 @@ mod cpu;
 mod gpu;
 
 pub use cpu::{render_cpu, CpuRender};
-pub use gpu::{frame_timings, stage_ms, GpuRenderer};
+pub use gpu::{frame_timings, stage_ms, tracer_features, GpuRenderer};
 
 use crate::picture::Picture;
 use shared::types::{Frame, FLAG_BVH};

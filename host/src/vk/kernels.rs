@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 /// Storage-buffer bindings of set 0 (see `shared::types`).
-pub const BINDINGS: usize = 12;
+pub const BINDINGS: usize = 14;
 
 const _: () = assert!(size_of::<BuildParams>() == size_of::<RenderPush>());
 
@@ -29,6 +29,10 @@ pub enum Kernel {
     KarrasBuildU32,
     KarrasBuildU64,
     Fit,
+    WideClimb,
+    WideMark,
+    WideScan,
+    WideWrite,
     RefitTreelets,
     RefitTreeletsRelaxed,
     Transform,
@@ -39,7 +43,7 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    pub const ALL: [Kernel; 19] = [
+    pub const ALL: [Kernel; 23] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -52,6 +56,10 @@ impl Kernel {
         Kernel::KarrasBuildU32,
         Kernel::KarrasBuildU64,
         Kernel::Fit,
+        Kernel::WideClimb,
+        Kernel::WideMark,
+        Kernel::WideScan,
+        Kernel::WideWrite,
         Kernel::RefitTreelets,
         Kernel::RefitTreeletsRelaxed,
         Kernel::Transform,
@@ -76,6 +84,10 @@ impl Kernel {
             Kernel::KarrasBuildU32 => "karras_build_u32",
             Kernel::KarrasBuildU64 => "karras_build_u64",
             Kernel::Fit => "fit",
+            Kernel::WideClimb => "wide_climb",
+            Kernel::WideMark => "wide_mark",
+            Kernel::WideScan => "wide_scan",
+            Kernel::WideWrite => "wide_write",
             Kernel::RefitTreelets => "refit_treelets",
             Kernel::RefitTreeletsRelaxed => "refit_treelets_relaxed",
             Kernel::Transform => "transform",

@@ -9,32 +9,64 @@ use shared::glam::Vec3;
 use shared::rng::Rng;
 use shared::traverse::Scene;
 use shared::types::{Hit, Node, Ray, Sphere, Triangle, FEATURES_ALL, FLAG_BVH, INVALID};
+use shared::wide::WideNode;
 
-/// Primitives and the 30-bit LBVH over them.
+/// Primitives and the 30-bit LBVH over them, collapsed into the wide BVH where the suite
+/// runs through it (`crate::WIDE`: the stability suite runs twice, `stability` through the
+/// binary BVH and `stability_wide` through the wide one).
 pub struct World {
     pub tris: Vec<Triangle>,
     pub spheres: Vec<Sphere>,
     pub nodes: Vec<Node>,
+    pub wide: Vec<WideNode>,
+    pub order: Vec<u32>,
 }
 
 impl World {
-    /// The primitives with the 30-bit LBVH of the CPU executor (the kernels the GPU runs).
+    /// The primitives with the BVH of the CPU executor (the kernels the GPU runs), which
+    /// must pass the validator.
     pub fn new(tris: Vec<Triangle>, spheres: Vec<Sphere>) -> World {
-        let nodes = raytrace::cpu::build(&tris, &spheres, BuildOptions::lbvh(MortonBits::B30))
-            .0
-            .nodes;
-        World { tris, spheres, nodes }
+        let r = raytrace::cpu::build(&tris, &spheres, World::build()).0;
+        let n_tris = tris.len() as u32;
+        let finite = (0..n_tris + spheres.len() as u32).all(|i| {
+            let (lo, hi) = shared::types::prim_box(i, n_tris, &tris, &spheres);
+            lo.is_finite() && hi.is_finite()
+        });
+        // Broken primitives (non-finite vertices) have no box to contain.
+        if crate::WIDE && finite {
+            if let Err(e) = raytrace::validate::validate_wide(&r.wide, &r.sorted_prims, &tris, &spheres) {
+                panic!("the CPU's wide BVH is invalid: {e}");
+            }
+        }
+        World {
+            tris,
+            spheres,
+            nodes: r.nodes,
+            wide: r.wide,
+            order: r.sorted_prims,
+        }
     }
 
-    /// The scene traversed through the BVH.
+    /// How the suite's BVHs are built.
+    pub fn build() -> BuildOptions {
+        if crate::WIDE {
+            BuildOptions::wide(MortonBits::B30)
+        } else {
+            BuildOptions::lbvh(MortonBits::B30)
+        }
+    }
+
+    /// The scene traversed through the BVH (the wide one where the suite runs through it).
     pub fn scene(&self) -> Scene<'_> {
         Scene {
             tris: &self.tris,
             spheres: &self.spheres,
             nodes: &self.nodes,
+            wide: &self.wide,
+            order: &self.order,
             n_tris: self.tris.len() as u32,
             n_prims: (self.tris.len() + self.spheres.len()) as u32,
-            features: FEATURES_ALL,
+            features: raytrace::render::tracer_features(FEATURES_ALL, World::build()),
         }
     }
 }
@@ -147,6 +179,7 @@ impl GpuWorld {
         let mut frame = scene.frame(&data);
         frame.features = FEATURES_ALL;
         let r = &mut self.renderer;
+        r.set_build(World::build());
         r.load(&data, &frame).expect("load");
         r.render(0, true).expect("transform and build");
         let (tris, spheres) = r.world().expect("world-space primitives");
@@ -157,6 +190,12 @@ impl GpuWorld {
         let bvh = r.bvh().expect("BVH");
         if let Err(e) = raytrace::validate::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
             panic!("the GPU's BVH is invalid: {e}");
+        }
+        if crate::WIDE {
+            if let Err(e) = raytrace::validate::validate_wide(&bvh.wide, &bvh.sorted_prims, &tris, &spheres) {
+                panic!("the GPU's wide BVH is invalid: {e}");
+            }
+            assert_eq!(bvh.wide, w.wide, "the GPU's wide BVH differs from the CPU executor's");
         }
         self.frame = frame;
     }
