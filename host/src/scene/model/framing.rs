@@ -81,7 +81,7 @@ pub(super) fn complete(scene: &mut Scene, has_camera: bool, file: &str, warnings
         ));
     }
     warnings.push(format!(
-        "{file}: sky of the model: top {}, bottom {}",
+        "{file}: the default sky for models: top {}, bottom {}",
         show(scene.settings.sky_top),
         show(scene.settings.sky_bottom)
     ));
