@@ -321,7 +321,7 @@ fn triangles(primitive: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<Vec<Tri
 }
 
 /// The transform equal to `world` (translation, rotation, positive scale), if there is one.
-fn as_transform(world: Mat4) -> Option<Transform> {
+pub(super) fn as_transform(world: Mat4) -> Option<Transform> {
     let (scale, rotation, translation) = world.to_scale_rotation_translation();
     if !(scale.is_finite() && scale.min_element() > 0.0 && translation.is_finite()) {
         return None;

@@ -331,6 +331,28 @@ fn gltf_node_hierarchy_places_each_instance_and_parses_the_mesh_once() {
 }
 
 #[test]
+fn node_matrices_become_transforms_unless_sheared_or_mirrored() {
+    let turned = Mat4::from_scale_rotation_translation(
+        Vec3::new(1.0, 2.0, 3.0),
+        Quat::from_euler(glam::EulerRot::XYZ, 0.3, -1.1, 2.0),
+        Vec3::new(4.0, -5.0, 6.0),
+    );
+    let t = super::gltf::as_transform(turned).expect("a rotation, scale and translation");
+    let again = Mat4::from(t.matrix());
+    let off = (again - turned)
+        .to_cols_array()
+        .iter()
+        .fold(0.0f32, |m, d| m.max(d.abs()));
+    assert!(off < 1e-5, "{again} != {turned}");
+    let sheared = Mat4::from_scale(Vec3::new(1.0, 3.0, 1.0)) * Mat4::from_rotation_z(0.5);
+    assert_eq!(super::gltf::as_transform(sheared), None);
+    assert_eq!(
+        super::gltf::as_transform(Mat4::from_scale(Vec3::new(-1.0, 1.0, 1.0))),
+        None
+    );
+}
+
+#[test]
 fn gltf_camera_is_the_scene_camera() {
     // A camera at (0, 0, 5) looking down -z (its default), 30 degrees of vertical view.
     let nodes = r#"[{"mesh": 0}, {"camera": 0, "translation": [0, 0, 5]}],
