@@ -41,6 +41,10 @@ pub enum SceneError {
         mesh: String,
         message: String,
     },
+    /// A model file (OBJ, glTF, PLY) that cannot be read or used: `message` says why, starting
+    /// with the line ("line 12: ...") where the parser knows it.
+    #[error("{file}: {message}")]
+    Model { file: String, message: String },
     /// The scene has no objects.
     #[error("{file}: the scene has no objects")]
     Empty { file: String },

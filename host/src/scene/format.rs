@@ -3,10 +3,9 @@
 //! per path.
 use super::error::object_label;
 use super::{
-    material, shapes, validate, Animation, Bob, CameraSpec, Mesh, Orbit, Scene, SceneError, SceneObject, Settings,
-    Shape, Transform,
+    material, model, shapes, validate, Animation, Bob, CameraSpec, Mesh, Orbit, Scene, SceneError, SceneObject,
+    Settings, Shape, Transform,
 };
-use crate::inputs;
 use glam::Vec3;
 use indexmap::IndexMap;
 use serde::Deserialize;
@@ -135,8 +134,9 @@ struct BobFile {
     period: f32,
 }
 
-/// The scene in TOML `text`; `file` names it in errors, mesh paths are relative to `base_dir`.
-pub(super) fn parse(text: &str, file: &str, base_dir: &Path) -> Result<Scene, SceneError> {
+/// The scene in TOML `text` and the warnings of its mesh files; `file` names it in errors, mesh
+/// paths are relative to `base_dir`.
+pub(super) fn parse(text: &str, file: &str, base_dir: &Path) -> Result<(Scene, Vec<String>), SceneError> {
     let doc: SceneFile = toml::from_str(text).map_err(|e| toml_error(file, text, &e))?;
     let mut materials = Vec::with_capacity(doc.materials.len());
     for (name, m) in &doc.materials {
@@ -147,6 +147,7 @@ pub(super) fn parse(text: &str, file: &str, base_dir: &Path) -> Result<Scene, Sc
         base_dir,
         meshes: Vec::new(),
         by_key: HashMap::new(),
+        warnings: Vec::new(),
     };
     let mut objects = Vec::with_capacity(doc.objects.len());
     for (i, o) in doc.objects.iter().enumerate() {
@@ -166,7 +167,7 @@ pub(super) fn parse(text: &str, file: &str, base_dir: &Path) -> Result<Scene, Sc
         objects,
     };
     validate::check(&scene, file)?;
-    Ok(scene)
+    Ok((scene, meshes.warnings))
 }
 
 /// The toml error with its position turned into a line and column.
@@ -224,12 +225,16 @@ fn to_material(file: &str, name: &str, m: &MaterialFile) -> Result<Material, Sce
     })
 }
 
-/// Loads each mesh path (or `builtin:` name) once and hands out its index.
+/// Loads each mesh path (or `builtin:` name) once and hands out its index. A model file's
+/// objects are merged into one mesh in the file's world space.
 struct MeshLoader<'a> {
     file: &'a str,
     base_dir: &'a Path,
     meshes: Vec<Mesh>,
     by_key: HashMap<String, usize>,
+    /// What the model files hold that the renderer ignores (their materials aside: the
+    /// scene's material replaces them).
+    warnings: Vec<String>,
 }
 
 impl MeshLoader<'_> {
@@ -258,7 +263,11 @@ impl MeshLoader<'_> {
                     shapes::NAMES.join(", builtin:")
                 ))
             })?,
-            None => inputs::load_obj(&path).map_err(|e| error(format!("{e:#}")))?,
+            None => {
+                let loaded = model::load(&path).map_err(|e| error(e.to_string()))?;
+                self.warnings.extend(loaded.warnings.iter().cloned());
+                loaded.world_triangles()
+            }
         };
         self.meshes.push(Mesh {
             name: spec.to_string(),

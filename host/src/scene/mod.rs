@@ -10,6 +10,7 @@ mod error;
 mod format;
 mod gpu;
 pub mod material;
+pub mod model;
 pub mod shapes;
 mod transform;
 mod validate;
@@ -147,26 +148,53 @@ impl Scene {
         builtin::build(name)
     }
 
-    /// Reads a TOML scene file; mesh paths are relative to the file's folder.
+    /// Reads a TOML scene file; mesh paths are relative to the file's folder. Warnings (what a
+    /// mesh file holds that the renderer ignores) are printed to stderr.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        Scene::load_with_warnings(path).map(print_warnings)
+    }
+
+    /// [`Scene::load`], returning the warnings instead of printing them.
+    pub fn load_with_warnings(path: &Path) -> Result<(Scene, Vec<String>), SceneError> {
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|error| SceneError::Read {
             file: file.clone(),
             error,
         })?;
         let base_dir = path.parent().unwrap_or(Path::new(""));
-        Scene::from_toml_str(&text, &file, base_dir)
+        format::parse(&text, &file, base_dir)
     }
 
     /// Parses TOML scene text; errors name `file_label`, mesh paths are relative to `base_dir`.
+    /// Warnings are printed to stderr.
     pub fn from_toml_str(text: &str, file_label: &str, base_dir: &Path) -> Result<Scene, SceneError> {
-        format::parse(text, file_label, base_dir)
+        format::parse(text, file_label, base_dir).map(print_warnings)
     }
 
-    /// A built-in scene if `name_or_path` is one of [`Scene::BUILTINS`], else a scene file.
+    /// Opens a model file ([`model::EXTENSIONS`]) as a scene: the file's objects, materials and
+    /// camera, with a camera framing the model if the file has none, the default sky, and a
+    /// key light if nothing in it emits. The warnings say what was ignored or assumed.
+    pub fn from_model(path: &Path) -> Result<(Scene, Vec<String>), SceneError> {
+        let file = path.display().to_string();
+        let name = path
+            .file_stem()
+            .map_or(file.clone(), |s| s.to_string_lossy().into_owned());
+        let (scene, warnings) = model::load(path)?.into_scene(&name, &file);
+        validate::check(&scene, &file)?;
+        Ok((scene, warnings))
+    }
+
+    /// A built-in scene if `name_or_path` is one of [`Scene::BUILTINS`], else a model file (by
+    /// its extension, [`model::EXTENSIONS`]) or a TOML scene file. Warnings are printed to
+    /// stderr.
     pub fn open(name_or_path: &str) -> Result<Scene, SceneError> {
+        Scene::open_with_warnings(name_or_path).map(print_warnings)
+    }
+
+    /// [`Scene::open`], returning the warnings instead of printing them.
+    pub fn open_with_warnings(name_or_path: &str) -> Result<(Scene, Vec<String>), SceneError> {
         if Scene::BUILTINS.contains(&name_or_path) {
-            return Scene::builtin(name_or_path);
+            return Ok((Scene::builtin(name_or_path)?, Vec::new()));
         }
         let path = Path::new(name_or_path);
         if !path.exists() {
@@ -174,7 +202,10 @@ impl Scene {
                 name: name_or_path.to_string(),
             });
         }
-        Scene::load(path)
+        if model::is_model(path) {
+            return Scene::from_model(path);
+        }
+        Scene::load_with_warnings(path)
     }
 
     /// Number of triangles (every mesh object's, instances counted again) and of spheres.
@@ -194,4 +225,12 @@ impl Scene {
     pub fn material_index(&self, name: &str) -> Option<u32> {
         self.materials.iter().position(|(n, _)| n == name).map(|i| i as u32)
     }
+}
+
+/// Prints each warning to stderr and hands the scene on.
+fn print_warnings((scene, warnings): (Scene, Vec<String>)) -> Scene {
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
+    scene
 }

@@ -1,0 +1,129 @@
+//! PLY (Stanford polygon files, ASCII or binary) read with the `ply-rs-bw` crate: the `vertex`
+//! element's `x`, `y`, `z` and the `face` element's `vertex_indices` (or `vertex_index`)
+//! lists, polygons split into triangle fans. PLY has no materials: the mesh is grey diffuse.
+//! Vertex normals and colours are ignored with a warning.
+use super::{default_material, Model};
+use crate::scene::{Animation, Mesh, SceneError, SceneObject, Shape, Transform};
+use ply_rs_bw::parser::Parser;
+use ply_rs_bw::ply::{DefaultElement, Property};
+use shared::types::Triangle;
+use std::path::Path;
+use std::sync::Arc;
+
+/// A scalar property as a number.
+fn number(p: &Property) -> Option<f64> {
+    Some(match *p {
+        Property::Char(x) => x.into(),
+        Property::UChar(x) => x.into(),
+        Property::Short(x) => x.into(),
+        Property::UShort(x) => x.into(),
+        Property::Int(x) => x.into(),
+        Property::UInt(x) => x.into(),
+        Property::Float(x) => x.into(),
+        Property::Double(x) => x,
+        _ => return None,
+    })
+}
+
+/// A list property as integers.
+fn indices(p: &Property) -> Option<Vec<i64>> {
+    Some(match p {
+        Property::ListChar(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListUChar(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListShort(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListUShort(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListInt(v) => v.iter().map(|&x| x.into()).collect(),
+        Property::ListUInt(v) => v.iter().map(|&x| x.into()).collect(),
+        _ => return None,
+    })
+}
+
+/// Reads the PLY file at `path` (named `file` in messages).
+pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
+    let error = |message: String| SceneError::Model {
+        file: file.to_string(),
+        message,
+    };
+    let bytes = std::fs::read(path).map_err(|e| error(format!("cannot read the file: {e}")))?;
+    let ply = Parser::<DefaultElement>::new()
+        .read_ply(&mut bytes.as_slice())
+        .map_err(|e| error(format!("invalid PLY: {e}")))?;
+    let vertices = ply
+        .payload
+        .get("vertex")
+        .ok_or_else(|| error("no \"vertex\" element".to_string()))?;
+    let mut points = Vec::with_capacity(vertices.len());
+    for (i, v) in vertices.iter().enumerate() {
+        let coordinate = |k: &str| v.get(k).and_then(number).map(|x| x as f32);
+        let (Some(x), Some(y), Some(z)) = (coordinate("x"), coordinate("y"), coordinate("z")) else {
+            return Err(error(format!("vertex {i} has no numeric x, y and z")));
+        };
+        if !(x.is_finite() && y.is_finite() && z.is_finite()) {
+            return Err(error(format!("vertex {i} has a non-finite coordinate ({x}, {y}, {z})")));
+        }
+        points.push([x, y, z, 0.0]);
+    }
+    let faces = ply
+        .payload
+        .get("face")
+        .ok_or_else(|| error("no \"face\" element: point clouds cannot be rendered".to_string()))?;
+    let mut tris = Vec::new();
+    for (i, f) in faces.iter().enumerate() {
+        let list = f
+            .get("vertex_indices")
+            .or_else(|| f.get("vertex_index"))
+            .and_then(indices)
+            .ok_or_else(|| error(format!("face {i} has no vertex_indices list")))?;
+        let corner = |k: i64| {
+            usize::try_from(k)
+                .ok()
+                .and_then(|k| points.get(k).copied())
+                .ok_or_else(|| error(format!("face {i} refers to vertex {k}, which does not exist")))
+        };
+        for k in 2..list.len() {
+            tris.push(Triangle {
+                v0: corner(list[0])?,
+                v1: corner(list[k - 1])?,
+                v2: corner(list[k])?,
+            });
+        }
+    }
+    let mut warnings = Vec::new();
+    let has = |k: &str| vertices.first().is_some_and(|v| v.contains_key(k));
+    if has("nx") {
+        warnings.push(format!(
+            "{file}: vertex normals are not supported yet: triangles are shaded flat"
+        ));
+    }
+    if has("red") || has("r") {
+        warnings.push(format!(
+            "{file}: vertex colours are not supported: the mesh is grey diffuse"
+        ));
+    }
+    let name = path
+        .file_stem()
+        .map_or(file.to_string(), |s| s.to_string_lossy().into_owned());
+    if tris.is_empty() {
+        return Ok(Model {
+            warnings,
+            ..Model::default()
+        });
+    }
+    Ok(Model {
+        materials: vec![("default".to_string(), default_material())],
+        meshes: vec![Mesh {
+            name: file.to_string(),
+            tris: Arc::new(tris),
+        }],
+        objects: vec![SceneObject {
+            name,
+            shape: Shape::Mesh(0),
+            transform: Transform::IDENTITY,
+            material: 0,
+            animation: Animation::default(),
+        }],
+        camera: None,
+        warnings,
+        material_warnings: Vec::new(),
+    })
+}
