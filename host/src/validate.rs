@@ -91,15 +91,7 @@ pub fn validate(nodes: &[Node], parents: &[u32], tris: &[Triangle], spheres: &[S
     if parents.first() != Some(&INVALID) {
         report(format!("root parent is {:?}, expected none", parents.first()));
     }
-    if let Some(i) = seen_node.iter().position(|s| !s) {
-        report(format!("node {i} is not reachable from the root"));
-    }
-    for (p, &c) in seen_prim.iter().enumerate() {
-        if c != 1 {
-            report(format!("primitive {p} is in {c} leaves"));
-            break;
-        }
-    }
+    coverage("node", &seen_node, &seen_prim, &mut report);
     if problems.is_empty() {
         Ok(BvhStats {
             nodes: nodes.len(),
@@ -108,6 +100,17 @@ pub fn validate(nodes: &[Node], parents: &[u32], tris: &[Triangle], spheres: &[S
         })
     } else {
         Err(problems)
+    }
+}
+
+/// Reports the first node (`what`) not reached from the root, and the first primitive not
+/// in exactly one leaf.
+fn coverage(what: &str, seen_node: &[bool], seen_prim: &[u32], report: &mut impl FnMut(String)) {
+    if let Some(i) = seen_node.iter().position(|s| !s) {
+        report(format!("{what} {i} is not reachable from the root"));
+    }
+    if let Some((p, c)) = seen_prim.iter().enumerate().find(|(_, &c)| c != 1) {
+        report(format!("primitive {p} is in {c} leaves"));
     }
 }
 
@@ -232,15 +235,7 @@ pub fn validate_wide(
             report(format!("wide node {i} has fewer than two children"));
         }
     }
-    if let Some(i) = seen_node.iter().position(|s| !s) {
-        report(format!("wide node {i} is not reachable from the root"));
-    }
-    for (p, &c) in seen_prim.iter().enumerate() {
-        if c != 1 {
-            report(format!("primitive {p} is in {c} wide leaves"));
-            break;
-        }
-    }
+    coverage("wide node", &seen_node, &seen_prim, &mut report);
     if problems.is_empty() {
         Ok(WideStats {
             nodes: wide.len(),
