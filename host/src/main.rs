@@ -32,7 +32,9 @@ enum Command {
     Render {
         #[command(flatten)]
         scene: SceneArgs,
-        #[arg(long, value_enum, default_value = "gpu")]
+        /// Where the kernels run: `auto` takes the GPU, unless every Vulkan device is a CPU
+        /// implementation (lavapipe, SwiftShader) or there is none: then the CPU executor.
+        #[arg(long, value_enum, default_value = "auto")]
         backend: Backend,
         /// Output file, .png or .exr (default: SCENE.png).
         #[arg(long)]
@@ -58,7 +60,8 @@ enum Command {
         #[command(subcommand)]
         what: Bench,
     },
-    /// Print the chosen Vulkan device and driver.
+    /// Every Vulkan device and the CPU executor with a rough speed, and the backend `render`
+    /// picks (with --kernels: the chosen device and its kernels' statistics).
     Info {
         /// Also print the driver's statistics of every kernel (registers, spills...), where
         /// the driver offers VK_KHR_pipeline_executable_properties.
@@ -188,7 +191,7 @@ fn main() -> Result<()> {
             }
         }
         let args = SceneArgs::parse_from(["raytrace", "cornell"]);
-        let out = render_command(&args, Backend::Gpu, Some(PathBuf::from("cornell.png")), &opts)?;
+        let out = render_command(&args, Backend::Auto, Some(PathBuf::from("cornell.png")), &opts)?;
         println!(
             "open {} to see it; `raytrace view` opens the interactive viewer where a display exists",
             out.display()
@@ -241,31 +244,32 @@ fn main() -> Result<()> {
             println!("wrote {} and {} plots", md.display(), plots.len());
         }
         Command::Info { kernels } => {
+            if !kernels {
+                return raytrace::cli::info_command(&opts);
+            }
             let gpu = Gpu::new(&opts)?;
             println!("{}", gpu.describe());
-            if kernels {
-                let k = raytrace::vk::Kernels::new(&gpu)?;
-                let stats = k.statistics()?;
-                if stats.is_empty() {
-                    println!("the driver offers no pipeline statistics");
-                }
-                for (entry, lines) in &stats {
-                    println!("{entry}: {}", lines.join(", "));
-                }
-                // What the renders run: the path tracer specialised to each scene's features.
-                let scenes = if stats.is_empty() {
-                    &[][..]
-                } else {
-                    &["cornell", "bunny"][..]
-                };
-                for scene in scenes {
-                    for nee in [false, true] {
-                        let args = ["raytrace", scene, if nee { "--spp=1" } else { "--no-nee" }];
-                        let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
-                        let lines = k.specialised_statistics(Kernel::PathTrace, p.frame.features)?;
-                        let nee = if nee { " (NEE)" } else { "" };
-                        println!("path_trace for {scene}{nee}: {}", lines.join(", "));
-                    }
+            let k = raytrace::vk::Kernels::new(&gpu)?;
+            let stats = k.statistics()?;
+            if stats.is_empty() {
+                println!("the driver offers no pipeline statistics");
+            }
+            for (entry, lines) in &stats {
+                println!("{entry}: {}", lines.join(", "));
+            }
+            // What the renders run: the path tracer specialised to each scene's features.
+            let scenes = if stats.is_empty() {
+                &[][..]
+            } else {
+                &["cornell", "bunny"][..]
+            };
+            for scene in scenes {
+                for nee in [false, true] {
+                    let args = ["raytrace", scene, if nee { "--spp=1" } else { "--no-nee" }];
+                    let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
+                    let lines = k.specialised_statistics(Kernel::PathTrace, p.frame.features)?;
+                    let nee = if nee { " (NEE)" } else { "" };
+                    println!("path_trace for {scene}{nee}: {}", lines.join(", "));
                 }
             }
         }

@@ -13,6 +13,10 @@ use shared::types::{Frame, FLAG_BVH};
 /// Where kernels run.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 pub enum Backend {
+    /// The GPU, unless every Vulkan device is a CPU implementation (lavapipe, SwiftShader)
+    /// or there is none: then the CPU executor, which runs the same kernels much faster
+    /// there (`crate::cli::choose_backend`).
+    Auto,
     Gpu,
     Cpu,
 }

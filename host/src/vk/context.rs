@@ -25,6 +25,49 @@ pub struct GpuOptions {
     pub window_extensions: Vec<&'static CStr>,
 }
 
+/// A Vulkan device the kernels can run on.
+#[derive(Clone, Debug)]
+pub struct DeviceInfo {
+    /// Index in the loader's list (what `--device` takes).
+    pub index: usize,
+    pub physical: vk::PhysicalDevice,
+    pub queue_family: u32,
+    /// Nanoseconds per timestamp tick.
+    pub timestamp_period: f64,
+    pub name: String,
+    pub driver: String,
+    pub kind: vk::PhysicalDeviceType,
+    pub driver_id: vk::DriverId,
+}
+
+impl DeviceInfo {
+    /// The default choice's order: discrete, integrated, virtual, then the rest (CPU).
+    fn rank(&self) -> u32 {
+        match self.kind {
+            vk::PhysicalDeviceType::DISCRETE_GPU => 0,
+            vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
+            vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
+            _ => 3,
+        }
+    }
+
+    /// Whether the device runs the kernels on the CPU (lavapipe, SwiftShader).
+    pub fn is_cpu(&self) -> bool {
+        self.kind == vk::PhysicalDeviceType::CPU
+    }
+
+    /// "discrete GPU", "CPU", ...
+    pub fn kind_name(&self) -> &'static str {
+        match self.kind {
+            vk::PhysicalDeviceType::DISCRETE_GPU => "discrete GPU",
+            vk::PhysicalDeviceType::INTEGRATED_GPU => "integrated GPU",
+            vk::PhysicalDeviceType::VIRTUAL_GPU => "virtual GPU",
+            vk::PhysicalDeviceType::CPU => "CPU implementation",
+            _ => "other",
+        }
+    }
+}
+
 /// Messages the validation layer reported as errors.
 #[derive(Default)]
 pub struct ValidationLog {
@@ -45,6 +88,8 @@ pub struct Gpu {
     pub driver: String,
     pub validation_enabled: bool,
     pub driver_id: vk::DriverId,
+    /// Discrete, integrated, virtual or CPU (lavapipe, SwiftShader).
+    pub kind: vk::PhysicalDeviceType,
     /// Pipelines capture driver statistics (see `Kernels::statistics`).
     pub kernel_stats: bool,
     /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
@@ -133,7 +178,17 @@ impl Gpu {
         };
         // From here on, a failure must destroy what exists: build the rest in a helper.
         match Self::open_device(&instance, opts) {
-            Ok((physical, device, queue_family, timestamp_period, name, driver, driver_id, kernel_stats)) => {
+            Ok((chosen, device, kernel_stats)) => {
+                let DeviceInfo {
+                    physical,
+                    queue_family,
+                    timestamp_period,
+                    name,
+                    driver,
+                    driver_id,
+                    kind,
+                    ..
+                } = chosen;
                 // SAFETY: the device was created with this queue family.
                 let queue = unsafe { device.get_device_queue(queue_family, 0) };
                 let allocator = Allocator::new(&AllocatorCreateDesc {
@@ -157,6 +212,7 @@ impl Gpu {
                     driver,
                     validation_enabled: validation,
                     driver_id,
+                    kind,
                     kernel_stats,
                     swapchain: !opts.window_extensions.is_empty(),
                     allocator: Mutex::new(Some(allocator)),
@@ -177,25 +233,27 @@ impl Gpu {
         }
     }
 
-    #[allow(clippy::type_complexity)]
-    fn open_device(
-        instance: &ash::Instance,
-        opts: &GpuOptions,
-    ) -> Result<(
-        vk::PhysicalDevice,
-        ash::Device,
-        u32,
-        f64,
-        String,
-        String,
-        vk::DriverId,
-        bool,
-    )> {
+    /// Every Vulkan device the kernels can run on (Vulkan 1.2, a compute queue with
+    /// timestamps), in the loader's order.
+    pub fn list() -> Result<Vec<DeviceInfo>> {
+        // SAFETY: loading the system Vulkan loader; its entry points are trusted.
+        let entry = unsafe { ash::Entry::load() }.context("no Vulkan loader found")?;
+        let app = vk::ApplicationInfo::default()
+            .application_name(c"raytrace")
+            .api_version(vk::API_VERSION_1_2);
+        // SAFETY: the create info points at live data.
+        let instance =
+            unsafe { entry.create_instance(&vk::InstanceCreateInfo::default().application_info(&app), None) }
+                .context("creating the Vulkan instance")?;
+        let devices = Self::candidates(&instance);
+        // SAFETY: nothing else uses the instance.
+        unsafe { instance.destroy_instance(None) };
+        devices
+    }
+
+    fn candidates(instance: &ash::Instance) -> Result<Vec<DeviceInfo>> {
         // SAFETY: plain enumeration call on a live instance.
         let all = unsafe { instance.enumerate_physical_devices() }.context("enumerating Vulkan devices")?;
-        if all.is_empty() {
-            bail!("no Vulkan device found (on a machine without a GPU, install Mesa's lavapipe: mesa-vulkan-drivers)");
-        }
         let mut candidates = Vec::new();
         for (index, &pd) in all.iter().enumerate() {
             let mut drv = vk::PhysicalDeviceDriverProperties::default();
@@ -227,38 +285,42 @@ impl Gpu {
             if props.api_version < vk::API_VERSION_1_2 {
                 continue;
             }
-            let rank = match props.device_type {
-                vk::PhysicalDeviceType::DISCRETE_GPU => 0,
-                vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
-                vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
-                _ => 3,
-            };
-            candidates.push((
+            candidates.push(DeviceInfo {
                 index,
-                pd,
-                qf as u32,
-                props.limits.timestamp_period as f64,
+                physical: pd,
+                queue_family: qf as u32,
+                timestamp_period: props.limits.timestamp_period as f64,
                 name,
-                driver.trim().to_string(),
-                rank,
-                drv.driver_id,
-            ));
+                driver: driver.trim().to_string(),
+                kind: props.device_type,
+                driver_id: drv.driver_id,
+            });
         }
+        Ok(candidates)
+    }
+
+    fn open_device(instance: &ash::Instance, opts: &GpuOptions) -> Result<(DeviceInfo, ash::Device, bool)> {
+        // SAFETY: plain enumeration call on a live instance.
+        let all = unsafe { instance.enumerate_physical_devices() }.context("enumerating Vulkan devices")?;
+        if all.is_empty() {
+            bail!("no Vulkan device found (on a machine without a GPU, install Mesa's lavapipe: mesa-vulkan-drivers)");
+        }
+        let candidates = Self::candidates(instance)?;
         let wanted = opts.device.clone().or_else(|| std::env::var("RAYTRACE_DEVICE").ok());
         let chosen = match &wanted {
             Some(w) => candidates
                 .iter()
-                .find(|c| w.parse::<usize>().ok() == Some(c.0) || c.4.to_lowercase().contains(&w.to_lowercase()))
+                .find(|c| w.parse::<usize>().ok() == Some(c.index) || c.name.to_lowercase().contains(&w.to_lowercase()))
                 .ok_or_else(|| {
-                    let names: Vec<_> = candidates.iter().map(|c| format!("{}: {}", c.0, c.4)).collect();
+                    let names: Vec<_> = candidates.iter().map(|c| format!("{}: {}", c.index, c.name)).collect();
                     anyhow!("no Vulkan device matches {w:?}; available: {}", names.join(", "))
                 })?,
             None => candidates
                 .iter()
-                .min_by_key(|c| c.6)
+                .min_by_key(|c| c.rank())
                 .ok_or_else(|| anyhow!("no Vulkan 1.2 device with a compute queue and timestamps found"))?,
         };
-        let (_, pd, qf, period, name, driver, _, driver_id) = chosen.clone();
+        let (pd, name) = (chosen.physical, chosen.name.clone());
 
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
         let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
@@ -297,7 +359,7 @@ impl Gpu {
             vk::PhysicalDevicePipelineExecutablePropertiesFeaturesKHR::default().pipeline_executable_info(true);
         let prio = [1.0f32];
         let queues = [vk::DeviceQueueCreateInfo::default()
-            .queue_family_index(qf)
+            .queue_family_index(chosen.queue_family)
             .queue_priorities(&prio)];
         let mut info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queues)
@@ -310,12 +372,18 @@ impl Gpu {
         // SAFETY: the create info points at live data; the features were checked above.
         let device = unsafe { instance.create_device(pd, &info, None) }
             .with_context(|| format!("creating the Vulkan device on {name}"))?;
-        Ok((pd, device, qf, period, name, driver, driver_id, stats))
+        Ok((chosen.clone(), device, stats))
     }
 
     /// Validation errors reported so far (empty when validation is off).
     pub fn validation_errors(&self) -> Vec<String> {
         self.log.errors.lock().map(|e| e.clone()).unwrap_or_default()
+    }
+
+    /// Whether the device runs the kernels on the CPU (lavapipe, SwiftShader): the CPU
+    /// executor is faster there.
+    pub fn is_cpu(&self) -> bool {
+        self.kind == vk::PhysicalDeviceType::CPU
     }
 
     /// True on Mesa's lavapipe (llvmpipe), which runs the kernels on the CPU.

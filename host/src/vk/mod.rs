@@ -10,7 +10,7 @@ mod swapchain;
 
 pub use buffer::Buffer;
 pub use commands::{Commands, MAX_TIMESTAMPS};
-pub use context::{Gpu, GpuOptions};
+pub use context::{DeviceInfo, Gpu, GpuOptions};
 pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
 pub use swapchain::Swapchain;
 

@@ -1,0 +1,84 @@
+//! The command line as a newcomer meets it: `raytrace render` says which backend it chose and
+//! why (the CPU executor where the only Vulkan device runs on the CPU, as lavapipe in CI
+//! does), `--backend gpu` overrides that, and `raytrace info` lists every device and backend.
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_raytrace");
+
+fn run(args: &[&str]) -> (Output, String, String) {
+    let o = Command::new(BIN).args(args).output().expect("running raytrace");
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    );
+    (o, out, err)
+}
+
+fn picture(test: &str) -> String {
+    let d = std::env::temp_dir().join(format!("raytrace-cli-{}-{test}", std::process::id()));
+    std::fs::create_dir_all(&d).expect("creating a temporary folder");
+    d.join("picture.png").display().to_string()
+}
+
+/// Whether a Vulkan device that is not a CPU implementation exists.
+fn has_real_gpu() -> bool {
+    raytrace::vk::Gpu::list().is_ok_and(|d| d.iter().any(|d| !d.is_cpu()))
+}
+
+#[test]
+fn render_says_which_backend_it_chose_and_why() {
+    let out = picture("auto");
+    let (o, stdout, stderr) = run(&["render", "cornell", "--size", "32x32", "--spp", "1", "--out", &out]);
+    assert!(o.status.success(), "render failed:\n{stderr}");
+    assert!(std::path::Path::new(&out).exists(), "no picture written");
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("backend: "))
+        .unwrap_or_else(|| panic!("no backend line in:\n{stderr}"));
+    if has_real_gpu() {
+        assert_eq!(line, "backend: GPU");
+    } else {
+        assert!(line.contains("CPU executor"), "{line}");
+        assert!(stdout.contains("on CPU executor"), "the summary names another device:\n{stdout}");
+    }
+}
+
+#[test]
+fn backend_gpu_uses_a_cpu_vulkan_device_when_asked() {
+    let Ok(devices) = raytrace::vk::Gpu::list() else {
+        eprintln!("SKIPPED backend_gpu_uses_a_cpu_vulkan_device_when_asked: no Vulkan");
+        return;
+    };
+    let Some(d) = devices.first() else {
+        eprintln!("SKIPPED backend_gpu_uses_a_cpu_vulkan_device_when_asked: no Vulkan device");
+        return;
+    };
+    let out = picture("gpu");
+    let args = ["render", "cornell", "--size", "32x32", "--spp", "1", "--backend", "gpu", "--out", &out];
+    let (o, stdout, stderr) = run(&args);
+    assert!(o.status.success(), "render failed:\n{stderr}");
+    assert!(!stderr.contains("backend: "), "--backend gpu was second-guessed:\n{stderr}");
+    if devices.iter().all(|d| d.is_cpu()) {
+        assert!(stdout.contains(&d.name), "the summary does not name {}:\n{stdout}", d.name);
+    }
+}
+
+#[test]
+fn info_lists_every_device_and_the_cpu_executor_with_a_speed() {
+    let (o, stdout, stderr) = run(&["info"]);
+    let devices = raytrace::vk::Gpu::list().unwrap_or_default();
+    assert_eq!(o.status.success(), !devices.is_empty(), "exit status:\n{stdout}\n{stderr}");
+    for d in &devices {
+        let line = stdout
+            .lines()
+            .find(|l| l.starts_with(&format!("Vulkan device {}: {}", d.index, d.name)))
+            .unwrap_or_else(|| panic!("device {} missing from:\n{stdout}", d.name));
+        assert!(line.ends_with("Mrays/s"), "{line}");
+    }
+    let cpu = stdout
+        .lines()
+        .find(|l| l.starts_with("CPU executor ("))
+        .unwrap_or_else(|| panic!("no CPU executor line in:\n{stdout}"));
+    assert!(cpu.ends_with("Mrays/s"), "{cpu}");
+    assert!(stdout.contains("`raytrace render` picks: "), "{stdout}");
+}
