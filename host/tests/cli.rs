@@ -39,7 +39,10 @@ fn render_says_which_backend_it_chose_and_why() {
         assert_eq!(line, "backend: GPU");
     } else {
         assert!(line.contains("CPU executor"), "{line}");
-        assert!(stdout.contains("on CPU executor"), "the summary names another device:\n{stdout}");
+        assert!(
+            stdout.contains("on CPU executor"),
+            "the summary names another device:\n{stdout}"
+        );
     }
 }
 
@@ -54,12 +57,30 @@ fn backend_gpu_uses_a_cpu_vulkan_device_when_asked() {
         return;
     };
     let out = picture("gpu");
-    let args = ["render", "cornell", "--size", "32x32", "--spp", "1", "--backend", "gpu", "--out", &out];
+    let args = [
+        "render",
+        "cornell",
+        "--size",
+        "32x32",
+        "--spp",
+        "1",
+        "--backend",
+        "gpu",
+        "--out",
+        &out,
+    ];
     let (o, stdout, stderr) = run(&args);
     assert!(o.status.success(), "render failed:\n{stderr}");
-    assert!(!stderr.contains("backend: "), "--backend gpu was second-guessed:\n{stderr}");
+    assert!(
+        !stderr.contains("backend: "),
+        "--backend gpu was second-guessed:\n{stderr}"
+    );
     if devices.iter().all(|d| d.is_cpu()) {
-        assert!(stdout.contains(&d.name), "the summary does not name {}:\n{stdout}", d.name);
+        assert!(
+            stdout.contains(&d.name),
+            "the summary does not name {}:\n{stdout}",
+            d.name
+        );
     }
 }
 
@@ -67,7 +88,11 @@ fn backend_gpu_uses_a_cpu_vulkan_device_when_asked() {
 fn info_lists_every_device_and_the_cpu_executor_with_a_speed() {
     let (o, stdout, stderr) = run(&["info"]);
     let devices = raytrace::vk::Gpu::list().unwrap_or_default();
-    assert_eq!(o.status.success(), !devices.is_empty(), "exit status:\n{stdout}\n{stderr}");
+    assert_eq!(
+        o.status.success(),
+        !devices.is_empty(),
+        "exit status:\n{stdout}\n{stderr}"
+    );
     for d in &devices {
         let line = stdout
             .lines()
