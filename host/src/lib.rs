@@ -17,6 +17,7 @@ pub mod realtime;
 pub mod render;
 pub mod scene;
 pub mod table2;
+pub mod trace_bench;
 pub mod validate;
 pub mod view;
 pub mod vk;

@@ -96,6 +96,14 @@ enum Bench {
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
+    /// Rays per second through each BVH layout (primary, diffuse, shadow rays), with build
+    /// time, SAH and the real-time frame split into build and trace.
+    Trace {
+        #[command(flatten)]
+        options: raytrace::trace_bench::Options,
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
     /// The viewer's per-frame GPU work without a window: frame-time percentiles.
     Realtime {
         #[command(flatten)]
@@ -224,6 +232,15 @@ fn main() -> Result<()> {
                 raytrace::feature_bench::markdown(&r),
                 &r,
             )?;
+        }
+        Command::Bench {
+            what: Bench::Trace { options, out },
+        } => {
+            let gpu = Gpu::new(&opts)?;
+            let r = raytrace::trace_bench::run(&gpu, &options)?;
+            publish(&out, "trace", &r.date, &gpu, raytrace::trace_bench::markdown(&r), &r)?;
+            let plot = raytrace::trace_bench::plot(&r, &out, &format!("trace-{}-{}", r.date, slug(&gpu.name)))?;
+            println!("wrote {}", plot.display());
         }
         Command::Bench {
             what: Bench::Realtime { options, out },

@@ -1,4 +1,5 @@
-//! Line charts as PNG files (benchmark reports: error against time, and the like).
+//! Line charts and stacked bar charts as PNG files (benchmark reports: error against time,
+//! time per frame split by stage, and the like).
 //!
 //! Drawn with `plotters` into an RGB buffer and encoded with `image`; text uses DejaVu Sans
 //! embedded in the binary (the `dejavu` crate), so no system font, fontconfig or freetype is needed.
@@ -231,6 +232,109 @@ fn tick(v: f64) -> String {
         let s = format!("{v:.4}");
         s.trim_end_matches('0').trim_end_matches('.').to_string()
     }
+}
+
+/// One bar of [`stacked_bars`]: its label under the axis and its parts' heights, bottom first.
+pub struct Bar {
+    pub label: String,
+    pub parts: Vec<f64>,
+}
+
+/// Draws `bars` as stacked bars (part `k` of every bar in colour `k`, named `parts[k]` in the
+/// legend) into a `width` x `height` PNG at `path`. Errors name the file.
+pub fn stacked_bars(
+    path: &Path,
+    title: &str,
+    y_label: &str,
+    parts: &[&str],
+    bars: &[Bar],
+    width: u32,
+    height: u32,
+) -> Result<()> {
+    draw_bars(path, title, y_label, parts, bars, width, height)
+        .with_context(|| format!("writing plot {}", path.display()))
+}
+
+fn draw_bars(
+    path: &Path,
+    title: &str,
+    y_label: &str,
+    parts: &[&str],
+    bars: &[Bar],
+    width: u32,
+    height: u32,
+) -> Result<()> {
+    ensure!(!bars.is_empty(), "no bar to draw");
+    ensure!(
+        bars.iter().flat_map(|b| &b.parts).all(|v| v.is_finite() && *v >= 0.0),
+        "bar heights must be finite and not negative"
+    );
+    ensure_font()?;
+    let top = bars
+        .iter()
+        .map(|b| b.parts.iter().sum::<f64>())
+        .fold(0.0, f64::max)
+        .max(1e-9)
+        * 1.1;
+    let mut buf = vec![255u8; width as usize * height as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (width, height)).into_drawing_area();
+        let e = |e: DrawingAreaErrorKind<_>| anyhow!("{e}");
+        root.fill(&WHITE).map_err(e)?;
+        let size = 24.0f64.min(1.6 * width as f64 / title.chars().count().max(1) as f64);
+        let n = bars.len();
+        let mut cc = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", size))
+            .margin(16)
+            .x_label_area_size(60)
+            .y_label_area_size(80)
+            .build_cartesian_2d(-0.5f64..n as f64 - 0.5, 0.0..top)
+            .map_err(e)?;
+        let label = |v: &f64| {
+            let i = v.round();
+            if (v - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
+                bars[i as usize].label.clone()
+            } else {
+                String::new()
+            }
+        };
+        cc.configure_mesh()
+            .disable_x_mesh()
+            .x_labels(n)
+            .x_label_formatter(&label)
+            .y_desc(y_label)
+            .axis_desc_style(("sans-serif", 17))
+            .label_style(("sans-serif", 13))
+            .y_label_formatter(&|v| tick(*v))
+            .light_line_style(RGBColor(235, 235, 235))
+            .bold_line_style(RGBColor(200, 200, 200))
+            .draw()
+            .map_err(e)?;
+        for (k, name) in parts.iter().enumerate() {
+            let c = PALETTE[k % PALETTE.len()];
+            let color = RGBColor((c >> 16) as u8, (c >> 8) as u8, c as u8);
+            let rects = bars.iter().enumerate().map(|(i, b)| {
+                let below: f64 = b.parts.iter().take(k).sum();
+                let h = b.parts.get(k).copied().unwrap_or(0.0);
+                let x = i as f64;
+                Rectangle::new([(x - 0.35, below), (x + 0.35, below + h)], color.filled())
+            });
+            cc.draw_series(rects)
+                .map_err(e)?
+                .label(*name)
+                .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], color.filled()));
+        }
+        cc.configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .label_font(("sans-serif", 15))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+        root.present().map_err(|e| anyhow!("{e}"))?;
+    }
+    let img = image::RgbImage::from_raw(width, height, buf).context("plot buffer has the wrong size")?;
+    Ok(img.save_with_format(path, image::ImageFormat::Png)?)
 }
 
 #[cfg(test)]

@@ -104,6 +104,8 @@ pub struct GpuRenderer {
     build: BuildOptions,
     /// `DISPLAY_*` flags of the display pass.
     display_flags: u32,
+    /// GPU seconds of the last ray cast's dispatch.
+    last_cast_s: f64,
 }
 
 impl GpuRenderer {
@@ -118,6 +120,7 @@ impl GpuRenderer {
             samples: 0,
             build: BuildOptions::lbvh(MortonBits::B30),
             display_flags: 0,
+            last_cast_s: 0.0,
         })
     }
 
@@ -360,6 +363,11 @@ impl GpuRenderer {
         self.lbvh.primitives()
     }
 
+    /// GPU seconds of the last cast's dispatch ([`Self::cast`], [`Self::cast_any`], ...).
+    pub fn last_cast_seconds(&self) -> f64 {
+        self.last_cast_s
+    }
+
     /// Closest hits of `rays` through the current BVH (or brute force, by the frame's flag),
     /// with the frame's `FEATURE_*` and `VARIANT_*` bits.
     pub fn cast(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
@@ -410,10 +418,13 @@ impl GpuRenderer {
         let (x, y) = grid((count as u32).div_ceil(WORKGROUP));
         let cast = self.kernels.specialised(Kernel::CastRays, self.tracer_constant())?;
         self.cmds.begin()?;
+        self.cmds.timestamp("start");
         self.cmds
             .dispatch_pipeline(&self.kernels, cast, &sets, bytemuck::bytes_of(&push), x, y);
         self.cmds.barrier();
+        self.cmds.timestamp("cast");
         self.cmds.submit_wait().context("casting rays")?;
+        self.last_cast_s = stage_ms(&frame_timings(&self.cmds)?, "cast") * 1e-3;
         self.cmds.read_back(&b.hits, rays.len())
     }
 }

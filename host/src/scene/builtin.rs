@@ -1,9 +1,10 @@
 //! The built-in scenes ([`Scene::BUILTINS`]): the Cornell box with its two blocks, the box
 //! holding Suzanne or the Stanford bunny, Ray Tracing in One Weekend's final scene of spheres,
-//! and a 4x4 grid of spinning bunnies of over a million triangles. Walls and blocks are objects
+//! a 4x4 grid of spinning bunnies of over a million triangles, and a 12x12 herd of ten million. Walls and blocks are objects
 //! made of the built-in quad and cube, so they can be moved like any other.
 use super::{
-    material, shapes, validate, Animation, CameraSpec, Mesh, Scene, SceneError, SceneObject, Settings, Shape, Transform,
+    material, shapes, validate, Animation, Bob, CameraSpec, Mesh, Scene, SceneError, SceneObject, Settings, Shape,
+    Transform,
 };
 use crate::inputs;
 use glam::{Quat, Vec3};
@@ -21,6 +22,7 @@ pub(super) fn build(name: &str) -> Result<Scene, SceneError> {
         "bunny" => cornell_holding(&label, "bunny.obj", -60.0)?,
         "spheres" => spheres(),
         "instances" => instances(&label)?,
+        "herd" => herd(&label)?,
         _ => return Err(SceneError::UnknownBuiltin { name: name.to_string() }),
     };
     validate::check(&scene, &label)?;
@@ -271,6 +273,59 @@ fn instances(label: &str) -> Result<Scene, SceneError> {
         "light",
         Shape::Sphere { radius: 2.0 },
         Transform::at(Vec3::new(-6.0, 12.0, -6.0)),
+        light,
+    );
+    Ok(b.scene)
+}
+
+/// A 12x12 herd of Stanford bunnies, 10,031,904 triangles of mixed materials: every bunny
+/// spins, every third also bobs (the real-time scene of ten million animated triangles).
+fn herd(label: &str) -> Result<Scene, SceneError> {
+    let camera = CameraSpec {
+        position: Vec3::new(0.0, 22.0, -34.0),
+        look_at: Vec3::new(0.0, 0.0, 2.0),
+        up: Vec3::Y,
+        vfov_deg: 40.0,
+        aperture: 0.0,
+        focus_distance: None,
+    };
+    let mut b = Builder::new("herd", camera, outdoor());
+    let looks = [
+        b.material("red", material::diffuse([0.8, 0.2, 0.2])),
+        b.material("gold", material::metal([0.9, 0.7, 0.3], 0.1)),
+        b.material("green", material::diffuse([0.2, 0.7, 0.3])),
+        b.material("glass", material::dielectric(1.5)),
+        b.material("blue", material::diffuse([0.2, 0.3, 0.8])),
+        b.material("steel", material::metal([0.8, 0.8, 0.85], 0.3)),
+        b.material("white", material::diffuse([0.8, 0.8, 0.8])),
+    ];
+    let ground = b.material("ground", material::diffuse([0.5, 0.5, 0.5]));
+    let light = b.material("light", material::emissive([10.0, 10.0, 10.0]));
+    let quad = Shape::Mesh(b.mesh("builtin:quad", shapes::quad()));
+    let floor = Transform::new(Vec3::ZERO, Vec3::ZERO, Vec3::new(200.0, 1.0, 200.0));
+    b.object("ground", quad, floor, ground);
+    let tris = asset(label, "bunny.obj")?;
+    let spacing = 3.0;
+    let mut place = stand(&tris, -90.0, 2.4, Vec3::ZERO);
+    let bunny = Shape::Mesh(b.mesh("bunny.obj", tris));
+    for k in 0..144 {
+        let (i, j) = ((k % 12) as f32, (k / 12) as f32);
+        place.translation.x = (i - 5.5) * spacing;
+        place.translation.z = (j - 5.5) * spacing;
+        let direction = if k % 2 == 0 { 1.0 } else { -1.0 };
+        let o = b.object(&format!("bunny {k}"), bunny, place, looks[k % looks.len()]);
+        o.animation.spin_deg_per_s = Vec3::new(0.0, direction * (10.0 + (k % 9) as f32 * 5.0), 0.0);
+        if k % 3 == 0 {
+            o.animation.bob = Some(Bob {
+                amplitude: 0.5,
+                period_s: 2.0 + (k % 5) as f32 * 0.5,
+            });
+        }
+    }
+    b.object(
+        "light",
+        Shape::Sphere { radius: 4.0 },
+        Transform::at(Vec3::new(-12.0, 25.0, -12.0)),
         light,
     );
     Ok(b.scene)

@@ -141,7 +141,7 @@ pub struct CameraSpec {
 
 impl Scene {
     /// Names accepted by [`Scene::builtin`].
-    pub const BUILTINS: [&'static str; 5] = ["cornell", "suzanne", "bunny", "spheres", "instances"];
+    pub const BUILTINS: [&'static str; 6] = ["cornell", "suzanne", "bunny", "spheres", "instances", "herd"];
 
     /// The built-in scene `name`; meshes come from [`crate::inputs::assets_dir`].
     pub fn builtin(name: &str) -> Result<Scene, SceneError> {

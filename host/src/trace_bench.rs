@@ -1,0 +1,328 @@
+//! `raytrace bench trace`: rays per second through each BVH layout (`--bvh binary|wide`) for
+//! primary rays, diffuse bounces to depth 4 and shadow rays (any-hit segments from the
+//! primary hits to a light), with the tree's build time and surface-area cost beside them,
+//! and the real-time frame (1 spp, depth 4, BVH rebuilt) split into build and trace. Writes
+//! Markdown, JSON and a stacked-bar plot of the frame per scene and layout.
+use crate::accuracy::{sah_cost, sah_cost_wide};
+use crate::bench::percentile;
+use crate::bvh::{BuildOptions, Layout};
+use crate::cli::{Prepared, SceneArgs};
+use crate::plot::{stacked_bars, Bar};
+use crate::render::{stage_ms, GpuRenderer};
+use crate::vk::{Gpu, Kernels};
+use anyhow::{bail, Context, Result};
+use serde::Serialize;
+use shared::glam::Vec3;
+use shared::rng::Rng;
+use shared::types::{
+    prim_box, xyz, Frame, Ray, Sphere, Triangle, FEATURE_THIN_LENS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
+};
+use std::fmt::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Settings of a run.
+#[derive(clap::Args, Clone, Debug)]
+pub struct Options {
+    /// Scenes (built-in names or files).
+    #[arg(long, value_delimiter = ',', default_value = "cornell,bunny,instances,herd")]
+    pub scenes: Vec<String>,
+    #[arg(long, default_value = "1920x1080", value_parser = crate::cli::parse_size)]
+    pub size: (u32, u32),
+    /// Samples per pixel of the primary and diffuse measurements.
+    #[arg(long, default_value_t = 4)]
+    pub spp: u32,
+    /// Timed repetitions of each measurement (medians reported), after one discarded.
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+}
+
+/// One scene through one layout.
+#[derive(Serialize)]
+pub struct Row {
+    pub scene: String,
+    pub primitives: usize,
+    pub layout: Layout,
+    /// Transform and build of the frame, ms (median).
+    pub build_ms: f64,
+    pub sah: f64,
+    /// Billions of rays per second while tracing (medians).
+    pub primary_grays: f64,
+    pub diffuse_grays: f64,
+    pub shadow_grays: f64,
+    /// The real-time frame: 1 spp, depth 4, no NEE, BVH rebuilt (medians, ms).
+    pub frame_build_ms: f64,
+    pub frame_trace_ms: f64,
+}
+
+#[derive(Serialize)]
+pub struct Report {
+    pub date: String,
+    pub device: String,
+    pub command: String,
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub rows: Vec<Row>,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    percentile(&v, 0.5)
+}
+
+/// Runs every scene of `o` through both layouts.
+pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
+    if o.runs == 0 || o.spp == 0 {
+        bail!("runs and samples per pixel must be at least 1");
+    }
+    let kernels = Arc::new(Kernels::new(gpu)?);
+    let mut rows = Vec::new();
+    for scene in &o.scenes {
+        let size = format!("{}x{}", o.size.0, o.size.1);
+        let args = [
+            "raytrace",
+            scene,
+            "--size",
+            &size,
+            "--no-nee",
+            "--no-roulette",
+            "--depth",
+            "4",
+        ];
+        let p = <SceneArgs as clap::Parser>::try_parse_from(args)?.prepare()?;
+        for layout in [Layout::Binary, Layout::Wide] {
+            let mut r = GpuRenderer::new(gpu, &kernels)?;
+            let row = measure(&mut r, &p, layout, o).with_context(|| format!("scene {scene}, {layout:?} BVH"))?;
+            eprintln!(
+                "{} {:?}: build {:.3} ms, primary {:.2}, diffuse {:.2}, shadow {:.2} Grays/s",
+                row.scene, row.layout, row.build_ms, row.primary_grays, row.diffuse_grays, row.shadow_grays
+            );
+            rows.push(row);
+        }
+    }
+    Ok(Report {
+        date: chrono::Local::now().format("%Y-%m-%d").to_string(),
+        device: gpu.describe(),
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        width: o.size.0,
+        height: o.size.1,
+        spp: o.spp,
+        rows,
+    })
+}
+
+fn measure(r: &mut GpuRenderer, p: &Prepared, layout: Layout, o: &Options) -> Result<Row> {
+    let build = BuildOptions {
+        wide: layout == Layout::Wide,
+        ..BuildOptions::lbvh(p.bits)
+    };
+    r.set_build(build);
+    r.load(&p.data, &p.frame)?;
+    let depth = |d: u32| Frame {
+        max_depth: d,
+        flags: p.frame.flags & !(FLAG_NEE | FLAG_RUSSIAN_ROULETTE),
+        ..p.frame
+    };
+    // Rays per second of `spp` samples of `frame` (the build before them not counted).
+    let grays = |r: &mut GpuRenderer, frame: &Frame, spp: u32| -> Result<(f64, f64, f64)> {
+        let (mut rates, mut builds, mut traces) = (Vec::new(), Vec::new(), Vec::new());
+        for run in 0..=o.runs {
+            r.set_frame(frame)?;
+            let t = r.render(spp, true)?;
+            let trace = stage_ms(&t, "trace");
+            let rays = r.rays_per_sample()? * spp as f64;
+            if run > 0 {
+                rates.push(rays / (trace * 1e-3) * 1e-9);
+                builds.push(
+                    t.iter()
+                        .filter(|(l, _)| *l != "trace" && *l != "display")
+                        .map(|(_, s)| s * 1e3)
+                        .sum(),
+                );
+                traces.push(trace);
+            }
+        }
+        Ok((median(rates), median(builds), median(traces)))
+    };
+    let (primary, build_ms, _) = grays(r, &depth(1), o.spp)?;
+    let (diffuse, _, _) = grays(r, &depth(4), o.spp)?;
+    let (_, frame_build_ms, frame_trace_ms) = grays(r, &depth(4), 1)?;
+    let bvh = r.bvh()?;
+    let sah = if build.wide {
+        sah_cost_wide(&bvh.wide)
+    } else {
+        sah_cost(&bvh.nodes)
+    };
+    let shadow = shadow_grays(r, &depth(1), &p.data.lights, o.runs)?;
+    Ok(Row {
+        scene: p.scene.name.clone(),
+        primitives: p.data.prim_object.len(),
+        layout,
+        build_ms,
+        sah,
+        primary_grays: primary,
+        diffuse_grays: diffuse,
+        shadow_grays: shadow,
+        frame_build_ms,
+        frame_trace_ms,
+    })
+}
+
+/// Any-hit queries, as next-event estimation casts them: a segment from each pixel's primary
+/// hit to a point on the first light (the top of the scene's bounds where none emits).
+fn shadow_grays(r: &mut GpuRenderer, frame: &Frame, lights: &[u32], runs: usize) -> Result<f64> {
+    r.set_frame(frame)?;
+    r.render(0, true)?;
+    let (tris, spheres) = r.world()?;
+    let (w, h) = (frame.width, frame.height);
+    let primaries: Vec<Ray> = (0..w * h)
+        .map(|i| {
+            let mut rng = Rng::new(i, 0, 0x5ead);
+            let features = frame.features & !FEATURE_THIN_LENS;
+            let (o, d) = shared::path::camera_ray(&frame.camera, w, h, i % w, i / w, features, &mut rng);
+            Ray {
+                origin: [o.x, o.y, o.z, 0.0],
+                dir: [d.x, d.y, d.z, f32::INFINITY],
+            }
+        })
+        .collect();
+    let hits = r.cast(&primaries)?;
+    let target = light_point(&tris, &spheres, lights, frame);
+    let segments: Vec<Ray> = primaries
+        .iter()
+        .zip(&hits)
+        .filter(|(_, h)| h.prim != INVALID)
+        .map(|(ray, h)| {
+            let p = xyz(ray.origin) + xyz(ray.dir) * h.t;
+            let d = target - p;
+            Ray {
+                origin: [p.x, p.y, p.z, 1e-4],
+                dir: [d.x, d.y, d.z, 1.0 - 1e-4],
+            }
+        })
+        .collect();
+    if segments.is_empty() {
+        return Ok(0.0);
+    }
+    let mut rates = Vec::new();
+    for run in 0..=runs {
+        r.cast_any(&segments)?;
+        if run > 0 {
+            rates.push(segments.len() as f64 / r.last_cast_seconds() * 1e-9);
+        }
+    }
+    Ok(median(rates))
+}
+
+/// The centre of the first light primitive, or the top centre of the scene's bounds.
+fn light_point(tris: &[Triangle], spheres: &[Sphere], lights: &[u32], f: &Frame) -> Vec3 {
+    let n_tris = f.n_tris;
+    if let Some(&l) = lights.first() {
+        let (lo, hi) = prim_box(l, n_tris, tris, spheres);
+        return (lo + hi) * 0.5;
+    }
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for i in 0..f.n_prims {
+        let (l, h) = prim_box(i, n_tris, tris, spheres);
+        lo = lo.min(l);
+        hi = hi.max(h);
+    }
+    Vec3::new((lo.x + hi.x) * 0.5, hi.y, (lo.z + hi.z) * 0.5)
+}
+
+pub fn markdown(r: &Report) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# Trace throughput per BVH layout\n\n- date: {}\n- device: {}\n- command: `{}`\n- {}x{}, {} spp per measurement, medians after one discarded run\n",
+        r.date, r.device, r.command, r.width, r.height, r.spp
+    );
+    let _ = writeln!(
+        s,
+        "Primary: depth 1; diffuse: bounces to depth 4 (no next-event estimation, no Russian \
+         roulette); shadow: any-hit segments from every primary hit to the first light's \
+         centre. Grays/s over the trace stage's GPU time. Build: transform and BVH build of a \
+         frame. SAH: surface-area cost of the tree traced. Frame: 1 spp, depth 4, BVH rebuilt.\n"
+    );
+    let _ = writeln!(
+        s,
+        "| scene | primitives | BVH | build ms | SAH | primary Grays/s | diffuse Grays/s | shadow Grays/s | frame ms (build + trace) |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    for row in &r.rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:?} | {:.3} | {:.1} | {:.3} | {:.3} | {:.3} | {:.3} ({:.3} + {:.3}) |",
+            row.scene,
+            row.primitives,
+            row.layout,
+            row.build_ms,
+            row.sah,
+            row.primary_grays,
+            row.diffuse_grays,
+            row.shadow_grays,
+            row.frame_build_ms + row.frame_trace_ms,
+            row.frame_build_ms,
+            row.frame_trace_ms,
+        );
+    }
+    s
+}
+
+/// The plot of the real-time frame per scene and layout, split into build and trace; returns
+/// its path.
+pub fn plot(r: &Report, dir: &Path, stem: &str) -> Result<PathBuf> {
+    let path = dir.join(format!("{stem}-frame.png"));
+    let bars: Vec<Bar> = r
+        .rows
+        .iter()
+        .map(|row| Bar {
+            label: format!("{} {:?}", row.scene, row.layout).to_lowercase(),
+            parts: vec![row.frame_build_ms, row.frame_trace_ms],
+        })
+        .collect();
+    let title = format!("Frame (1 spp, depth 4, BVH rebuilt), {}", r.device);
+    stacked_bars(&path, &title, "GPU ms per frame", &["build", "trace"], &bars, 1100, 600)?;
+    Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_frame_plot_draws_every_row() {
+        let row = |scene: &str, layout, build, trace| Row {
+            scene: scene.into(),
+            primitives: 1,
+            layout,
+            build_ms: build,
+            sah: 1.0,
+            primary_grays: 1.0,
+            diffuse_grays: 1.0,
+            shadow_grays: 1.0,
+            frame_build_ms: build,
+            frame_trace_ms: trace,
+        };
+        let r = Report {
+            date: "today".into(),
+            device: "test".into(),
+            command: "test".into(),
+            width: 1,
+            height: 1,
+            spp: 1,
+            rows: vec![
+                row("bunny", Layout::Binary, 0.1, 1.7),
+                row("bunny", Layout::Wide, 0.2, 1.6),
+            ],
+        };
+        let dir = std::env::temp_dir().join(format!("raytrace-trace-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = plot(&r, &dir, "t").unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (1100, 600));
+        let md = markdown(&r);
+        assert!(md.contains("| bunny | 1 | Wide |"), "{md}");
+    }
+}
