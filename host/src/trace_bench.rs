@@ -30,7 +30,7 @@ pub struct Options {
     #[arg(long, default_value = "1920x1080", value_parser = crate::cli::parse_size)]
     pub size: (u32, u32),
     /// Samples per pixel of the primary and diffuse measurements.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 16)]
     pub spp: u32,
     /// Timed repetitions of each measurement (medians reported), after one discarded.
     #[arg(long, default_value_t = 5)]
@@ -124,8 +124,12 @@ fn measure(r: &mut GpuRenderer, p: &Prepared, layout: Layout, o: &Options) -> Re
         flags: p.frame.flags & !(FLAG_NEE | FLAG_RUSSIAN_ROULETTE),
         ..p.frame
     };
-    // Rays per second of `spp` samples of `frame` (the build before them not counted).
+    // Rays per second of `spp` samples of `frame` (the build before them not counted), after
+    // half a second of such frames: the GPU's clocks drop within a fraction of a second of
+    // idling, and short submissions each followed by a wait do not raise them again.
     let grays = |r: &mut GpuRenderer, frame: &Frame, spp: u32| -> Result<(f64, f64, f64)> {
+        r.set_frame(frame)?;
+        warm(|| r.render(spp, true).map(|_| ()))?;
         let (mut rates, mut builds, mut traces) = (Vec::new(), Vec::new(), Vec::new());
         for run in 0..=o.runs {
             r.set_frame(frame)?;
@@ -169,6 +173,19 @@ fn measure(r: &mut GpuRenderer, p: &Prepared, layout: Layout, o: &Options) -> Re
     })
 }
 
+/// Runs `f` at least 10 times and for at least half a second after the first (which may
+/// create pipelines): the GPU's clocks up, see [`measure`].
+fn warm(mut f: impl FnMut() -> Result<()>) -> Result<()> {
+    f()?;
+    let start = std::time::Instant::now();
+    let mut runs = 0;
+    while runs < 10 || start.elapsed() < std::time::Duration::from_millis(500) {
+        f()?;
+        runs += 1;
+    }
+    Ok(())
+}
+
 /// Any-hit queries, as next-event estimation casts them: a segment from each pixel's primary
 /// hit to a point on the first light (the top of the scene's bounds where none emits).
 fn shadow_grays(r: &mut GpuRenderer, frame: &Frame, lights: &[u32], runs: usize) -> Result<f64> {
@@ -205,6 +222,7 @@ fn shadow_grays(r: &mut GpuRenderer, frame: &Frame, lights: &[u32], runs: usize)
     if segments.is_empty() {
         return Ok(0.0);
     }
+    warm(|| r.cast_any(&segments).map(|_| ()))?;
     let mut rates = Vec::new();
     for run in 0..=runs {
         r.cast_any(&segments)?;
@@ -235,7 +253,7 @@ pub fn markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Trace throughput per BVH layout\n\n- date: {}\n- device: {}\n- command: `{}`\n- {}x{}, {} spp per measurement, medians after one discarded run\n",
+        "# Trace throughput per BVH layout\n\n- date: {}\n- device: {}\n- command: `{}`\n- {}x{}, {} spp per measurement, medians after half a second of warm-up and one discarded run\n",
         r.date, r.device, r.command, r.width, r.height, r.spp
     );
     let _ = writeln!(
