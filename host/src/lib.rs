@@ -13,6 +13,7 @@ pub mod lbvh;
 pub mod live;
 pub mod picture;
 pub mod plot;
+pub mod readme_table;
 pub mod realtime;
 pub mod render;
 pub mod scene;

@@ -1,5 +1,5 @@
 //! `raytrace`: the command-line front end.
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use raytrace::bench::{bench_build, slug, standard_inputs, write_report, BuildReport};
 use raytrace::bvh::{BuildOptions, MortonBits};
@@ -103,6 +103,14 @@ enum Bench {
         options: raytrace::trace_bench::Options,
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
+    },
+    /// Rewrites README.md's performance section from the newest H100 results in
+    /// bench/results (run from the repository's root).
+    Readme {
+        #[arg(long, default_value = "README.md")]
+        readme: PathBuf,
+        #[arg(long, default_value = "bench/results")]
+        results: PathBuf,
     },
     /// The viewer's per-frame GPU work without a window: frame-time percentiles.
     Realtime {
@@ -232,6 +240,16 @@ fn main() -> Result<()> {
                 raytrace::feature_bench::markdown(&r),
                 &r,
             )?;
+        }
+        Command::Bench {
+            what: Bench::Readme { readme, results },
+        } => {
+            let text = std::fs::read_to_string(&readme).with_context(|| format!("reading {}", readme.display()))?;
+            let section = raytrace::readme_table::section(&results)?;
+            let new = raytrace::readme_table::rewrite(&text, &section)
+                .with_context(|| format!("rewriting {}", readme.display()))?;
+            std::fs::write(&readme, new).with_context(|| format!("writing {}", readme.display()))?;
+            println!("rewrote the performance section of {}", readme.display());
         }
         Command::Bench {
             what: Bench::Trace { options, out },
