@@ -1,5 +1,5 @@
 //! The binary as `cargo install --path host` leaves it: `raytrace --version` names the commit
-//! it was built from.
+//! it was built from, and the built-in scenes render without the source tree's assets.
 use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_raytrace");
@@ -28,4 +28,38 @@ fn version_names_the_commit() {
         }
         None => assert!(line.ends_with("(unknown commit)"), "{line}"),
     }
+}
+
+#[test]
+fn builtin_scenes_render_without_an_assets_folder() {
+    let tmp = std::env::temp_dir().join(format!("raytrace-installed-{}", std::process::id()));
+    let (empty, elsewhere) = (tmp.join("assets"), tmp.join("work"));
+    std::fs::create_dir_all(&empty).expect("creating a temporary folder");
+    std::fs::create_dir_all(&elsewhere).expect("creating a temporary folder");
+    for scene in ["bunny", "suzanne"] {
+        let out = elsewhere.join(format!("{scene}.png"));
+        let o = Command::new(BIN)
+            .args([
+                "render",
+                scene,
+                "--backend",
+                "cpu",
+                "--size",
+                "8x8",
+                "--spp",
+                "1",
+                "--depth",
+                "1",
+            ])
+            .arg("--out")
+            .arg(&out)
+            .env("RAYTRACE_ASSETS", &empty)
+            .current_dir(&elsewhere)
+            .output()
+            .expect("running raytrace");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{scene} failed without assets:\n{stderr}");
+        assert!(out.exists(), "{scene}: no picture written");
+    }
+    let _ = std::fs::remove_dir_all(&tmp);
 }
