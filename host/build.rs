@@ -1,10 +1,14 @@
 //! Compiles `shader-crate` to SPIR-V with rust-gpu and embeds it: `cargo build` is all a user
 //! runs. Also writes the module's entry-point names to `$OUT_DIR/entry_points.rs`, so a unit
-//! test can check that every kernel the host names exists.
+//! test can check that every kernel the host names exists. And names the commit it builds
+//! from for `raytrace --version` (`RAYTRACE_COMMIT`).
 use spirv_builder::{Capability, ModuleResult, SpirvBuilder};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::process::Command;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    println!("cargo::rustc-env=RAYTRACE_COMMIT={}", commit());
+    watch_git_head();
     let crate_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shader-crate");
     let mut builder = SpirvBuilder::new(crate_path, "spirv-unknown-vulkan1.2")
         .capability(Capability::VulkanMemoryModelDeviceScope)
@@ -40,6 +44,48 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ),
     )?;
     Ok(())
+}
+
+/// `git ARGS` run in this crate's folder: its trimmed output, or `None` where git is missing,
+/// fails (no repository) or prints nothing.
+fn git(args: &[&str]) -> Option<String> {
+    let out = Command::new("git")
+        .arg("-C")
+        .arg(env!("CARGO_MANIFEST_DIR"))
+        .args(args)
+        .output()
+        .ok()?;
+    let text = String::from_utf8(out.stdout).ok()?.trim().to_string();
+    (out.status.success() && !text.is_empty()).then_some(text)
+}
+
+/// The commit being built, `abc1234 2026-11-24` (short hash, commit date), or `unknown
+/// commit` where there is no git or no repository, or the repository around this folder is
+/// not the project's (a copy unpacked inside another one: this build script is not in it).
+fn commit() -> String {
+    let ours = git(&["ls-files", "--error-unmatch", "build.rs"]).is_some();
+    let hash = git(&["rev-parse", "--short", "HEAD"]);
+    let date = git(&["log", "-1", "--format=%cd", "--date=short", "HEAD"]);
+    match (ours, hash, date) {
+        (true, Some(hash), Some(date)) => format!("{hash} {date}"),
+        _ => "unknown commit".to_string(),
+    }
+}
+
+/// Reruns this script when HEAD moves: on changes of git's `HEAD`, of the branch it names
+/// and of `packed-refs` (where git may keep that branch), as far as they exist (a missing
+/// file would rerun it on every build). Those of a worktree are found by `--git-path`.
+fn watch_git_head() {
+    let mut files = vec!["HEAD".to_string(), "packed-refs".to_string()];
+    files.extend(git(&["symbolic-ref", "-q", "HEAD"]));
+    for f in files {
+        let Some(path) = git(&["rev-parse", "--path-format=absolute", "--git-path", &f]) else {
+            continue;
+        };
+        if Path::new(&path).is_file() {
+            println!("cargo::rerun-if-changed={path}");
+        }
+    }
 }
 
 /// SPIR-V opcodes and operands `no_contraction` reads and writes.

@@ -1,5 +1,6 @@
 //! Build inputs: generated primitive sets for tests and benchmarks (fixed seeds), and OBJ
 //! meshes loaded with tobj. Bad input gets an error naming the file and the problem.
+use crate::builtin_assets;
 use anyhow::{bail, Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -81,14 +82,20 @@ pub fn generate(n: usize, dist: Distribution, spheres: bool, seed: u64) -> (Vec<
 }
 
 /// Loads an OBJ mesh (faces triangulated) as triangles; rejects empty meshes and NaN or
-/// infinite vertices with an error naming the file, object and vertex.
+/// infinite vertices with an error naming the file, object and vertex. A file of the assets
+/// folder ([`assets_dir`]) that is missing there is read from the binary's built-in copy
+/// where it has one ([`builtin_assets`]).
 pub fn load_obj(path: &Path) -> Result<Vec<Triangle>> {
     let opts = tobj::LoadOptions {
         triangulate: true,
         single_index: true,
         ..Default::default()
     };
-    let (models, _) = tobj::load_obj(path, &opts).with_context(|| format!("reading OBJ file {}", path.display()))?;
+    let loaded = match builtin_assets::instead_of(path, &assets_dir()) {
+        Some(mut bytes) => tobj::load_obj_buf(&mut bytes, &opts, |_| Err(tobj::LoadError::OpenFileFailed)),
+        None => tobj::load_obj(path, &opts),
+    };
+    let (models, _) = loaded.with_context(|| format!("reading OBJ file {}", path.display()))?;
     let mut tris = Vec::new();
     for m in &models {
         let pos = &m.mesh.positions;
@@ -128,7 +135,8 @@ pub fn load_obj(path: &Path) -> Result<Vec<Triangle>> {
 }
 
 /// The project's assets folder (meshes and their attribution): `RAYTRACE_ASSETS`, else
-/// `./assets`, else the source tree's.
+/// `./assets`, else the source tree's. Where the folder lacks a mesh the built-in scenes
+/// need, [`load_obj`] reads the binary's copy.
 pub fn assets_dir() -> std::path::PathBuf {
     if let Some(dir) = std::env::var_os("RAYTRACE_ASSETS") {
         return dir.into();

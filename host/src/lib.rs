@@ -2,6 +2,7 @@
 //! inputs, scenes (live and editable), the windowed viewer, BVH validator and benchmarks.
 pub mod accuracy;
 pub mod bench;
+pub mod builtin_assets;
 pub mod bvh;
 pub mod cli;
 pub mod cpu;

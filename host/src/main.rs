@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 #[derive(Parser)]
 #[command(
     name = "raytrace",
-    version,
+    version = concat!(env!("CARGO_PKG_VERSION"), " (", env!("RAYTRACE_COMMIT"), ")"),
     about = "GPU ray tracer with a BVH rebuilt on the GPU every frame"
 )]
 struct Cli {

@@ -16,6 +16,7 @@ pub mod karras;
 pub mod material;
 pub mod math;
 pub mod morton;
+pub mod node_words;
 pub mod path;
 pub mod radix_sort;
 pub mod refit;

@@ -11,10 +11,10 @@
 //! its parent; the other internal nodes are reused, leaves stay leaves, so the node layout
 //! (internal `0..n-1`, leaves `n-1..2n-1`, root 0) holds.
 //!
-//! Internal nodes are read and written through device-scope atomics (the helpers of
-//! [`refit`]): treelets of later roots read what other workgroups restructured earlier in the
+//! Internal nodes are read and written through device-scope atomics ([`crate::node_words`],
+//! as the refit reads and writes them): treelets of later roots read what other workgroups restructured earlier in the
 //! same dispatch. Leaves, which no treelet changes, are read plainly.
-use crate::refit;
+use crate::node_words::{load_box, load_children, store, Boxed};
 
 /// Leaves of a full treelet. The paper's 7 (127 subsets, ~1100 splits) cut a Cornell-box
 /// ray's inner-node steps 10.7 -> 8.6 and the bunny's 12.9 -> 11.4 (CPU count), 5 (31
@@ -22,18 +22,10 @@ use crate::refit;
 /// invocation per treelet made 7 leaves cost the bunny's build 6.3 ms, 5 leaves 1.2 ms.
 pub const LEAVES: usize = 5;
 const SUBSETS: usize = 1 << LEAVES;
-/// A node and its box.
-#[derive(Copy, Clone)]
-pub struct Boxed {
-    pub node: u32,
-    pub lo: [f32; 3],
-    pub hi: [f32; 3],
-}
-
-/// Node `node` with its box, read through atomics as [`refit`] reads them (the refit writes
+/// Node `node` with its box, read through atomics as [`crate::refit::refit`] reads them (the refit writes
 /// the leaves, and an earlier treelet in this dispatch may have rewritten an internal node).
 fn boxed(words: &[u64], node: u32) -> Boxed {
-    let (lo, hi) = refit::load_box::<false>(words, node);
+    let (lo, hi) = load_box::<false>(words, node);
     Boxed { node, lo, hi }
 }
 
@@ -116,7 +108,7 @@ pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, pare
         }
         inner[m] = leaf[pick].node;
         m += 1;
-        let (c, d) = refit::load_children(words, leaf[pick].node);
+        let (c, d) = load_children(words, leaf[pick].node);
         leaf[pick] = boxed(words, c);
         leaf[k] = boxed(words, d);
         k += 1;
@@ -203,6 +195,6 @@ pub fn restructure(root: Boxed, left: Boxed, right: Boxed, first_leaf: u32, pare
         } else {
             (s_lo[set as usize], s_hi[set as usize])
         };
-        refit::store(words, node, u_lo, u_hi, child[0], child[1]);
+        store(words, node, u_lo, u_hi, child[0], child[1]);
     }
 }
