@@ -230,18 +230,10 @@ fn spheres() -> Scene {
     b.scene
 }
 
-/// Sixteen spinning Stanford bunnies in mixed materials on a ground quad, under a sky and a light.
-fn instances(label: &str) -> Result<Scene, SceneError> {
-    let camera = CameraSpec {
-        position: Vec3::new(0.0, 10.0, -15.0),
-        look_at: Vec3::new(0.0, 0.8, 0.5),
-        up: Vec3::Y,
-        vfov_deg: 40.0,
-        aperture: 0.0,
-        focus_distance: None,
-    };
-    let settings = outdoor();
-    let mut b = Builder::new("instances", camera, settings);
+/// The real-time scenes' field: eight looks (diffuse, metal, glass), a ground quad of `size`
+/// on a side, and the Stanford bunny; returns the looks, the bunny's shape, its standing
+/// placement and the light's material.
+fn bunny_field(b: &mut Builder, label: &str, size: f32) -> Result<([u32; 8], Shape, Transform, u32), SceneError> {
     let looks = [
         b.material("red", material::diffuse([0.8, 0.2, 0.2])),
         b.material("gold", material::metal([0.9, 0.7, 0.3], 0.1)),
@@ -255,12 +247,27 @@ fn instances(label: &str) -> Result<Scene, SceneError> {
     let ground = b.material("ground", material::diffuse([0.5, 0.5, 0.5]));
     let light = b.material("light", material::emissive([10.0, 10.0, 10.0]));
     let quad = Shape::Mesh(b.mesh("builtin:quad", shapes::quad()));
-    let floor = Transform::new(Vec3::ZERO, Vec3::ZERO, Vec3::new(100.0, 1.0, 100.0));
+    let floor = Transform::new(Vec3::ZERO, Vec3::ZERO, Vec3::new(size, 1.0, size));
     b.object("ground", quad, floor, ground);
     let tris = asset(label, "bunny.obj")?;
-    let spacing = 3.0;
-    let mut place = stand(&tris, -90.0, 2.4, Vec3::ZERO);
+    let place = stand(&tris, -90.0, 2.4, Vec3::ZERO);
     let bunny = Shape::Mesh(b.mesh("bunny.obj", tris));
+    Ok((looks, bunny, place, light))
+}
+
+/// Sixteen spinning Stanford bunnies in mixed materials on a ground quad, under a sky and a light.
+fn instances(label: &str) -> Result<Scene, SceneError> {
+    let camera = CameraSpec {
+        position: Vec3::new(0.0, 10.0, -15.0),
+        look_at: Vec3::new(0.0, 0.8, 0.5),
+        up: Vec3::Y,
+        vfov_deg: 40.0,
+        aperture: 0.0,
+        focus_distance: None,
+    };
+    let mut b = Builder::new("instances", camera, outdoor());
+    let (looks, bunny, mut place, light) = bunny_field(&mut b, label, 100.0)?;
+    let spacing = 3.0;
     for k in 0..16 {
         let (i, j) = ((k % 4) as f32, (k / 4) as f32);
         place.translation.x = (i - 1.5) * spacing;
@@ -278,7 +285,7 @@ fn instances(label: &str) -> Result<Scene, SceneError> {
     Ok(b.scene)
 }
 
-/// A 12x12 herd of Stanford bunnies, 10,031,904 triangles of mixed materials: every bunny
+/// A 12x12 herd of Stanford bunnies, 10,031,904 triangles in seven of the looks: every bunny
 /// spins, every third also bobs (the real-time scene of ten million animated triangles).
 fn herd(label: &str) -> Result<Scene, SceneError> {
     let camera = CameraSpec {
@@ -290,30 +297,14 @@ fn herd(label: &str) -> Result<Scene, SceneError> {
         focus_distance: None,
     };
     let mut b = Builder::new("herd", camera, outdoor());
-    let looks = [
-        b.material("red", material::diffuse([0.8, 0.2, 0.2])),
-        b.material("gold", material::metal([0.9, 0.7, 0.3], 0.1)),
-        b.material("green", material::diffuse([0.2, 0.7, 0.3])),
-        b.material("glass", material::dielectric(1.5)),
-        b.material("blue", material::diffuse([0.2, 0.3, 0.8])),
-        b.material("steel", material::metal([0.8, 0.8, 0.85], 0.3)),
-        b.material("white", material::diffuse([0.8, 0.8, 0.8])),
-    ];
-    let ground = b.material("ground", material::diffuse([0.5, 0.5, 0.5]));
-    let light = b.material("light", material::emissive([10.0, 10.0, 10.0]));
-    let quad = Shape::Mesh(b.mesh("builtin:quad", shapes::quad()));
-    let floor = Transform::new(Vec3::ZERO, Vec3::ZERO, Vec3::new(200.0, 1.0, 200.0));
-    b.object("ground", quad, floor, ground);
-    let tris = asset(label, "bunny.obj")?;
+    let (looks, bunny, mut place, light) = bunny_field(&mut b, label, 200.0)?;
     let spacing = 3.0;
-    let mut place = stand(&tris, -90.0, 2.4, Vec3::ZERO);
-    let bunny = Shape::Mesh(b.mesh("bunny.obj", tris));
     for k in 0..144 {
         let (i, j) = ((k % 12) as f32, (k / 12) as f32);
         place.translation.x = (i - 5.5) * spacing;
         place.translation.z = (j - 5.5) * spacing;
         let direction = if k % 2 == 0 { 1.0 } else { -1.0 };
-        let o = b.object(&format!("bunny {k}"), bunny, place, looks[k % looks.len()]);
+        let o = b.object(&format!("bunny {k}"), bunny, place, looks[k % 7]);
         o.animation.spin_deg_per_s = Vec3::new(0.0, direction * (10.0 + (k % 9) as f32 * 5.0), 0.0);
         if k % 3 == 0 {
             o.animation.bob = Some(Bob {
