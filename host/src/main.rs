@@ -1,7 +1,8 @@
 //! `raytrace`: the command-line front end.
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
-use raytrace::bench::{bench_build, slug, standard_inputs, write_report, BuildReport};
+use raytrace::bench::build::{bench_build, standard_inputs, write_report, BuildReport};
+use raytrace::bench::slug;
 use raytrace::bvh::{BuildOptions, MortonBits};
 use raytrace::cli::{compare_command, render_command, SceneArgs};
 use raytrace::render::Backend;
@@ -100,7 +101,7 @@ enum Bench {
     /// time, SAH and the real-time frame split into build and trace.
     Trace {
         #[command(flatten)]
-        options: raytrace::trace_bench::Options,
+        options: raytrace::bench::trace::Options,
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
@@ -115,7 +116,7 @@ enum Bench {
     /// The viewer's per-frame GPU work without a window: frame-time percentiles.
     Realtime {
         #[command(flatten)]
-        options: raytrace::realtime::Options,
+        options: raytrace::bench::realtime::Options,
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
@@ -145,7 +146,7 @@ enum Bench {
     /// PNG plots.
     Accuracy {
         #[command(flatten)]
-        options: raytrace::accuracy::Options,
+        options: raytrace::bench::accuracy::Options,
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
@@ -231,13 +232,13 @@ fn main() -> Result<()> {
                 },
         } => {
             let gpu = Gpu::new(&opts)?;
-            let r = raytrace::feature_bench::run(&gpu, &scenes, size, spp.max(1), runs)?;
+            let r = raytrace::bench::features::run(&gpu, &scenes, size, spp.max(1), runs)?;
             publish(
                 &out,
                 "features",
                 &r.date,
                 &gpu,
-                raytrace::feature_bench::markdown(&r),
+                raytrace::bench::features::markdown(&r),
                 &r,
             )?;
         }
@@ -245,8 +246,8 @@ fn main() -> Result<()> {
             what: Bench::Readme { readme, results },
         } => {
             let text = std::fs::read_to_string(&readme).with_context(|| format!("reading {}", readme.display()))?;
-            let section = raytrace::readme_table::section(&results)?;
-            let new = raytrace::readme_table::rewrite(&text, &section)
+            let section = raytrace::bench::readme::section(&results)?;
+            let new = raytrace::bench::readme::rewrite(&text, &section)
                 .with_context(|| format!("rewriting {}", readme.display()))?;
             std::fs::write(&readme, new).with_context(|| format!("writing {}", readme.display()))?;
             println!("rewrote the performance section of {}", readme.display());
@@ -255,27 +256,34 @@ fn main() -> Result<()> {
             what: Bench::Trace { options, out },
         } => {
             let gpu = Gpu::new(&opts)?;
-            let r = raytrace::trace_bench::run(&gpu, &options)?;
-            publish(&out, "trace", &r.date, &gpu, raytrace::trace_bench::markdown(&r), &r)?;
-            let plot = raytrace::trace_bench::plot(&r, &out, &format!("trace-{}-{}", r.date, slug(&gpu.name)))?;
+            let r = raytrace::bench::trace::run(&gpu, &options)?;
+            publish(&out, "trace", &r.date, &gpu, raytrace::bench::trace::markdown(&r), &r)?;
+            let plot = raytrace::bench::trace::plot(&r, &out, &format!("trace-{}-{}", r.date, slug(&gpu.name)))?;
             println!("wrote {}", plot.display());
         }
         Command::Bench {
             what: Bench::Realtime { options, out },
         } => {
             let gpu = Gpu::new(&opts)?;
-            let r = raytrace::realtime::run(&gpu, &options)?;
-            publish(&out, "realtime", &r.date, &gpu, raytrace::realtime::markdown(&r), &r)?;
+            let r = raytrace::bench::realtime::run(&gpu, &options)?;
+            publish(
+                &out,
+                "realtime",
+                &r.date,
+                &gpu,
+                raytrace::bench::realtime::markdown(&r),
+                &r,
+            )?;
         }
         Command::Bench {
             what: Bench::Accuracy { options, out },
         } => {
             let gpu = Gpu::new(&opts)?;
-            let r = raytrace::accuracy::run(&gpu, &options)?;
+            let r = raytrace::bench::accuracy::run(&gpu, &options)?;
             let stem = format!("accuracy-{}-{}-{}", slug(&options.scene), r.date, slug(&gpu.name));
-            let plots = raytrace::accuracy::plots(&r, &out, &stem)?;
-            let md = raytrace::bench::write_files(&out, &stem, &raytrace::accuracy::markdown(&r, &plots), &r)?;
-            println!("{}", raytrace::accuracy::markdown(&r, &plots));
+            let plots = raytrace::bench::accuracy::plots(&r, &out, &stem)?;
+            let md = raytrace::bench::write_files(&out, &stem, &raytrace::bench::accuracy::markdown(&r, &plots), &r)?;
+            println!("{}", raytrace::bench::accuracy::markdown(&r, &plots));
             println!("wrote {} and {} plots", md.display(), plots.len());
         }
         Command::Info { kernels } => {
@@ -319,9 +327,10 @@ fn main() -> Result<()> {
                 },
         } => {
             let gpu = Gpu::new(&opts)?;
-            let report = raytrace::table2::run(&gpu, runs, brute_spp.max(1), cpu_spp.max(1), !no_treelets)?;
-            let md = raytrace::table2::write(&report, &out, &format!("table2-{}-{}", report.date, slug(&gpu.name)))?;
-            println!("{}", raytrace::table2::markdown(&report));
+            let report = raytrace::bench::table2::run(&gpu, runs, brute_spp.max(1), cpu_spp.max(1), !no_treelets)?;
+            let md =
+                raytrace::bench::table2::write(&report, &out, &format!("table2-{}-{}", report.date, slug(&gpu.name)))?;
+            println!("{}", raytrace::bench::table2::markdown(&report));
             println!("wrote {}", md.display());
         }
         Command::Bench {
@@ -362,7 +371,7 @@ fn main() -> Result<()> {
                 rows,
             };
             let md = write_report(&report, &out, &format!("build-{date}-{}", slug(&gpu.name)))?;
-            println!("{}", raytrace::bench::markdown(&report));
+            println!("{}", raytrace::bench::build::markdown(&report));
             println!("wrote {}", md.display());
         }
     }

@@ -2,7 +2,7 @@
 //! robust intersection tests never leak where Moller-Trumbore does, and the report's plots
 //! are real PNGs.
 use integration_tests::gpu;
-use raytrace::accuracy::{markdown, plots, run, Options};
+use raytrace::bench::accuracy::{markdown, plots, run, Options};
 
 #[test]
 fn accuracy_bench_measures_error_time_and_leaks() {

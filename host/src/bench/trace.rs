@@ -3,7 +3,7 @@
 //! primary hits to a light), with the tree's build time and surface-area cost beside them,
 //! and the real-time frame (1 spp, depth 4, BVH rebuilt) split into build and trace. Writes
 //! Markdown, JSON and a stacked-bar plot of the frame per scene and layout.
-use crate::accuracy::{sah_cost, sah_cost_wide};
+use crate::bench::accuracy::{sah_cost, sah_cost_wide};
 use crate::bench::percentile;
 use crate::bvh::{BuildOptions, Layout};
 use crate::cli::{Prepared, SceneArgs};

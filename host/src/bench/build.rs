@@ -6,13 +6,14 @@ use crate::bvh::{BuildOptions, MortonBits, STAGES};
 
 /// Reported columns: the stages, and the wide collapse (0 for binary builds).
 const COLUMNS: [&str; 6] = [STAGES[0], STAGES[1], STAGES[2], STAGES[3], STAGES[4], "wide"];
-use crate::accuracy::{sah_cost, sah_cost_wide};
+use super::accuracy::{sah_cost, sah_cost_wide};
+use super::{percentile, write_files};
 use crate::cpu;
 use crate::inputs::{assets_dir, generate, load_obj, Distribution};
 use crate::lbvh::GpuLbvh;
 use crate::validate::{validate, validate_wide};
 use crate::vk::{Gpu, Kernels};
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use serde::Serialize;
 use shared::types::{Sphere, Triangle};
 use std::fmt::Write;
@@ -73,14 +74,6 @@ fn column_ns(t: &[(&str, f64)], name: &str) -> f64 {
 /// Bytes of the nodes of a BVH over `n` primitives: 2n - 1 nodes of 32 bytes.
 fn bvh_bytes_for(n: usize) -> usize {
     (2 * n).saturating_sub(1) * size_of::<shared::types::Node>()
-}
-
-/// The `q` quantile (0..=1, nearest rank) of ascending `sorted` values; NaN when empty.
-pub fn percentile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -287,34 +280,4 @@ pub fn markdown(r: &BuildReport) -> String {
 /// Writes `<stem>.md` and `<stem>.json` into `dir`; returns the Markdown path.
 pub fn write_report(r: &BuildReport, dir: &Path, stem: &str) -> Result<PathBuf> {
     write_files(dir, stem, &markdown(r), r)
-}
-
-/// Writes a report as `dir/stem.md` (`markdown`) and `dir/stem.json` (`value`); returns the
-/// Markdown file's path.
-pub fn write_files(dir: &Path, stem: &str, markdown: &str, value: &impl serde::Serialize) -> Result<PathBuf> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let md = dir.join(format!("{stem}.md"));
-    std::fs::write(&md, markdown).with_context(|| format!("writing {}", md.display()))?;
-    let json = dir.join(format!("{stem}.json"));
-    std::fs::write(&json, serde_json::to_string_pretty(value)?)
-        .with_context(|| format!("writing {}", json.display()))?;
-    Ok(md)
-}
-
-/// File-name-safe form of a device name.
-pub fn slug(s: &str) -> String {
-    let mut out: String = s
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() {
-                c.to_ascii_lowercase()
-            } else {
-                '-'
-            }
-        })
-        .collect();
-    while out.contains("--") {
-        out = out.replace("--", "-");
-    }
-    out.trim_matches('-').to_string()
 }
