@@ -366,6 +366,13 @@ pub fn render_command(args: &SceneArgs, backend: Backend, out: Option<PathBuf>, 
     let p = args.prepare()?;
     if args.explain {
         println!("kernel features for {}:\n{}", p.scene.name, p.features.explain());
+        let b = p.build(p.spp);
+        let tree = match (b.wide, b.restructures()) {
+            (true, _) => "the wide BVH (VARIANT_WIDE_BVH), collapsed from the LBVH every frame: --bvh wide",
+            (false, true) => "the binary LBVH with treelets restructured: --bvh binary, --treelets",
+            (false, false) => "the binary LBVH: --bvh binary (the default, faster on the H100)",
+        };
+        println!("BVH traced: {tree}");
     }
     let out = out.unwrap_or_else(|| PathBuf::from(format!("{}.png", p.scene.name)));
     let wall = Instant::now();
