@@ -211,7 +211,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 /// The wide collapse (`shared::wide`): mark, scan and write, as the GPU runs them.
 fn collapse(p: &BuildParams, nodes: &[Node], parents: &[u32], visits: &mut [u32]) -> Vec<WideNode> {
     let s = wide::Scratch::new(p.n);
-    let mut scratch = vec![0u32; s.len() as usize];
+    let mut scratch = vec![0u32; s.total_words() as usize];
     for k in 0..p.n {
         wide::climb::<true>(k, p, nodes, parents, visits, &mut scratch);
     }

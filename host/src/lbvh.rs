@@ -60,7 +60,7 @@ impl Buffers {
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
         let scratch = wide::Scratch::new(n as u32);
         let wide = dev("wide BVH", scratch.slots as u64 * size_of::<WideNode>() as u64)?;
-        let wide_scratch = dev("wide collapse scratch", scratch.len() as u64 * 4)?;
+        let wide_scratch = dev("wide collapse scratch", scratch.total_words() as u64 * 4)?;
         let capture = dev("captured codes", n * 8)?;
         let staging_bytes = (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
         let staging = Buffer::new(gpu, "staging", staging_bytes, MemoryLocation::CpuToGpu)?;
@@ -236,6 +236,11 @@ impl GpuLbvh {
         let bits = opts.bits;
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         let n = self.n;
+        anyhow::ensure!(
+            !opts.wide || n <= wide::MAX_PRIMITIVES,
+            "the wide BVH holds at most {} primitives ({n} given): use --bvh binary",
+            wide::MAX_PRIMITIVES
+        );
         let items = n.div_ceil(WORKGROUP);
         let k = &self.kernels;
         let mut p = BuildParams {
@@ -434,7 +439,7 @@ impl GpuLbvh {
             parents: self.download(|b| &b.parents, total)?,
             wide: if opts.wide && n > 0 {
                 let s = wide::Scratch::new(n as u32);
-                let words: Vec<u32> = self.download(|b| &b.wide_scratch, s.len() as usize)?;
+                let words: Vec<u32> = self.download(|b| &b.wide_scratch, s.total_words() as usize)?;
                 let count = (words[s.count() as usize] as usize).min(s.slots as usize);
                 self.download(|b| &b.wide, count)?
             } else {

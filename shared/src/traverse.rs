@@ -2,7 +2,7 @@
 //! a fixed-size stack (nearest child first, far child pushed), or by testing every primitive
 //! (the thesis's brute force, kept for comparison), or through the 4-wide BVH collapsed from
 //! it (`crate::wide`, [`VARIANT_WIDE_BVH`]): one node read gives four children's boxes, leaves
-//! hold up to four primitives, hit children are visited nearest first. Rays with a
+//! hold up to two primitives, hit children are visited nearest first. Rays with a
 //! non-finite origin or direction miss.
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;

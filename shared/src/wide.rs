@@ -164,11 +164,8 @@ impl Scratch {
         self.count() + 1
     }
     /// Words of scratch the collapse needs.
-    pub fn len(&self) -> u32 {
+    pub fn total_words(&self) -> u32 {
         self.info() + self.slots
-    }
-    pub fn is_empty(&self) -> bool {
-        false
     }
 }
 
