@@ -7,19 +7,20 @@
 use crate::scene::SceneGpu;
 use anyhow::{bail, Result};
 use shared::types::{
-    Frame, MaterialKind, FEATURES_ALL, FEATURE_DIELECTRIC, FEATURE_METAL, FEATURE_NEE, FEATURE_SPHERES,
-    FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_NEE,
+    Frame, MaterialKind, FEATURES_ALL, FEATURE_DIELECTRIC, FEATURE_METAL, FEATURE_NEE, FEATURE_SHADING_NORMALS,
+    FEATURE_SPHERES, FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_NEE, INVALID,
 };
 use std::fmt::Write;
 
 /// Feature names as `--features` takes them, with their bits.
-pub const NAMES: [(&str, u32); 6] = [
+pub const NAMES: [(&str, u32); 7] = [
     ("triangles", FEATURE_TRIANGLES),
     ("spheres", FEATURE_SPHERES),
     ("nee", FEATURE_NEE),
     ("metal", FEATURE_METAL),
     ("dielectric", FEATURE_DIELECTRIC),
     ("thin-lens", FEATURE_THIN_LENS),
+    ("shading-normals", FEATURE_SHADING_NORMALS),
 ];
 
 /// What the user asked for beyond the scene's own needs.
@@ -94,7 +95,7 @@ impl Features {
     pub fn explain(&self) -> String {
         let mut s = String::new();
         for d in &self.decisions {
-            let _ = writeln!(s, "  {:<11} {:<4} {}", d.feature, d.state, d.why);
+            let _ = writeln!(s, "  {:<15} {:<4} {}", d.feature, d.state, d.why);
         }
         s
     }
@@ -194,6 +195,21 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
             format!("aperture {}", 2.0 * lens)
         } else {
             "pinhole camera (aperture 0)".into()
+        },
+    );
+    let smooth = if crate::scene::attrs::has_normals(&data.attrs) {
+        data.objects.iter().filter(|o| o.attrs != INVALID).count()
+    } else {
+        0
+    };
+    decide(
+        "shading-normals",
+        FEATURE_SHADING_NORMALS,
+        smooth > 0,
+        if smooth > 0 {
+            format!("{} with vertex normals", plural(smooth, "mesh object"))
+        } else {
+            "no vertex normals (flat shading)".into()
         },
     );
     let contains = |bit: u32, n: usize, what: &str| -> Result<()> {

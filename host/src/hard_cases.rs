@@ -6,7 +6,6 @@ use crate::scene::{CameraSpec, Scene, SceneObject, Settings, Shape, Transform};
 use glam::Vec3;
 use shared::types::{Material, Sphere, Triangle};
 use std::collections::HashMap;
-use std::sync::Arc;
 
 /// Interior points of the unit meshes (also inside the octahedron `|x| + |y| + |z| < 1`).
 pub const INSIDE: [[f32; 3]; 4] = [
@@ -286,10 +285,7 @@ pub fn scene_of(tris: &[Triangle], spheres: &[Sphere]) -> Scene {
             ..Settings::default()
         },
         materials: vec![("grey".into(), Material::default())],
-        meshes: vec![crate::scene::Mesh {
-            name: "triangles".into(),
-            tris: Arc::new(tris.to_vec()),
-        }],
+        meshes: vec![crate::scene::Mesh::flat("triangles", tris.to_vec())],
         objects,
     }
 }

@@ -11,12 +11,12 @@ use shared::scan;
 use shared::traverse::Scene;
 use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,
-    Triangle, FEATURES_ALL,
+    Triangle, VertexAttrs, FEATURES_ALL,
 };
 use shared::wide::{self, MarkState, ScanState, WideNode};
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
-const _: () = assert!(FEATURES_ALL == 63);
+const _: () = assert!(FEATURES_ALL == 1087);
 use shared::{display, karras, morton, refit, transform as xform};
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
 use spirv_std::glam::UVec3;
@@ -334,7 +334,7 @@ pub fn transform(
 
 /// The scene as the render kernels see it (set 0: world primitives and BVH; set 1: the rest).
 macro_rules! world {
-    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $features:expr) => {
+    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $attrs:ident, $features:expr) => {
         World {
             scene: Scene {
                 tris: $tris,
@@ -351,6 +351,7 @@ macro_rules! world {
             materials: $materials,
             lights: $lights,
             frame: $frame,
+            attrs: $attrs,
         }
     };
 }
@@ -371,7 +372,8 @@ pub fn path_trace(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
     #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
-    #[spirv(spec_constant(id = 0, default = 63))] features: u32,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
+    #[spirv(spec_constant(id = 0, default = 1087))] features: u32,
 ) {
     let w = world!(
         tris,
@@ -384,6 +386,7 @@ pub fn path_trace(
         materials,
         lights,
         frame,
+        attrs,
         features
     );
     path::render_pixel(id.x, id.y, p, &w, accum);
@@ -418,7 +421,8 @@ pub fn cast_rays(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
     #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] rays: &[Ray],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit],
-    #[spirv(spec_constant(id = 0, default = 63))] features: u32,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
+    #[spirv(spec_constant(id = 0, default = 1087))] features: u32,
 ) {
     let w = world!(
         tris,
@@ -431,6 +435,7 @@ pub fn cast_rays(
         materials,
         lights,
         frame,
+        attrs,
         features
     );
     path::cast(flat_index(id.x, id.y), p, &w, rays, hits);

@@ -23,6 +23,7 @@ pub mod refit;
 pub mod rng;
 pub mod sampling;
 pub mod scan;
+pub mod shading;
 pub mod sync;
 pub mod transform;
 pub mod traverse;

@@ -2,7 +2,10 @@
 //! Lambertian diffuse (cosine sampling), metal (mirror direction blurred by a random point
 //! in a ball of radius `roughness`), dielectric (unpolarised Fresnel reflectance choosing
 //! between reflection and refraction, total internal reflection), and emissive (no scattering).
+//! Directions follow the shading normal and are kept on the geometric side they belong to
+//! (`crate::shading`'s rules).
 use crate::math::sqrt;
+use crate::shading::facing;
 use crate::rng::Rng;
 use crate::sampling;
 use crate::types::{xyz, Material, MaterialKind, FEATURE_DIELECTRIC, FEATURE_METAL};
@@ -38,13 +41,16 @@ pub fn fresnel(cos_i: f32, eta: f32) -> (f32, f32) {
     ((r_parl * r_parl + r_perp * r_perp) * 0.5, cos_t)
 }
 
-/// Scatters a ray of unit direction `d` hitting a surface with unit geometric normal `ng`.
-/// Kinds whose `FEATURE_*` bit is missing from `features` absorb.
-pub fn scatter(m: &Material, d: Vec3, ng: Vec3, features: u32, rng: &mut Rng) -> Scatter {
+/// Scatters a ray of unit direction `d` hitting a surface with unit geometric normal `ng`
+/// and unit shading normal `ns` (on `ng`'s side; `ng` itself where the surface has none).
+/// Kinds whose `FEATURE_*` bit is missing from `features` absorb, and so does a direction
+/// on the wrong geometric side: below the surface for a reflection, above it for a
+/// refraction.
+pub fn scatter(m: &Material, d: Vec3, ng: Vec3, ns: Vec3, features: u32, rng: &mut Rng) -> Scatter {
     let albedo = xyz(m.albedo);
-    // The normal on the side the ray came from.
+    // The normals on the side the ray came from.
     let entering = d.dot(ng) < 0.0;
-    let n = if entering { ng } else { -ng };
+    let (n, sn) = facing(d, ng, ns);
     let mut s = Scatter {
         dir: d,
         weight: albedo,
@@ -52,26 +58,33 @@ pub fn scatter(m: &Material, d: Vec3, ng: Vec3, features: u32, rng: &mut Rng) ->
         diffuse: false,
         absorbed: false,
     };
+    let mut refracted = false;
     if m.kind == MaterialKind::Diffuse as u32 {
-        s.dir = sampling::cosine_hemisphere(n, rng.next_f32(), rng.next_f32());
-        s.pdf = sampling::cosine_pdf(s.dir.dot(n));
+        s.dir = sampling::cosine_hemisphere(sn, rng.next_f32(), rng.next_f32());
+        s.pdf = sampling::cosine_pdf(s.dir.dot(sn));
         s.diffuse = true;
         s.absorbed = s.pdf <= 0.0;
     } else if features & FEATURE_METAL != 0 && m.kind == MaterialKind::Metal as u32 {
         let fuzz = sampling::uniform_ball(rng.next_f32(), rng.next_f32(), rng.next_f32()) * m.roughness;
-        s.dir = (reflect(d, n) + fuzz).normalize();
-        s.absorbed = s.dir.dot(n) <= 0.0;
+        s.dir = (reflect(d, sn) + fuzz).normalize();
+        s.absorbed = s.dir.dot(sn) <= 0.0;
     } else if features & FEATURE_DIELECTRIC != 0 && m.kind == MaterialKind::Dielectric as u32 {
         let eta = if entering { m.ior } else { 1.0 / m.ior };
-        let cos_i = (-d.dot(n)).clamp(0.0, 1.0);
+        let cos_i = (-d.dot(sn)).clamp(0.0, 1.0);
         let (r, cos_t) = fresnel(cos_i, eta);
         s.dir = if rng.next_f32() < r {
-            reflect(d, n)
+            reflect(d, sn)
         } else {
-            (d / eta + (cos_i / eta - cos_t) * n).normalize()
+            refracted = true;
+            (d / eta + (cos_i / eta - cos_t) * sn).normalize()
         };
         s.weight = Vec3::ONE;
     } else {
+        s.absorbed = true;
+    }
+    // Rule 2 of `crate::shading`: leave on the geometric side the direction belongs to.
+    let above = s.dir.dot(n) > 0.0;
+    if above == refracted {
         s.absorbed = true;
     }
     s

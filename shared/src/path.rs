@@ -9,10 +9,11 @@ use crate::material;
 use crate::math::{finite3, max3};
 use crate::rng::Rng;
 use crate::sampling;
+use crate::shading::{self, facing};
 use crate::sync;
 use crate::traverse::{self, Scene};
 use crate::types::{
-    xyz, Camera, Frame, Hit, Material, Object, Ray, RenderPush, CAST_ANY, CAST_SPAWN, FEATURE_NEE, FEATURE_THIN_LENS,
+    xyz, Camera, Frame, Hit, Material, Object, Ray, RenderPush, VertexAttrs, CAST_ANY, CAST_SPAWN, FEATURE_NEE, FEATURE_THIN_LENS,
     FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
 };
 use core::f32::consts::PI;
@@ -30,6 +31,8 @@ pub struct World<'a> {
     pub materials: &'a [Material],
     pub lights: &'a [u32],
     pub frame: &'a Frame,
+    /// Every mesh's vertex attributes (`Object::attrs` indexes them).
+    pub attrs: &'a [VertexAttrs],
 }
 
 impl World<'_> {
@@ -132,11 +135,12 @@ fn sky(f: &Frame, d: Vec3) -> Vec3 {
     xyz(f.sky_bottom) * (1.0 - a) + xyz(f.sky_top) * a
 }
 
-/// Next-event estimation from point `p` (unit normal `n` on the side the path is on, `scale`
-/// its primitive's for [`offset_origin`]) of a diffuse surface of albedo `albedo`: one light
-/// chosen uniformly, one point on it uniformly by area, one shadow ray. Returns the weighted
-/// contribution.
-fn direct_light(w: &World, p: Vec3, n: Vec3, scale: f32, albedo: Vec3, mis: bool, rng: &mut Rng) -> Vec3 {
+/// Next-event estimation from point `p` (unit geometric normal `n` and shading normal `sn`
+/// on the side the path is on, `scale` its primitive's for [`offset_origin`]) of a diffuse
+/// surface of albedo `albedo`: one light chosen uniformly, one point on it uniformly by area,
+/// one shadow ray. Returns the weighted contribution.
+#[allow(clippy::too_many_arguments)]
+fn direct_light(w: &World, p: Vec3, n: Vec3, sn: Vec3, scale: f32, albedo: Vec3, mis: bool, rng: &mut Rng) -> Vec3 {
     let count = w.frame.n_lights;
     let pick = ((rng.next_f32() * count as f32) as u32).min(count - 1);
     let light = w.lights[pick as usize];
@@ -144,9 +148,10 @@ fn direct_light(w: &World, p: Vec3, n: Vec3, scale: f32, albedo: Vec3, mis: bool
     let to = q - p;
     let dist = to.length();
     let wi = to / dist;
-    let cos_s = wi.dot(n);
+    let cos_s = wi.dot(sn);
     let cos_l = World::light_cos(nl, wi);
-    if cos_s <= 0.0 || cos_l <= 0.0 || dist.is_nan() || dist <= 0.0 {
+    // The light must lie above both the shading and the geometric surface.
+    if cos_s <= 0.0 || wi.dot(n) <= 0.0 || cos_l <= 0.0 || dist.is_nan() || dist <= 0.0 {
         return Vec3::ZERO;
     }
     // Both ends offset off their surfaces; the shadow ray runs over t in (0, 1).
@@ -228,7 +233,8 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
         return false;
     }
     let m = w.material(hit.prim);
-    let (p, ng, scale) = traverse::surface(&w.scene, hit.prim, o, d, &hit);
+    let sp = shading::surface_point(&w.scene, w.objects, w.prim_object, w.attrs, o, d, &hit);
+    let (p, ng, scale) = (sp.p, sp.ng, sp.scale);
     let le = xyz(m.emission);
     let cos_l = World::light_cos(ng, d);
     if max3(le) > 0.0 && cos_l > 0.0 {
@@ -242,13 +248,13 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
         };
         q.l += q.beta * le * weight;
     }
-    let s = material::scatter(&m, d, ng, w.scene.features, rng);
+    let s = material::scatter(&m, d, ng, sp.ns, w.scene.features, rng);
     if s.absorbed {
         return false;
     }
-    let side = if d.dot(ng) < 0.0 { ng } else { -ng };
     if s.diffuse && mode.nee && q.depth + 1 < f.max_depth {
-        q.l += q.beta * direct_light(w, p, side, scale, xyz(m.albedo), mode.mis, rng);
+        let (side, shading_side) = facing(d, ng, sp.ns);
+        q.l += q.beta * direct_light(w, p, side, shading_side, scale, xyz(m.albedo), mode.mis, rng);
         q.rays += 1;
     }
     q.beta *= s.weight;

@@ -256,22 +256,44 @@ pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
 // | 7       | accumulated radiance per pixel, `[f32; 4]` (w: rays traced) |
 // | 8       | display image, RGBA8 per pixel                             |
 // | 9, 10   | ray casts: `[Ray]` in, `[Hit]` out                         |
+// | 11      | `[VertexAttrs]` every mesh's per-vertex normals and UVs, once a mesh |
 // ---------------------------------------------------------------------------------------------
 
 /// Storage buffers of descriptor set 1.
-pub const RENDER_BINDINGS: u32 = 11;
+pub const RENDER_BINDINGS: u32 = 12;
 /// Render kernels run on 8x8 pixel tiles.
 pub const TILE_SIDE: u32 = 8;
 
-/// An object: its model-to-world transform (3x4, row-major) and its material.
+/// An object: its model-to-world transform (3x4, row-major), its material, and where its
+/// primitives and their vertex attributes are.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Object {
     pub rows: [[f32; 4]; 3],
+    /// The cofactor matrix of `rows`' 3x3 part (its inverse transpose times its determinant,
+    /// row-major, `w` unused): takes model-space normals to world space, on the side the
+    /// transformed triangle's own normal (edge cross product) takes, mirrored or not.
+    pub normal_rows: [[f32; 4]; 3],
     /// Factor applied to sphere radii: the largest scale of the transform.
     pub radius_scale: f32,
     pub material: u32,
-    pub _pad: [u32; 2],
+    /// The object's first primitive: its triangles are `first_prim..` (a sphere: itself).
+    pub first_prim: u32,
+    /// Index of the [`VertexAttrs`] of the object's first triangle (its mesh's attributes,
+    /// shared by every object showing the mesh), or [`INVALID`]: flat, no texture
+    /// coordinates.
+    pub attrs: u32,
+}
+
+/// Vertex attributes of one mesh triangle in model space (64 bytes): vertex `k`'s shading
+/// normal in `normal_u[k].xyz` (all zero: the mesh has none there; the geometric normal
+/// shades) and its texture coordinates `(normal_u[k].w, v[k])`.
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct VertexAttrs {
+    pub normal_u: [[f32; 4]; 3],
+    /// `v` of vertices 0, 1, 2; `w` unused.
+    pub v: [f32; 4],
 }
 
 /// How a surface scatters light.
@@ -380,8 +402,10 @@ pub const FEATURE_METAL: u32 = 1 << 3;
 pub const FEATURE_DIELECTRIC: u32 = 1 << 4;
 /// Camera rays start on a lens disk (else at the pinhole).
 pub const FEATURE_THIN_LENS: u32 = 1 << 5;
-/// Every feature: the kernel that runs any scene.
-pub const FEATURES_ALL: u32 = (1 << 6) - 1;
+/// Shading normals interpolated from vertex normals (else the geometric normal shades).
+pub const FEATURE_SHADING_NORMALS: u32 = 1 << 10;
+/// Every feature: the kernel that runs any scene. Bits 6-9 are the `VARIANT_*` bits.
+pub const FEATURES_ALL: u32 = (1 << 6) - 1 | FEATURE_SHADING_NORMALS;
 
 // Intersection variants, bits of the same specialisation constant: less robust tests that
 // only `raytrace bench accuracy` sets (what the robust defaults of DESIGN.md section 3
@@ -439,7 +463,8 @@ impl Hit {
     };
 }
 
-const _: () = assert!(size_of::<Object>() == 64);
+const _: () = assert!(size_of::<Object>() == 112);
+const _: () = assert!(size_of::<VertexAttrs>() == 64);
 const _: () = assert!(size_of::<Material>() == 48);
 const _: () = assert!(size_of::<Camera>() == 96);
 const _: () = assert!(size_of::<Frame>() == 176);

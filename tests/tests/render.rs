@@ -93,6 +93,7 @@ fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<H
         materials: &p.data.materials,
         lights: &p.data.lights,
         frame,
+        attrs: &p.data.attrs,
     };
     rays.iter()
         .map(|r| {
@@ -225,10 +226,7 @@ fn furnace(a: f32, e: f32, depth: u32, extra: &[(&str, bool)]) -> Scene {
                 ..Default::default()
             },
         )],
-        meshes: vec![Mesh {
-            name: "inward cube".into(),
-            tris: Arc::new(tris),
-        }],
+        meshes: vec![Mesh::flat("inward cube", tris)],
         objects: vec![SceneObject {
             name: "box".into(),
             shape: Shape::Mesh(0),

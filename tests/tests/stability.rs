@@ -1280,7 +1280,7 @@ fn albedo(m: &Material, cos_i: f32, ng: Vec3, inside: bool, n: usize, rnd: &mut 
     let d = (t * sin_i - facing * cos_i).normalize();
     let (mut sum, mut sum2, mut reflected) = (0.0f64, 0.0f64, 0usize);
     for _ in 0..n {
-        let s = material::scatter(m, d, ng, FEATURES_ALL, rnd.rng());
+        let s = material::scatter(m, d, ng, ng, FEATURES_ALL, rnd.rng());
         let w = if s.absorbed { 0.0 } else { s.weight.x as f64 };
         assert!(w.is_finite() && w >= 0.0, "{m:?} at cos {cos_i}: weight {:?}", s.weight);
         if !s.absorbed {

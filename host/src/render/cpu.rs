@@ -71,6 +71,7 @@ pub fn render_cpu(
         materials: &scene.materials,
         lights: &scene.lights,
         frame,
+        attrs: &scene.attrs,
     };
     let push = RenderPush {
         sample_base: 0,

@@ -35,6 +35,7 @@ struct SceneBuffers {
     image: Buffer,
     rays: Buffer,
     hits: Buffer,
+    attrs: Buffer,
     /// Set 1 naming the buffers above; made again whenever one of them is replaced.
     set: Option<BindingSets>,
     n_objects: usize,
@@ -55,6 +56,7 @@ impl SceneBuffers {
             &self.image,
             &self.rays,
             &self.hits,
+            &self.attrs,
         ];
         self.set = Some(BindingSets::new(gpu, kernels, 1, &[&buffers])?);
         Ok(())
@@ -183,11 +185,13 @@ impl GpuRenderer {
         let image = dev("display image", pixels * 4)?;
         let rays = dev("rays", size_of::<Ray>())?;
         let hits = dev("hits", size_of::<Hit>())?;
+        let attrs = dev("vertex attributes", size_of_val(scene.attrs.as_slice()))?;
         self.upload(&model_tris, &scene.model_tris)?;
         self.upload(&model_spheres, &scene.model_spheres)?;
         self.upload(&prim_object, &scene.prim_object)?;
         self.upload(&materials, &scene.materials)?;
         self.upload(&lights, &scene.lights)?;
+        self.upload(&attrs, &scene.attrs)?;
         self.bufs = Some(SceneBuffers {
             objects,
             model_tris,
@@ -200,6 +204,7 @@ impl GpuRenderer {
             image,
             rays,
             hits,
+            attrs,
             set: None,
             n_objects: scene.objects.len(),
         });

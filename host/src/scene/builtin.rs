@@ -11,7 +11,6 @@ use glam::{Quat, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use shared::types::{Material, Triangle};
-use std::sync::Arc;
 
 /// The built-in scene `name`, checked like a scene file.
 pub(super) fn build(name: &str) -> Result<Scene, SceneError> {
@@ -54,10 +53,7 @@ impl Builder {
     }
 
     fn mesh(&mut self, name: &str, tris: Vec<Triangle>) -> usize {
-        self.scene.meshes.push(Mesh {
-            name: name.to_string(),
-            tris: Arc::new(tris),
-        });
+        self.scene.meshes.push(Mesh::flat(name, tris));
         self.scene.meshes.len() - 1
     }
 

@@ -1,6 +1,7 @@
 //! The TOML scene format (docs/scenes.md): the file's tables as serde structs (unknown fields
 //! refused), then turned into a [`Scene`] with materials resolved by name and meshes loaded once
 //! per path.
+use super::attrs::{self, Normals};
 use super::error::object_label;
 use super::{
     material, model, shapes, validate, Animation, Bob, CameraSpec, Mesh, Orbit, Scene, SceneError, SceneObject,
@@ -92,6 +93,10 @@ struct ObjectFile {
     name: Option<String>,
     mesh: Option<String>,
     sphere: Option<f32>,
+    /// "auto" (default), "flat" or "smooth": a mesh's shading normals.
+    normals: Option<String>,
+    /// Degrees between faces up to which "smooth" joins them (default 60).
+    crease_angle: Option<f32>,
     material: String,
     #[serde(default)]
     translate: [f32; 3],
@@ -240,12 +245,12 @@ struct MeshLoader<'a> {
 impl MeshLoader<'_> {
     /// Index of mesh `spec` (a path relative to the scene's folder, or `builtin:NAME`), loaded on
     /// first use; errors name `object`, the object that wants it.
-    fn get(&mut self, object: &str, spec: &str) -> Result<usize, SceneError> {
+    fn get(&mut self, object: &str, spec: &str, normals: Normals) -> Result<usize, SceneError> {
         let builtin = spec.strip_prefix("builtin:");
         let path = self.base_dir.join(spec);
         let key = match builtin {
             Some(_) => spec.to_string(),
-            None => path.display().to_string(),
+            None => format!("{} {normals:?}", path.display()),
         };
         if let Some(&i) = self.by_key.get(&key) {
             return Ok(i);
@@ -256,22 +261,26 @@ impl MeshLoader<'_> {
             mesh: spec.to_string(),
             message,
         };
-        let tris = match builtin {
-            Some(name) => shapes::by_name(name).ok_or_else(|| {
-                error(format!(
-                    "no such built-in mesh (built-in meshes: builtin:{})",
-                    shapes::NAMES.join(", builtin:")
-                ))
-            })?,
+        let (tris, attrs) = match builtin {
+            Some(name) => {
+                let tris = shapes::by_name(name).ok_or_else(|| {
+                    error(format!(
+                        "no such built-in mesh (built-in meshes: builtin:{})",
+                        shapes::NAMES.join(", builtin:")
+                    ))
+                })?;
+                (tris, Vec::new())
+            }
             None => {
-                let loaded = model::load(&path).map_err(|e| error(e.to_string()))?;
+                let loaded = model::load_with(&path, normals).map_err(|e| error(e.to_string()))?;
                 self.warnings.extend(loaded.warnings.iter().cloned());
-                loaded.world_triangles()
+                (loaded.world_triangles(), loaded.world_attrs())
             }
         };
         self.meshes.push(Mesh {
             name: spec.to_string(),
             tris: Arc::new(tris),
+            attrs: Arc::new(attrs),
         });
         self.by_key.insert(key, self.meshes.len() - 1);
         Ok(self.meshes.len() - 1)
@@ -299,7 +308,26 @@ fn to_object(
         problem: problem.to_string(),
     };
     let shape = match (&o.mesh, o.sphere) {
-        (Some(path), None) => Shape::Mesh(meshes.get(&label, path)?),
+        (Some(path), None) => {
+            let normals = match (o.normals.as_deref(), o.crease_angle) {
+                (None | Some("auto"), None) => Normals::Auto,
+                (Some("flat"), None) => Normals::Flat,
+                (Some("smooth"), crease) => {
+                    let crease_deg = crease.unwrap_or(attrs::DEFAULT_CREASE_DEG);
+                    if !(0.0..=180.0).contains(&crease_deg) {
+                        return Err(invalid("crease_angle must be between 0 and 180 degrees"));
+                    }
+                    Normals::Smooth { crease_deg }
+                }
+                (Some(other), None) if other != "auto" && other != "flat" => {
+                    return Err(invalid(&format!(
+                        "normals = {other:?}: write \"auto\", \"flat\" or \"smooth\""
+                    )))
+                }
+                _ => return Err(invalid("crease_angle goes with normals = \"smooth\"")),
+            };
+            Shape::Mesh(meshes.get(&label, path, normals)?)
+        }
         (None, Some(radius)) => Shape::Sphere { radius },
         (Some(_), Some(_)) => return Err(invalid("give either `mesh` or `sphere`, not both")),
         (None, None) => return Err(invalid("needs a `mesh` or a `sphere`")),

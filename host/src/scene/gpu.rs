@@ -6,7 +6,7 @@
 use super::{material, Scene, Shape};
 use glam::Vec3;
 use shared::types::{
-    Camera, Frame, Material, Object, Sphere, Triangle, FEATURES_ALL, FLAG_BVH, FLAG_GAMMA2, FLAG_MIS, FLAG_NEE,
+    Camera, Frame, Material, Object, Sphere, Triangle, VertexAttrs, FEATURES_ALL, INVALID, FLAG_BVH, FLAG_GAMMA2, FLAG_MIS, FLAG_NEE,
     FLAG_RUSSIAN_ROULETTE,
 };
 
@@ -23,6 +23,8 @@ pub struct SceneGpu {
     pub materials: Vec<Material>,
     /// The primitives whose material emits light, in primitive order.
     pub lights: Vec<u32>,
+    /// The vertex attributes of every mesh that has them, each mesh once (`Object::attrs`).
+    pub attrs: Vec<VertexAttrs>,
 }
 
 fn v4(v: Vec3) -> [f32; 4] {
@@ -30,8 +32,12 @@ fn v4(v: Vec3) -> [f32; 4] {
 }
 
 impl Scene {
-    /// Every object's transform and material at `time_s` seconds.
+    /// Every object's transform and material at `time_s` seconds, with where its primitives
+    /// and vertex attributes lie in [`Scene::gpu_data`]'s buffers.
     pub fn objects_at(&self, time_s: f32) -> Vec<Object> {
+        let attr_base = self.attr_bases();
+        let (n_tris, _) = self.counts();
+        let (mut next_tri, mut next_sphere) = (0, n_tris as u32);
         self.objects
             .iter()
             .map(|o| {
@@ -39,12 +45,52 @@ impl Scene {
                 let m = t.matrix();
                 let c = m.matrix3;
                 let row = |r: usize| [c.x_axis[r], c.y_axis[r], c.z_axis[r], m.translation[r]];
+                let n = super::attrs::cofactor(c.into());
+                let normal_row = |r: usize| [n.x_axis[r], n.y_axis[r], n.z_axis[r], 0.0];
+                let (first_prim, attrs) = match o.shape {
+                    Shape::Mesh(k) => {
+                        let first = next_tri;
+                        next_tri += self.meshes.get(k).map_or(0, |m| m.tris.len() as u32);
+                        (first, attr_base.get(k).copied().unwrap_or(INVALID))
+                    }
+                    Shape::Sphere { .. } => {
+                        next_sphere += 1;
+                        (next_sphere - 1, INVALID)
+                    }
+                };
                 Object {
                     rows: [row(0), row(1), row(2)],
+                    normal_rows: [normal_row(0), normal_row(1), normal_row(2)],
                     radius_scale: t.scale.abs().max_element(),
                     material: o.material,
-                    _pad: [0; 2],
+                    first_prim,
+                    attrs,
                 }
+            })
+            .collect()
+    }
+
+    /// For every mesh, the index of its first triangle's attributes in [`SceneGpu::attrs`]
+    /// ([`INVALID`] for a mesh without attributes or one no object shows).
+    fn attr_bases(&self) -> Vec<u32> {
+        let mut used = vec![false; self.meshes.len()];
+        for o in &self.objects {
+            if let Shape::Mesh(k) = o.shape {
+                if let Some(u) = used.get_mut(k) {
+                    *u = true;
+                }
+            }
+        }
+        let mut next = 0;
+        self.meshes
+            .iter()
+            .zip(used)
+            .map(|(m, used)| {
+                if !used || m.attrs.is_empty() || m.attrs.len() != m.tris.len() {
+                    return INVALID;
+                }
+                next += m.attrs.len() as u32;
+                next - m.attrs.len() as u32
             })
             .collect()
     }
@@ -82,6 +128,13 @@ impl Scene {
         let lights = (0..prim_object.len() as u32)
             .filter(|&i| emissive[prim_object[i as usize] as usize])
             .collect();
+        let bases = self.attr_bases();
+        let mut attrs = Vec::new();
+        for (m, base) in self.meshes.iter().zip(bases) {
+            if base != INVALID {
+                attrs.extend_from_slice(&m.attrs);
+            }
+        }
         SceneGpu {
             model_tris,
             model_spheres,
@@ -89,6 +142,7 @@ impl Scene {
             objects: self.objects_at(time_s),
             materials: self.materials.iter().map(|(_, m)| *m).collect(),
             lights,
+            attrs,
         }
     }
 
@@ -143,7 +197,6 @@ impl Scene {
 mod tests {
     use super::super::{material, Animation, CameraSpec, Mesh, SceneObject, Settings, Shape, Transform};
     use super::*;
-    use std::sync::Arc;
 
     fn small_scene() -> Scene {
         let object = |name: &str, shape, translation, material| SceneObject {
@@ -177,10 +230,7 @@ mod tests {
                 ("white".into(), material::diffuse([0.5; 3])),
                 ("lamp".into(), material::emissive([4.0; 3])),
             ],
-            meshes: vec![Mesh {
-                name: "builtin:cube".into(),
-                tris: Arc::new(super::super::shapes::cube()),
-            }],
+            meshes: vec![Mesh::flat("builtin:cube", super::super::shapes::cube())],
             objects: vec![
                 object("ball", Shape::Sphere { radius: 0.5 }, Vec3::X, 1),
                 object("box", Shape::Mesh(0), Vec3::Y, 0),

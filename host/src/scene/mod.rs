@@ -5,6 +5,7 @@
 //!
 //! Meshes are stored once in model space and shared by the objects that use them; the GPU data
 //! copies them per object (instances duplicate triangles) and gives every object its matrix.
+pub mod attrs;
 mod builtin;
 mod error;
 mod format;
@@ -20,7 +21,7 @@ pub use gpu::SceneGpu;
 pub use transform::{Animation, Bob, Orbit, Transform};
 
 use glam::Vec3;
-use shared::types::{Material, Triangle};
+use shared::types::{Material, Triangle, VertexAttrs};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -42,6 +43,19 @@ pub struct Mesh {
     /// The path or `builtin:` name it was loaded from.
     pub name: String,
     pub tris: Arc<Vec<Triangle>>,
+    /// Shading normals and texture coordinates, one per triangle, or empty: flat, untextured.
+    pub attrs: Arc<Vec<VertexAttrs>>,
+}
+
+impl Mesh {
+    /// A mesh without vertex attributes.
+    pub fn flat(name: impl Into<String>, tris: Vec<Triangle>) -> Mesh {
+        Mesh {
+            name: name.into(),
+            tris: Arc::new(tris),
+            attrs: Arc::default(),
+        }
+    }
 }
 
 impl std::fmt::Debug for Mesh {

@@ -15,18 +15,21 @@
 //! `roughnessFactor`, anything else is diffuse; a primitive without a material is grey diffuse.
 //! The first perspective camera met in the walk is the scene's camera.
 //!
-//! Warnings, each once a file: textures (and missing texture images), vertex normals, other
+//! Vertex normals (NORMAL) and texture coordinates (TEXCOORD_0) are read; a primitive
+//! without normals is shaded flat, as the specification asks.
+//!
+//! Warnings, each once a file: textures (and missing texture images), other
 //! primitive modes, punctual lights, skins, animations, morph targets, alpha modes and
 //! extensions that are ignored. Required extensions the renderer does not understand, unreadable
 //! buffers, accessors that point outside their data and out-of-range indices are errors.
 use super::{default_material, to_material, unique_name, Model};
-use crate::scene::{Animation, CameraSpec, Mesh, SceneError, SceneObject, Shape, Transform};
+use crate::scene::{attrs, Animation, CameraSpec, Mesh, SceneError, SceneObject, Shape, Transform};
 use base64::Engine;
-use glam::{EulerRot, Mat4, Vec3};
+use glam::{EulerRot, Mat3, Mat4, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::{Mode, Semantic};
 use gltf::{Accessor, Document, Gltf};
-use shared::types::{Material, Triangle};
+use shared::types::{Material, Triangle, VertexAttrs};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 use std::sync::Arc;
@@ -78,7 +81,6 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         parsed: HashMap::new(),
         materials: HashMap::new(),
         skipped_modes: BTreeSet::new(),
-        normals: false,
         morph_targets: false,
         lights: 0,
     };
@@ -273,7 +275,9 @@ fn check_accessor(
 }
 
 /// The triangles of a TRIANGLES-mode primitive in model space.
-fn triangles(primitive: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<Vec<Triangle>, String> {
+/// The triangles of `primitive` and their vertex attributes (NORMAL, TEXCOORD_0; empty where
+/// it has neither).
+fn triangles(primitive: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<(Vec<Triangle>, Vec<VertexAttrs>), String> {
     let positions = primitive
         .get(&Semantic::Positions)
         .ok_or_else(|| "has no POSITION attribute".to_string())?;
@@ -287,6 +291,13 @@ fn triangles(primitive: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<Vec<Tri
             buffers,
         )
         .map_err(|e| format!("indices: {e}"))?;
+    }
+    if let Some(normals) = primitive.get(&Semantic::Normals) {
+        check_accessor(&normals, &[DataType::F32], Dimensions::Vec3, buffers).map_err(|e| format!("NORMAL: {e}"))?;
+    }
+    if let Some(uvs) = primitive.get(&Semantic::TexCoords(0)) {
+        check_accessor(&uvs, &[DataType::F32, DataType::U8, DataType::U16], Dimensions::Vec2, buffers)
+            .map_err(|e| format!("TEXCOORD_0: {e}"))?;
     }
     let reader = primitive.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
     let points: Vec<[f32; 3]> = reader
@@ -308,16 +319,30 @@ fn triangles(primitive: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<Vec<Tri
         let p = points[i as usize];
         [p[0], p[1], p[2], 0.0]
     };
-    Ok(indices
-        .as_chunks::<3>()
-        .0
+    let faces = indices.as_chunks::<3>().0;
+    let tris = faces
         .iter()
         .map(|f| Triangle {
             v0: corner(f[0]),
             v1: corner(f[1]),
             v2: corner(f[2]),
         })
-        .collect())
+        .collect();
+    // Attributes of another length than POSITION's are unusable: the triangles shade flat.
+    let n = points.len();
+    let normals: Option<Vec<[f32; 3]>> = reader
+        .read_normals()
+        .map(|v| v.collect::<Vec<_>>())
+        .filter(|v| v.len() == n);
+    let uvs: Option<Vec<[f32; 2]>> = reader
+        .read_tex_coords(0)
+        .map(|t| t.into_f32().collect::<Vec<_>>())
+        .filter(|v| v.len() == n);
+    let attrs = match (&normals, &uvs) {
+        (None, None) => Vec::new(),
+        _ => attrs::from_vertices(faces, normals.as_deref(), uvs.as_deref()),
+    };
+    Ok((tris, attrs))
 }
 
 /// The transform equal to `world` (translation, rotation, positive scale), if there is one.
@@ -338,6 +363,7 @@ pub(super) fn as_transform(world: Mat4) -> Option<Transform> {
 struct Parsed {
     name: String,
     tris: Arc<Vec<Triangle>>,
+    attrs: Arc<Vec<VertexAttrs>>,
     material: u32,
     /// Its index in the model's meshes, once an object shares it.
     mesh: Option<usize>,
@@ -353,7 +379,6 @@ struct Walk<'a> {
     /// The model's material index by glTF material index (`None`: the default material).
     materials: HashMap<Option<usize>, u32>,
     skipped_modes: BTreeSet<String>,
-    normals: bool,
     morph_targets: bool,
     lights: usize,
 }
@@ -434,10 +459,9 @@ impl Walk<'_> {
                 self.skipped_modes.insert(format!("{:?}", primitive.mode()));
                 continue;
             }
-            self.normals |= primitive.get(&Semantic::Normals).is_some();
             self.morph_targets |= primitive.morph_targets().len() > 0;
             let label = format!("{mesh_name}, primitive {}", primitive.index());
-            let tris = triangles(&primitive, self.buffers).map_err(|e| format!("{label}: {e}"))?;
+            let (tris, attrs) = triangles(&primitive, self.buffers).map_err(|e| format!("{label}: {e}"))?;
             if tris.is_empty() {
                 continue;
             }
@@ -450,6 +474,7 @@ impl Walk<'_> {
             out.push(Parsed {
                 name,
                 tris: Arc::new(tris),
+                attrs: Arc::new(attrs),
                 material,
                 mesh: None,
             });
@@ -474,6 +499,7 @@ impl Walk<'_> {
                         self.model.meshes.push(Mesh {
                             name: format!("{}#{}", self.file, p.name),
                             tris: p.tris.clone(),
+                            attrs: p.attrs.clone(),
                         });
                         self.model.meshes.len() - 1
                     });
@@ -500,9 +526,11 @@ impl Walk<'_> {
                             },
                         })
                         .collect();
+                    let linear = Mat3::from_mat4(world);
                     self.model.meshes.push(Mesh {
                         name: format!("{}#{} at {node_name}", self.file, p.name),
                         tris: Arc::new(baked),
+                        attrs: Arc::new(attrs::transformed(&p.attrs, linear, mirrored)),
                     });
                     (Shape::Mesh(self.model.meshes.len() - 1), Transform::IDENTITY)
                 }
@@ -563,11 +591,6 @@ impl Walk<'_> {
             w.push(format!(
                 "{file}: only TRIANGLES primitives are rendered: skipped primitives in mode {}",
                 modes.join(", ")
-            ));
-        }
-        if self.normals {
-            w.push(format!(
-                "{file}: vertex normals are not supported yet: triangles are shaded flat"
             ));
         }
         if self.morph_targets {

@@ -4,7 +4,11 @@
 //! a camera framing it, the default sky and a key light (`framing`); as a `mesh = "..."` of
 //! a TOML scene its triangles are merged in the file's coordinates ([`Model::world_triangles`]).
 //!
-//! What a file holds that the renderer cannot show (textures, smooth normals, punctual lights,
+//! Vertex normals and texture coordinates come along as each mesh's `attrs`; an OBJ or PLY mesh
+//! without normals gets smooth ones (`attrs::smooth` at `attrs::DEFAULT_CREASE_DEG`), a glTF
+//! one stays flat as its specification asks.
+//!
+//! What a file holds that the renderer cannot show (textures, punctual lights,
 //! primitives other than triangles, ...) is named in [`Model::warnings`], never silently dropped;
 //! what makes a file unusable is a [`SceneError::Model`] naming the file and the problem.
 mod framing;
@@ -12,10 +16,12 @@ mod gltf;
 mod obj;
 mod ply;
 
+use super::attrs::{self, Normals};
 use super::{CameraSpec, Mesh, Scene, SceneError, SceneObject, Settings, Shape};
-use glam::Vec3;
-use shared::types::{Material, MaterialKind, Triangle};
+use glam::{Mat3, Vec3};
+use shared::types::{Material, MaterialKind, Triangle, VertexAttrs};
 use std::path::Path;
+use std::sync::Arc;
 
 /// Extensions (lower case, without the dot) of the model files [`load`] reads.
 pub const EXTENSIONS: [&str; 4] = ["obj", "gltf", "glb", "ply"];
@@ -45,15 +51,21 @@ pub struct Model {
     pub material_warnings: Vec<String>,
 }
 
-/// Reads the model file at `path`, chosen by its extension (see [`EXTENSIONS`]).
+/// Reads the model file at `path`, chosen by its extension (see [`EXTENSIONS`]), with the
+/// shading normals [`Normals::Auto`] gives.
 pub fn load(path: &Path) -> Result<Model, SceneError> {
+    load_with(path, Normals::Auto)
+}
+
+/// Reads the model file at `path` with the shading normals `normals` asks for.
+pub fn load_with(path: &Path, normals: Normals) -> Result<Model, SceneError> {
     let file = path.display().to_string();
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .unwrap_or("")
         .to_ascii_lowercase();
-    let model = match ext.as_str() {
+    let mut model = match ext.as_str() {
         "obj" => obj::load(path, &file)?,
         "gltf" | "glb" => gltf::load(path, &file)?,
         "ply" => ply::load(path, &file)?,
@@ -69,6 +81,21 @@ pub fn load(path: &Path) -> Result<Model, SceneError> {
             file,
             message: "the file has no triangles".to_string(),
         });
+    }
+    let crease = match normals {
+        Normals::Auto if ext != "obj" && ext != "ply" => None,
+        Normals::Auto => Some(attrs::DEFAULT_CREASE_DEG),
+        Normals::Smooth { crease_deg } => Some(crease_deg),
+        Normals::Flat => None,
+    };
+    for mesh in &mut model.meshes {
+        let own = attrs::has_normals(&mesh.attrs);
+        let computed = match crease {
+            Some(c) if !own || normals != Normals::Auto => attrs::smooth(&mesh.tris, &mesh.attrs, c),
+            _ if normals == Normals::Flat => mesh.attrs.iter().map(attrs::without_normals).collect(),
+            _ => continue,
+        };
+        mesh.attrs = Arc::new(computed);
     }
     Ok(model)
 }
@@ -89,6 +116,28 @@ impl Model {
                     v1: p(t.v1),
                     v2: p(t.v2),
                 }));
+            }
+        }
+        out
+    }
+
+    /// The vertex attributes of [`Model::world_triangles`], in the same order (empty where
+    /// no mesh has any).
+    pub fn world_attrs(&self) -> Vec<VertexAttrs> {
+        let shown = |o: &&SceneObject| matches!(o.shape, Shape::Mesh(m) if !self.meshes[m].attrs.is_empty());
+        if !self.objects.iter().any(|o| shown(&o)) {
+            return Vec::new();
+        }
+        let mut out = Vec::new();
+        for o in &self.objects {
+            if let Shape::Mesh(m) = o.shape {
+                let mesh = &self.meshes[m];
+                if mesh.attrs.len() == mesh.tris.len() {
+                    let linear = Mat3::from(o.transform.matrix().matrix3);
+                    out.extend(attrs::transformed(&mesh.attrs, linear, false));
+                } else {
+                    out.extend(std::iter::repeat_n(VertexAttrs::default(), mesh.tris.len()));
+                }
             }
         }
         out

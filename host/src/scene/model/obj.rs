@@ -13,9 +13,9 @@
 //! A material library that is missing or malformed, and a `usemtl` of an undefined material,
 //! is a warning: those faces get a grey diffuse. OBJ syntax errors name the line.
 use super::{default_material, to_material, unique_name, Model};
-use crate::scene::{Animation, Mesh, SceneError, SceneObject, Shape, Transform};
+use crate::scene::{attrs, Animation, Mesh, SceneError, SceneObject, Shape, Transform};
 use indexmap::IndexMap;
-use shared::types::{Material, Triangle};
+use shared::types::{Material, Triangle, VertexAttrs};
 use std::cell::RefCell;
 use std::collections::HashSet;
 use std::io::{BufRead, Read};
@@ -260,7 +260,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
     }
 
     // Triangles grouped by material, in order of first use.
-    let mut groups: IndexMap<Option<usize>, Vec<Triangle>> = IndexMap::new();
+    let mut groups: IndexMap<Option<usize>, (Vec<Triangle>, Vec<VertexAttrs>)> = IndexMap::new();
     for m in &models {
         let pos = &m.mesh.positions;
         if pos.iter().any(|x| !x.is_finite()) {
@@ -276,13 +276,21 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
             pos.get(i..i + 3).map(|p| [p[0], p[1], p[2], 0.0])
         };
         let material = m.mesh.material_id.filter(|&i| i < libraries.len());
-        let tris = groups.entry(material).or_default();
-        for f in m.mesh.indices.as_chunks::<3>().0 {
+        let (tris, attrs) = groups.entry(material).or_default();
+        let faces = m.mesh.indices.as_chunks::<3>().0;
+        for f in faces {
             match (vertex(f[0]), vertex(f[1]), vertex(f[2])) {
                 (Some(v0), Some(v1), Some(v2)) => tris.push(Triangle { v0, v1, v2 }),
                 _ => return Err(error("a face refers to a vertex that does not exist".to_string())),
             }
         }
+        // With one index per vertex, normals and texture coordinates follow the positions'.
+        let normals = m.mesh.normals.as_chunks::<3>().0;
+        let uvs = m.mesh.texcoords.as_chunks::<2>().0;
+        let per_vertex = |n: usize| n * 3 == pos.len();
+        let normals = per_vertex(normals.len()).then_some(normals);
+        let uvs = per_vertex(uvs.len()).then_some(uvs);
+        attrs.extend(attrs::from_vertices(faces, normals, uvs));
     }
 
     let mut model = Model {
@@ -292,7 +300,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
     let stem = path
         .file_stem()
         .map_or(file.to_string(), |s| s.to_string_lossy().into_owned());
-    for (material, tris) in groups {
+    for (material, (tris, attrs)) in groups {
         if tris.is_empty() {
             continue;
         }
@@ -302,9 +310,15 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         };
         let name = unique_name(&model.materials, &name);
         model.materials.push((name.clone(), m));
+        let attrs = if attrs::has_normals(&attrs) || attrs::has_uvs(&attrs) {
+            attrs
+        } else {
+            Vec::new()
+        };
         model.meshes.push(Mesh {
             name: format!("{file}#{name}"),
             tris: Arc::new(tris),
+            attrs: Arc::new(attrs),
         });
         model.objects.push(SceneObject {
             name: format!("{stem}: {name}"),

@@ -1,7 +1,8 @@
 //! PLY (Stanford polygon files, ASCII or binary) read with the `ply-rs-bw` crate: the `vertex`
 //! element's `x`, `y`, `z` and the `face` element's `vertex_indices` (or `vertex_index`)
-//! lists, polygons split into triangle fans. PLY has no materials: the mesh is grey diffuse.
-//! Vertex normals and colours are ignored with a warning.
+//! lists, polygons split into triangle fans; vertex normals (`nx`, `ny`, `nz`) and texture
+//! coordinates (`u`, `v` or `s`, `t`) where present. PLY has no materials: the mesh is grey
+//! diffuse. Vertex colours are ignored with a warning.
 use super::{default_material, Model};
 use crate::scene::{Animation, Mesh, SceneError, SceneObject, Shape, Transform};
 use ply_rs_bw::parser::Parser;
@@ -9,6 +10,11 @@ use ply_rs_bw::ply::{DefaultElement, Property};
 use shared::types::Triangle;
 use std::path::Path;
 use std::sync::Arc;
+
+/// The first of `keys` that vertex `v` has as a number.
+fn first_number(v: &DefaultElement, keys: &[&str]) -> Option<f32> {
+    keys.iter().find_map(|k| v.get(*k).and_then(number)).map(|x| x as f32)
+}
 
 /// A scalar property as a number.
 fn number(p: &Property) -> Option<f64> {
@@ -68,33 +74,49 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         .get("face")
         .ok_or_else(|| error("no \"face\" element: point clouds cannot be rendered".to_string()))?;
     let mut tris = Vec::new();
+    let mut corners = Vec::new();
     for (i, f) in faces.iter().enumerate() {
         let list = f
             .get("vertex_indices")
             .or_else(|| f.get("vertex_index"))
             .and_then(indices)
             .ok_or_else(|| error(format!("face {i} has no vertex_indices list")))?;
-        let corner = |k: i64| {
-            usize::try_from(k)
+        let index = |k: i64| {
+            u32::try_from(k)
                 .ok()
-                .and_then(|k| points.get(k).copied())
+                .filter(|&k| (k as usize) < points.len())
                 .ok_or_else(|| error(format!("face {i} refers to vertex {k}, which does not exist")))
         };
         for k in 2..list.len() {
+            let c = [index(list[0])?, index(list[k - 1])?, index(list[k])?];
+            let p = |j: usize| points[c[j] as usize];
             tris.push(Triangle {
-                v0: corner(list[0])?,
-                v1: corner(list[k - 1])?,
-                v2: corner(list[k])?,
+                v0: p(0),
+                v1: p(1),
+                v2: p(2),
             });
+            corners.push(c);
         }
     }
     let mut warnings = Vec::new();
     let has = |k: &str| vertices.first().is_some_and(|v| v.contains_key(k));
-    if has("nx") {
-        warnings.push(format!(
-            "{file}: vertex normals are not supported yet: triangles are shaded flat"
-        ));
-    }
+    let normals: Option<Vec<[f32; 3]>> = has("nx").then(|| {
+        vertices
+            .iter()
+            .map(|v| [["nx"], ["ny"], ["nz"]].map(|k| first_number(v, &k).unwrap_or(f32::NAN)))
+            .collect()
+    });
+    let uvs: Option<Vec<[f32; 2]>> = (has("u") || has("s")).then(|| {
+        vertices
+            .iter()
+            .map(|v| [["u", "s"], ["v", "t"]].map(|k| first_number(v, &k).unwrap_or(0.0)))
+            .collect()
+    });
+    let attrs = if normals.is_some() || uvs.is_some() {
+        crate::scene::attrs::from_vertices(&corners, normals.as_deref(), uvs.as_deref())
+    } else {
+        Vec::new()
+    };
     if has("red") || has("r") {
         warnings.push(format!(
             "{file}: vertex colours are not supported: the mesh is grey diffuse"
@@ -114,6 +136,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         meshes: vec![Mesh {
             name: file.to_string(),
             tris: Arc::new(tris),
+            attrs: Arc::new(attrs),
         }],
         objects: vec![SceneObject {
             name,

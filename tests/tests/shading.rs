@@ -1,0 +1,203 @@
+//! Vertex attributes on both backends: interpolated vertex normals shade a faceted sphere like
+//! the sphere it approximates, the shading normal never lets a path below the geometric
+//! surface, and CPU and GPU agree on a model with smooth normals.
+use glam::Vec3;
+use integration_tests::{assert_no_validation_errors, renderer};
+use raytrace::bvh::{BuildOptions, MortonBits};
+use raytrace::hard_cases::icosphere;
+use raytrace::picture::{diff_stats, Picture};
+use raytrace::render::render_cpu;
+use raytrace::scene::attrs::{self, from_vertices};
+use raytrace::scene::{material, CameraSpec, Mesh, Scene, SceneObject, Settings, Shape, Transform};
+use shared::types::{VertexAttrs, FEATURE_SHADING_NORMALS};
+use std::sync::Arc;
+
+const SIZE: u32 = 48;
+const SPP: u32 = 256;
+
+/// A white diffuse ball under a sky bright above and black below, seen from the front: its
+/// shading follows its normals closely. `shape` is a sphere or an icosphere mesh whose vertex
+/// normals are `normals` (none: flat facets).
+fn ball(shape: Shape, meshes: Vec<Mesh>) -> Scene {
+    Scene {
+        name: "ball".into(),
+        camera: CameraSpec {
+            position: Vec3::new(0.0, 0.0, 3.0),
+            look_at: Vec3::ZERO,
+            up: Vec3::Y,
+            vfov_deg: 45.0,
+            aperture: 0.0,
+            focus_distance: None,
+        },
+        settings: Settings {
+            width: SIZE,
+            height: SIZE,
+            spp: SPP,
+            max_depth: 3,
+            nee: false,
+            sky_top: Vec3::splat(1.0),
+            sky_bottom: Vec3::ZERO,
+            ..Settings::default()
+        },
+        materials: vec![("white".into(), material::diffuse([0.8; 3]))],
+        meshes,
+        objects: vec![SceneObject {
+            name: "ball".into(),
+            shape,
+            transform: Transform::IDENTITY,
+            material: 0,
+            animation: Default::default(),
+        }],
+    }
+}
+
+fn icoball(normals: bool) -> Scene {
+    let m = icosphere(2);
+    let tris = m.triangles(Vec3::ZERO);
+    let attrs = if normals {
+        let n: Vec<[f32; 3]> = m.verts.iter().map(|v| v.normalize().to_array()).collect();
+        from_vertices(&m.faces, Some(&n), None)
+    } else {
+        Vec::new()
+    };
+    let mesh = Mesh {
+        name: "icosphere".into(),
+        tris: Arc::new(tris),
+        attrs: Arc::new(attrs),
+    };
+    ball(Shape::Mesh(0), vec![mesh])
+}
+
+fn render(scene: &Scene) -> Picture {
+    let data = scene.gpu_data(0.0);
+    let frame = scene.frame(&data);
+    render_cpu(&data, &frame, SPP, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture
+}
+
+#[test]
+fn vertex_normals_shade_a_faceted_sphere_like_the_sphere() {
+    let sphere = render(&ball(Shape::Sphere { radius: 1.0 }, Vec::new()));
+    let smooth = render(&icoball(true));
+    let flat = render(&icoball(false));
+    // Inside the silhouette (the icosphere's is a polygon inside the sphere's circle).
+    let (e_smooth, e_flat) = (centre_rmse(&smooth, &sphere), centre_rmse(&flat, &sphere));
+    eprintln!("RMSE against the sphere in the centre: smooth {e_smooth}, flat {e_flat}");
+    assert!(
+        e_smooth < 0.5 * e_flat,
+        "vertex normals did not bring the facets closer to the sphere: {e_smooth} vs flat {e_flat}"
+    );
+}
+
+#[test]
+fn normals_computed_for_a_mesh_without_them_are_smooth() {
+    // The icosphere's faces meet at about 12 degrees: within the default crease angle.
+    let m = icosphere(2);
+    let tris = m.triangles(Vec3::ZERO);
+    let computed = attrs::smooth(&tris, &[], attrs::DEFAULT_CREASE_DEG);
+    for (t, a) in tris.iter().zip(&computed) {
+        for (k, v) in [t.v0, t.v1, t.v2].iter().enumerate() {
+            let want = Vec3::new(v[0], v[1], v[2]).normalize();
+            let got = Vec3::from_slice(&a.normal_u[k][..3]);
+            assert!(got.angle_between(want).to_degrees() < 2.0, "{got} vs {want}");
+        }
+    }
+}
+
+#[test]
+fn bent_normals_never_send_a_path_below_the_surface() {
+    // A floor (4 x 4 at y = 0, facing up) whose vertex normals lean 80 degrees, and under it a
+    // lamp facing up at the floor's underside; the sky is black. No light can reach the top
+    // of the floor, but a direction sampled about the leaning normal, or a light sample
+    // above it, goes below the floor half the time: the geometric checks must stop both.
+    let quad = raytrace::scene::shapes::by_name("quad").unwrap();
+    let lean = Vec3::new(80f32.to_radians().sin(), 80f32.to_radians().cos(), 0.0);
+    let mut a = VertexAttrs::default();
+    for n in &mut a.normal_u {
+        n[..3].copy_from_slice(&lean.to_array());
+    }
+    let floor = Mesh {
+        name: "floor".into(),
+        tris: Arc::new(quad.clone()),
+        attrs: Arc::new(vec![a; quad.len()]),
+    };
+    let mut s = ball(Shape::Mesh(0), vec![floor, Mesh::flat("lamp", quad)]);
+    s.objects[0].transform = Transform::new(Vec3::ZERO, Vec3::ZERO, Vec3::splat(4.0));
+    s.materials.push(("lamp".into(), material::emissive([10.0; 3])));
+    s.objects.push(SceneObject {
+        name: "lamp".into(),
+        shape: Shape::Mesh(1),
+        transform: Transform::new(Vec3::new(0.0, -0.5, 0.0), Vec3::ZERO, Vec3::ONE),
+        material: 1,
+        animation: Default::default(),
+    });
+    s.camera.position = Vec3::new(0.0, 3.0, 0.0);
+    s.camera.up = Vec3::Z;
+    s.settings.sky_top = Vec3::ZERO;
+    s.settings.sky_bottom = Vec3::ZERO;
+    s.settings.nee = true;
+    let data = s.gpu_data(0.0);
+    let frame = s.frame(&data);
+    assert_ne!(frame.features & FEATURE_SHADING_NORMALS, 0);
+    let p = render_cpu(&data, &frame, 16, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture;
+    let lit = centre_luminance(&p);
+    assert!(lit == 0.0, "light leaked through the floor: mean {lit}");
+    // The same floor with the lamp above it, to the side, facing down, is lit: the checks
+    // do not simply absorb everything.
+    s.objects[1].transform = Transform::new(Vec3::new(1.6, 0.5, 0.0), Vec3::new(180.0, 0.0, 0.0), Vec3::ONE);
+    let data = s.gpu_data(0.0);
+    let frame = s.frame(&data);
+    let p = render_cpu(&data, &frame, 16, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture;
+    assert!(centre_luminance(&p) > 0.0);
+}
+
+/// Root mean square difference of the centre quarters of two pictures.
+fn centre_rmse(a: &Picture, b: &Picture) -> f64 {
+    let (la, lb) = (a.linear(), b.linear());
+    let (w, h) = (a.width as usize, a.height as usize);
+    let mut sq = 0.0;
+    let mut n = 0;
+    for y in h / 4..3 * h / 4 {
+        for x in w / 4..3 * w / 4 {
+            for k in 0..3 {
+                let d = (la[y * w + x][k] - lb[y * w + x][k]) as f64;
+                sq += d * d;
+                n += 1;
+            }
+        }
+    }
+    (sq / n as f64).sqrt()
+}
+
+/// Mean luminance of the centre quarter of the picture (where the floor is).
+fn centre_luminance(p: &Picture) -> f64 {
+    let lin = p.linear();
+    let (w, h) = (p.width as usize, p.height as usize);
+    let mut sum = 0.0;
+    let mut n = 0;
+    for y in h / 4..3 * h / 4 {
+        for x in w / 4..3 * w / 4 {
+            let c = lin[y * w + x];
+            sum += (c[0] + c[1] + c[2]) as f64 / 3.0;
+            n += 1;
+        }
+    }
+    sum / n as f64
+}
+
+#[test]
+fn cpu_and_gpu_agree_with_vertex_normals() {
+    let Some((gpu, mut r)) = renderer("cpu_and_gpu_agree_with_vertex_normals") else {
+        return;
+    };
+    let scene = icoball(true);
+    let data = scene.gpu_data(0.0);
+    let frame = scene.frame(&data);
+    let cpu = render_cpu(&data, &frame, 16, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture;
+    r.set_build(BuildOptions::lbvh(MortonBits::B30));
+    r.load(&data, &frame).expect("load");
+    r.render(16, true).expect("render");
+    let g = r.picture().expect("picture");
+    let d = diff_stats(&cpu, &g).unwrap();
+    assert!(d.relative_rmse < 0.02, "relative RMSE {}", d.relative_rmse);
+    assert_no_validation_errors(&gpu);
+}
