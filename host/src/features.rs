@@ -7,13 +7,13 @@
 use crate::scene::SceneGpu;
 use anyhow::{bail, Result};
 use shared::types::{
-    Frame, MaterialKind, FEATURES_ALL, FEATURE_DIELECTRIC, FEATURE_METAL, FEATURE_NEE, FEATURE_SHADING_NORMALS,
+    Frame, MaterialKind, FEATURES_ALL, FEATURE_DIELECTRIC, FEATURE_METAL, FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_SHADING_NORMALS,
     FEATURE_SPHERES, FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_NEE, INVALID,
 };
 use std::fmt::Write;
 
 /// Feature names as `--features` takes them, with their bits.
-pub const NAMES: [(&str, u32); 7] = [
+pub const NAMES: [(&str, u32); 8] = [
     ("triangles", FEATURE_TRIANGLES),
     ("spheres", FEATURE_SPHERES),
     ("nee", FEATURE_NEE),
@@ -21,6 +21,7 @@ pub const NAMES: [(&str, u32); 7] = [
     ("dielectric", FEATURE_DIELECTRIC),
     ("thin-lens", FEATURE_THIN_LENS),
     ("shading-normals", FEATURE_SHADING_NORMALS),
+    ("punctual", FEATURE_PUNCTUAL),
 ];
 
 /// What the user asked for beyond the scene's own needs.
@@ -134,7 +135,8 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
     let metal = count_kind(MaterialKind::Metal);
     let glass = count_kind(MaterialKind::Dielectric);
     let diffuse = count_kind(MaterialKind::Diffuse);
-    let lights = data.lights.len();
+    let punctual = data.punctual.len();
+    let lights = data.lights.len() + punctual;
     let lens = frame.camera.u[3];
     let nee_asked = frame.flags & FLAG_NEE != 0;
 
@@ -175,18 +177,27 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
     }
     let nee_why = match (lights, nee_asked) {
         (0, _) => "no emissive surfaces to sample".to_string(),
-        (n, false) => format!("switched off ({} present)", plural(n, "emissive primitive")),
-        (n, true) if diffuse == 0 => format!(
-            "no diffuse surfaces to light ({} present)",
-            plural(n, "emissive primitive")
-        ),
-        (n, true) => format!(
-            "{} toward {}",
+        (n, false) => format!("switched off ({} present)", plural(n, "light")),
+        (n, true) if diffuse == 0 => format!("no diffuse surfaces to light ({} present)", plural(n, "light")),
+        (_, true) => format!(
+            "{} toward {} and {}",
             plural(diffuse, "diffuse object"),
-            plural(n, "emissive primitive")
+            plural(data.lights.len(), "emissive primitive"),
+            plural(punctual, "punctual light")
         ),
     };
-    decide("nee", FEATURE_NEE, lights > 0 && nee_asked && diffuse > 0, nee_why);
+    let nee = lights > 0 && nee_asked && diffuse > 0;
+    decide("nee", FEATURE_NEE, nee, nee_why);
+    decide(
+        "punctual",
+        FEATURE_PUNCTUAL,
+        nee && punctual > 0,
+        match (punctual, nee) {
+            (0, _) => "no punctual lights".into(),
+            (n, true) => plural(n, "punctual light"),
+            (n, false) => format!("{} unseen: they are reached by next-event estimation only", plural(n, "punctual light")),
+        },
+    );
     decide(
         "thin-lens",
         FEATURE_THIN_LENS,

@@ -271,6 +271,7 @@ pub fn scene_of(tris: &[Triangle], spheres: &[Sphere]) -> Scene {
     }
     Scene {
         name: "primitives".into(),
+        punctual: Vec::new(),
         camera: CameraSpec {
             position: Vec3::Z,
             look_at: Vec3::ZERO,

@@ -11,12 +11,12 @@ use shared::scan;
 use shared::traverse::Scene;
 use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,
-    Triangle, VertexAttrs, FEATURES_ALL,
+    PunctualLight, Triangle, VertexAttrs, FEATURES_ALL,
 };
 use shared::wide::{self, MarkState, ScanState, WideNode};
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
-const _: () = assert!(FEATURES_ALL == 1087);
+const _: () = assert!(FEATURES_ALL == 33855);
 use shared::{display, karras, morton, refit, transform as xform};
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
 use spirv_std::glam::UVec3;
@@ -334,7 +334,7 @@ pub fn transform(
 
 /// The scene as the render kernels see it (set 0: world primitives and BVH; set 1: the rest).
 macro_rules! world {
-    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $attrs:ident, $features:expr) => {
+    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $attrs:ident, $punctual:ident, $features:expr) => {
         World {
             scene: Scene {
                 tris: $tris,
@@ -352,6 +352,7 @@ macro_rules! world {
             lights: $lights,
             frame: $frame,
             attrs: $attrs,
+            punctual: $punctual,
         }
     };
 }
@@ -373,7 +374,8 @@ pub fn path_trace(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
     #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
-    #[spirv(spec_constant(id = 0, default = 1087))] features: u32,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
+    #[spirv(spec_constant(id = 0, default = 33855))] features: u32,
 ) {
     let w = world!(
         tris,
@@ -387,6 +389,7 @@ pub fn path_trace(
         lights,
         frame,
         attrs,
+        punctual,
         features
     );
     path::render_pixel(id.x, id.y, p, &w, accum);
@@ -422,7 +425,8 @@ pub fn cast_rays(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] rays: &[Ray],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
-    #[spirv(spec_constant(id = 0, default = 1087))] features: u32,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
+    #[spirv(spec_constant(id = 0, default = 33855))] features: u32,
 ) {
     let w = world!(
         tris,
@@ -436,6 +440,7 @@ pub fn cast_rays(
         lights,
         frame,
         attrs,
+        punctual,
         features
     );
     path::cast(flat_index(id.x, id.y), p, &w, rays, hits);

@@ -2,8 +2,8 @@
 //! camera rays jittered per sample through a thin lens, closest hits through the BVH or by
 //! brute force, material scattering, Russian roulette after three bounces, and next-event
 //! estimation toward emissive triangles and spheres weighted against BSDF sampling by
-//! multiple importance sampling (Veach 1997, power heuristic). One invocation per pixel adds
-//! its samples' radiance into the accumulation image.
+//! multiple importance sampling (Veach 1997, power heuristic), and toward punctual lights.
+//! One invocation per pixel adds its samples' radiance into the accumulation image.
 use crate::intersect::{self, offset_origin};
 use crate::material;
 use crate::math::{finite3, max3};
@@ -13,8 +13,9 @@ use crate::shading::{self, facing};
 use crate::sync;
 use crate::traverse::{self, Scene};
 use crate::types::{
-    xyz, Camera, Frame, Hit, Material, Object, Ray, RenderPush, VertexAttrs, CAST_ANY, CAST_SPAWN, FEATURE_NEE, FEATURE_THIN_LENS,
-    FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
+    xyz, Camera, Frame, Hit, Material, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY, CAST_SPAWN,
+    FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
+    LIGHT_DIRECTIONAL, LIGHT_SPOT,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -33,6 +34,8 @@ pub struct World<'a> {
     pub frame: &'a Frame,
     /// Every mesh's vertex attributes (`Object::attrs` indexes them).
     pub attrs: &'a [VertexAttrs],
+    /// Point, spot and directional lights (`frame.n_punctual` of them).
+    pub punctual: &'a [PunctualLight],
 }
 
 impl World<'_> {
@@ -92,10 +95,21 @@ impl World<'_> {
         }
     }
 
+    /// The lights next-event estimation picks from, uniformly: the emissive primitives, then
+    /// the punctual lights.
+    fn light_count(&self) -> u32 {
+        let punctual = if self.scene.features & FEATURE_PUNCTUAL != 0 {
+            self.frame.n_punctual
+        } else {
+            0
+        };
+        self.frame.n_lights + punctual
+    }
+
     /// Solid-angle density with which next-event estimation picks the direction to a point
     /// at distance `dist` on light `prim`, seen at `cos_light` from its normal.
     fn light_pdf(&self, prim: u32, dist: f32, cos_light: f32) -> f32 {
-        dist * dist / (cos_light * self.area(prim) * self.frame.n_lights as f32)
+        dist * dist / (cos_light * self.area(prim) * self.light_count() as f32)
     }
 
     /// Cosine between a light's normal and the direction `to_light` from a point toward it;
@@ -141,8 +155,12 @@ fn sky(f: &Frame, d: Vec3) -> Vec3 {
 /// one shadow ray. Returns the weighted contribution.
 #[allow(clippy::too_many_arguments)]
 fn direct_light(w: &World, p: Vec3, n: Vec3, sn: Vec3, scale: f32, albedo: Vec3, mis: bool, rng: &mut Rng) -> Vec3 {
-    let count = w.frame.n_lights;
+    let count = w.light_count();
     let pick = ((rng.next_f32() * count as f32) as u32).min(count - 1);
+    if pick >= w.frame.n_lights {
+        let l = sync::at(w.punctual, pick - w.frame.n_lights);
+        return albedo * (1.0 / PI) * punctual_light(w, l, p, n, sn, scale) * count as f32;
+    }
     let light = w.lights[pick as usize];
     let (q, nl, light_scale) = w.sample_point(light, rng.next_f32(), rng.next_f32());
     let to = q - p;
@@ -171,6 +189,33 @@ fn direct_light(w: &World, p: Vec3, n: Vec3, sn: Vec3, scale: f32, albedo: Vec3,
     albedo * (1.0 / PI) * le * (cos_s * weight / pdf_light)
 }
 
+/// Irradiance (times the cosine at the shading normal `sn`) that punctual light `l` brings to
+/// point `p` (geometric normal `n` and `sn` on the path's side, `scale` its primitive's),
+/// zero where it is shadowed, behind the surface or outside a spot's cone. A spot fades from
+/// `cos_inner` to `cos_outer` as glTF's `KHR_lights_punctual` recommends (the square of a
+/// linear ramp in the cosine).
+fn punctual_light(w: &World, l: &PunctualLight, p: Vec3, n: Vec3, sn: Vec3, scale: f32) -> Vec3 {
+    let from = offset_origin(p, n, scale);
+    let (wi, to, t_max, mut e) = if l.kind == LIGHT_DIRECTIONAL {
+        let wi = -xyz(l.direction);
+        (wi, wi, f32::INFINITY, xyz(l.intensity))
+    } else {
+        let to = xyz(l.position) - from;
+        let d2 = to.length_squared();
+        (to / crate::math::sqrt(d2), to, 1.0, xyz(l.intensity) / d2)
+    };
+    if l.kind == LIGHT_SPOT {
+        let (cos_outer, cos_inner) = (l.direction[3], l.intensity[3]);
+        let ramp = ((-wi.dot(xyz(l.direction)) - cos_outer) / (cos_inner - cos_outer).max(1e-3)).clamp(0.0, 1.0);
+        e *= ramp * ramp;
+    }
+    let cos_s = wi.dot(sn);
+    if cos_s <= 0.0 || wi.dot(n) <= 0.0 || !(max3(e) > 0.0) || !finite3(e) || w.any(from, to, t_max) {
+        return Vec3::ZERO;
+    }
+    e * cos_s
+}
+
 /// The switches of the bounce loop, read once per invocation.
 #[derive(Copy, Clone)]
 struct Mode {
@@ -182,7 +227,7 @@ struct Mode {
 impl Mode {
     fn of(w: &World) -> Mode {
         let f = w.frame;
-        let nee = w.scene.features & FEATURE_NEE != 0 && f.flags & FLAG_NEE != 0 && f.n_lights > 0;
+        let nee = w.scene.features & FEATURE_NEE != 0 && f.flags & FLAG_NEE != 0 && w.light_count() > 0;
         Mode {
             nee,
             mis: nee && f.flags & FLAG_MIS != 0,

@@ -257,10 +257,11 @@ pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
 // | 8       | display image, RGBA8 per pixel                             |
 // | 9, 10   | ray casts: `[Ray]` in, `[Hit]` out                         |
 // | 11      | `[VertexAttrs]` every mesh's per-vertex normals and UVs, once a mesh |
+// | 12      | `[PunctualLight]` point, spot and directional lights       |
 // ---------------------------------------------------------------------------------------------
 
 /// Storage buffers of descriptor set 1.
-pub const RENDER_BINDINGS: u32 = 12;
+pub const RENDER_BINDINGS: u32 = 13;
 /// Render kernels run on 8x8 pixel tiles.
 pub const TILE_SIDE: u32 = 8;
 
@@ -325,6 +326,31 @@ pub struct Material {
     pub _pad: u32,
 }
 
+/// [`PunctualLight::kind`]: light from a point, the same in every direction.
+pub const LIGHT_POINT: u32 = 0;
+/// A point light that shines into a cone (`cos_outer`, `cos_inner` about `direction`).
+pub const LIGHT_SPOT: u32 = 1;
+/// Light from infinitely far away along `direction`.
+pub const LIGHT_DIRECTIONAL: u32 = 2;
+
+/// A light without area (glTF's `KHR_lights_punctual`), in world space (64 bytes). Point and
+/// spot lights have a radiant intensity (`intensity`, per steradian: irradiance
+/// `intensity / d^2` at distance `d`), directional lights an irradiance (`intensity` on a
+/// surface facing them). Next-event estimation reaches them; rays never hit them.
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct PunctualLight {
+    /// Position (`xyz`, point and spot); `w` unused.
+    pub position: [f32; 4],
+    /// Unit direction the light shines along (`xyz`, spot and directional); `w`: the spot's
+    /// `cos_outer` (no light outside that cone).
+    pub direction: [f32; 4],
+    /// Colour times intensity (`xyz`); `w`: the spot's `cos_inner` (full light inside).
+    pub intensity: [f32; 4],
+    pub kind: u32,
+    pub _pad: [u32; 3],
+}
+
 /// Thin-lens camera (pinhole when `lens_radius == 0`): the image plane lies at the focus
 /// distance, spanned from `lower_left` by `horizontal` and `vertical`.
 #[repr(C)]
@@ -369,7 +395,9 @@ pub struct Frame {
     /// `FEATURE_*` bits the path tracer needs for this scene. The CPU executor tests them at
     /// run time; the GPU runs `path_trace` specialised to them (specialisation constant 0).
     pub features: u32,
-    pub _pad: [u32; 2],
+    /// Number of punctual lights (binding 12).
+    pub n_punctual: u32,
+    pub _pad: u32,
 }
 
 /// Push constants of the render kernels.
@@ -404,8 +432,10 @@ pub const FEATURE_DIELECTRIC: u32 = 1 << 4;
 pub const FEATURE_THIN_LENS: u32 = 1 << 5;
 /// Shading normals interpolated from vertex normals (else the geometric normal shades).
 pub const FEATURE_SHADING_NORMALS: u32 = 1 << 10;
+/// Next-event estimation toward punctual lights (point, spot, directional).
+pub const FEATURE_PUNCTUAL: u32 = 1 << 15;
 /// Every feature: the kernel that runs any scene. Bits 6-9 are the `VARIANT_*` bits.
-pub const FEATURES_ALL: u32 = (1 << 6) - 1 | FEATURE_SHADING_NORMALS;
+pub const FEATURES_ALL: u32 = (1 << 6) - 1 | FEATURE_SHADING_NORMALS | FEATURE_PUNCTUAL;
 
 // Intersection variants, bits of the same specialisation constant: less robust tests that
 // only `raytrace bench accuracy` sets (what the robust defaults of DESIGN.md section 3
@@ -465,6 +495,7 @@ impl Hit {
 
 const _: () = assert!(size_of::<Object>() == 112);
 const _: () = assert!(size_of::<VertexAttrs>() == 64);
+const _: () = assert!(size_of::<PunctualLight>() == 64);
 const _: () = assert!(size_of::<Material>() == 48);
 const _: () = assert!(size_of::<Camera>() == 96);
 const _: () = assert!(size_of::<Frame>() == 176);

@@ -21,6 +21,7 @@ const SPP: u32 = 256;
 fn ball(shape: Shape, meshes: Vec<Mesh>) -> Scene {
     Scene {
         name: "ball".into(),
+        punctual: Vec::new(),
         camera: CameraSpec {
             position: Vec3::new(0.0, 0.0, 3.0),
             look_at: Vec3::ZERO,
@@ -150,6 +151,56 @@ fn bent_normals_never_send_a_path_below_the_surface() {
     assert!(centre_luminance(&p) > 0.0);
 }
 
+#[test]
+fn punctual_lights_give_their_analytic_radiance() {
+    use shared::types::{PunctualLight, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT};
+    // A large floor of albedo 0.5 seen from above, black sky: only next-event estimation lights it.
+    let floor = raytrace::scene::shapes::by_name("quad").unwrap();
+    let mut s = ball(Shape::Mesh(0), vec![Mesh::flat("floor", floor)]);
+    s.materials[0].1 = material::diffuse([0.5; 3]);
+    s.objects[0].transform = Transform::new(Vec3::ZERO, Vec3::ZERO, Vec3::splat(20.0));
+    s.camera.position = Vec3::new(0.0, 3.0, 0.0);
+    s.camera.up = Vec3::Z;
+    s.settings.nee = true;
+    s.settings.max_depth = 2;
+    s.settings.sky_top = Vec3::ZERO;
+    s.settings.sky_bottom = Vec3::ZERO;
+    let light = |kind, position: Vec3, direction: Vec3, intensity: f32, cos_outer: f32, cos_inner: f32| PunctualLight {
+        position: [position.x, position.y, position.z, 0.0],
+        direction: [direction.x, direction.y, direction.z, cos_outer],
+        intensity: [intensity, intensity, intensity, cos_inner],
+        kind,
+        _pad: [0; 3],
+    };
+    let centre = |s: &Scene| {
+        let data = s.gpu_data(0.0);
+        let frame = s.frame(&data);
+        let p = render_cpu(&data, &frame, 4, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture;
+        let lin = p.linear();
+        let c = lin[(SIZE / 2 * SIZE + SIZE / 2) as usize];
+        (c[0] + c[1] + c[2]) as f64 / 3.0
+    };
+    // Directional light from 45 degrees, irradiance 2 on a surface facing it: L = a E cos / pi.
+    let dir = Vec3::new(0.0, -1.0, -1.0).normalize();
+    s.punctual = vec![light(LIGHT_DIRECTIONAL, Vec3::ZERO, dir, 2.0, -1.0, -1.0)];
+    let want = 0.5 * 2.0 * 45f64.to_radians().cos() / std::f64::consts::PI;
+    let got = centre(&s);
+    assert!((got - want).abs() < 1e-3 * want, "directional: {got} vs {want}");
+    // A point light of intensity 8 two units above the floor's centre: L = a I / (pi h^2).
+    s.punctual = vec![light(LIGHT_POINT, Vec3::new(0.0, 2.0, 0.0), Vec3::ZERO, 8.0, -1.0, -1.0)];
+    let want = 0.5 * 8.0 / (std::f64::consts::PI * 4.0);
+    let got = centre(&s);
+    assert!((got - want).abs() < 0.01 * want, "point: {got} vs {want}");
+    // A spot aimed beside the centre, its cone missing it: black; aimed at it: the point's.
+    let aside = Vec3::new(1.0, -1.0, 0.0).normalize();
+    let (outer, inner) = (10f32.to_radians().cos(), 5f32.to_radians().cos());
+    s.punctual = vec![light(LIGHT_SPOT, Vec3::new(0.0, 2.0, 0.0), aside, 8.0, outer, inner)];
+    assert_eq!(centre(&s), 0.0);
+    s.punctual[0].direction = [0.0, -1.0, 0.0, outer];
+    let got = centre(&s);
+    assert!((got - want).abs() < 0.01 * want, "spot: {got} vs {want}");
+}
+
 /// Root mean square difference of the centre quarters of two pictures.
 fn centre_rmse(a: &Picture, b: &Picture) -> f64 {
     let (la, lb) = (a.linear(), b.linear());
@@ -185,11 +236,20 @@ fn centre_luminance(p: &Picture) -> f64 {
 }
 
 #[test]
-fn cpu_and_gpu_agree_with_vertex_normals() {
-    let Some((gpu, mut r)) = renderer("cpu_and_gpu_agree_with_vertex_normals") else {
+fn cpu_and_gpu_agree_with_vertex_normals_and_punctual_lights() {
+    let Some((gpu, mut r)) = renderer("cpu_and_gpu_agree_with_vertex_normals_and_punctual_lights") else {
         return;
     };
-    let scene = icoball(true);
+    // With a spot light too: next-event estimation toward punctual lights on both backends.
+    let mut scene = icoball(true);
+    scene.settings.nee = true;
+    scene.punctual = vec![shared::types::PunctualLight {
+        position: [1.0, 2.0, 2.0, 0.0],
+        direction: [-0.33, -0.66, -0.66, 0.9],
+        intensity: [5.0, 4.0, 3.0, 0.95],
+        kind: shared::types::LIGHT_SPOT,
+        _pad: [0; 3],
+    }];
     let data = scene.gpu_data(0.0);
     let frame = scene.frame(&data);
     let cpu = render_cpu(&data, &frame, 16, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture;

@@ -72,6 +72,7 @@ pub fn render_cpu(
         lights: &scene.lights,
         frame,
         attrs: &scene.attrs,
+        punctual: &scene.punctual,
     };
     let push = RenderPush {
         sample_base: 0,

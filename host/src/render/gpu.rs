@@ -36,6 +36,7 @@ struct SceneBuffers {
     rays: Buffer,
     hits: Buffer,
     attrs: Buffer,
+    punctual: Buffer,
     /// Set 1 naming the buffers above; made again whenever one of them is replaced.
     set: Option<BindingSets>,
     n_objects: usize,
@@ -57,6 +58,7 @@ impl SceneBuffers {
             &self.rays,
             &self.hits,
             &self.attrs,
+            &self.punctual,
         ];
         self.set = Some(BindingSets::new(gpu, kernels, 1, &[&buffers])?);
         Ok(())
@@ -186,12 +188,14 @@ impl GpuRenderer {
         let rays = dev("rays", size_of::<Ray>())?;
         let hits = dev("hits", size_of::<Hit>())?;
         let attrs = dev("vertex attributes", size_of_val(scene.attrs.as_slice()))?;
+        let punctual = dev("punctual lights", size_of_val(scene.punctual.as_slice()))?;
         self.upload(&model_tris, &scene.model_tris)?;
         self.upload(&model_spheres, &scene.model_spheres)?;
         self.upload(&prim_object, &scene.prim_object)?;
         self.upload(&materials, &scene.materials)?;
         self.upload(&lights, &scene.lights)?;
         self.upload(&attrs, &scene.attrs)?;
+        self.upload(&punctual, &scene.punctual)?;
         self.bufs = Some(SceneBuffers {
             objects,
             model_tris,
@@ -205,6 +209,7 @@ impl GpuRenderer {
             rays,
             hits,
             attrs,
+            punctual,
             set: None,
             n_objects: scene.objects.len(),
         });

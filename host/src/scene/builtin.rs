@@ -38,6 +38,7 @@ impl Builder {
         Builder {
             scene: Scene {
                 name: name.to_string(),
+                punctual: Vec::new(),
                 camera,
                 settings,
                 materials: Vec::new(),

@@ -165,6 +165,7 @@ pub(super) fn parse(text: &str, file: &str, base_dir: &Path) -> Result<(Scene, V
     });
     let scene = Scene {
         name,
+        punctual: Vec::new(),
         camera: to_camera(&doc.camera),
         settings: to_settings(file, &doc.render)?,
         materials,

@@ -6,7 +6,7 @@
 use super::{material, Scene, Shape};
 use glam::Vec3;
 use shared::types::{
-    Camera, Frame, Material, Object, Sphere, Triangle, VertexAttrs, FEATURES_ALL, INVALID, FLAG_BVH, FLAG_GAMMA2, FLAG_MIS, FLAG_NEE,
+    Camera, Frame, Material, Object, PunctualLight, Sphere, Triangle, VertexAttrs, FEATURES_ALL, INVALID, FLAG_BVH, FLAG_GAMMA2, FLAG_MIS, FLAG_NEE,
     FLAG_RUSSIAN_ROULETTE,
 };
 
@@ -25,6 +25,8 @@ pub struct SceneGpu {
     pub lights: Vec<u32>,
     /// The vertex attributes of every mesh that has them, each mesh once (`Object::attrs`).
     pub attrs: Vec<VertexAttrs>,
+    /// Point, spot and directional lights.
+    pub punctual: Vec<PunctualLight>,
 }
 
 fn v4(v: Vec3) -> [f32; 4] {
@@ -143,6 +145,7 @@ impl Scene {
             materials: self.materials.iter().map(|(_, m)| *m).collect(),
             lights,
             attrs,
+            punctual: self.punctual.clone(),
         }
     }
 
@@ -188,7 +191,8 @@ impl Scene {
             seed: s.seed,
             exposure: s.exposure,
             features: FEATURES_ALL,
-            _pad: [0; 2],
+            n_punctual: gpu.punctual.len() as u32,
+            _pad: 0,
         }
     }
 }
@@ -211,6 +215,7 @@ mod tests {
         };
         Scene {
             name: "small".into(),
+            punctual: Vec::new(),
             camera: CameraSpec {
                 position: Vec3::new(0.0, 0.0, 5.0),
                 look_at: Vec3::ZERO,

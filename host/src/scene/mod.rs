@@ -21,7 +21,7 @@ pub use gpu::SceneGpu;
 pub use transform::{Animation, Bob, Orbit, Transform};
 
 use glam::Vec3;
-use shared::types::{Material, Triangle, VertexAttrs};
+use shared::types::{Material, PunctualLight, Triangle, VertexAttrs};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -35,6 +35,8 @@ pub struct Scene {
     pub materials: Vec<(String, Material)>,
     pub meshes: Vec<Mesh>,
     pub objects: Vec<SceneObject>,
+    /// Point, spot and directional lights, in world space.
+    pub punctual: Vec<PunctualLight>,
 }
 
 /// A triangle mesh in model space (`w` components 0), shared by every object that shows it.

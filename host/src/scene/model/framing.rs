@@ -91,7 +91,7 @@ pub(super) fn complete(scene: &mut Scene, has_camera: bool, file: &str, warnings
             .get(o.material as usize)
             .is_some_and(|(_, m)| material::emits(m))
     });
-    if emits {
+    if emits || !scene.punctual.is_empty() {
         return;
     }
     // Above the model, on the side of the camera (the file's or ours), off to its left.

@@ -19,7 +19,7 @@
 //! without normals is shaded flat, as the specification asks.
 //!
 //! Warnings, each once a file: textures (and missing texture images), other
-//! primitive modes, punctual lights, skins, animations, morph targets, alpha modes and
+//! primitive modes, unusable punctual lights, skins, animations, morph targets, alpha modes and
 //! extensions that are ignored. Required extensions the renderer does not understand, unreadable
 //! buffers, accessors that point outside their data and out-of-range indices are errors.
 use super::{default_material, to_material, unique_name, Model};
@@ -29,7 +29,7 @@ use glam::{EulerRot, Mat3, Mat4, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::{Mode, Semantic};
 use gltf::{Accessor, Document, Gltf};
-use shared::types::{Material, Triangle, VertexAttrs};
+use shared::types::{Material, PunctualLight, Triangle, VertexAttrs, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 use std::sync::Arc;
@@ -82,7 +82,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         materials: HashMap::new(),
         skipped_modes: BTreeSet::new(),
         morph_targets: false,
-        lights: 0,
+        unusable_lights: 0,
     };
     document_warnings(&document, dir, file, &mut walk.model);
     walk.scene(&document).map_err(error)?;
@@ -380,7 +380,7 @@ struct Walk<'a> {
     materials: HashMap<Option<usize>, u32>,
     skipped_modes: BTreeSet<String>,
     morph_targets: bool,
-    lights: usize,
+    unusable_lights: usize,
 }
 
 impl Walk<'_> {
@@ -413,8 +413,8 @@ impl Walk<'_> {
             if let Some(camera) = node.camera() {
                 self.camera(&camera, world);
             }
-            if node.light().is_some() {
-                self.lights += 1;
+            if let Some(light) = node.light() {
+                self.light(&light, world);
             }
             stack.extend(
                 node.children()
@@ -546,6 +546,43 @@ impl Walk<'_> {
         Ok(())
     }
 
+    /// Adds punctual light `light` placed by the node matrix `world`: it sits at the node's
+    /// origin and shines along the node's -z. glTF gives point and spot lights in candela and
+    /// directional ones in lux; the renderer takes those numbers as radiant intensity and
+    /// irradiance (one unit of radiance per candela), times the colour. `range` is ignored
+    /// (the specification allows that: it only bounds the light's influence).
+    fn light(&mut self, light: &gltf::khr_lights_punctual::Light, world: Mat4) {
+        use gltf::khr_lights_punctual::Kind;
+        let position = world.transform_point3(Vec3::ZERO);
+        let direction = world.transform_vector3(-Vec3::Z).normalize_or_zero();
+        let color = Vec3::from(light.color()) * light.intensity();
+        let (kind, cos_outer, cos_inner) = match light.kind() {
+            Kind::Point => (LIGHT_POINT, -1.0, -1.0),
+            Kind::Directional => (LIGHT_DIRECTIONAL, -1.0, -1.0),
+            Kind::Spot {
+                inner_cone_angle,
+                outer_cone_angle,
+            } => (LIGHT_SPOT, outer_cone_angle.cos(), inner_cone_angle.cos()),
+        };
+        let usable = position.is_finite()
+            && direction != Vec3::ZERO
+            && color.is_finite()
+            && color.min_element() >= 0.0
+            && cos_outer.is_finite()
+            && cos_inner.is_finite();
+        if !usable {
+            self.unusable_lights += 1;
+            return;
+        }
+        self.model.punctual.push(PunctualLight {
+            position: [position.x, position.y, position.z, 0.0],
+            direction: [direction.x, direction.y, direction.z, cos_outer],
+            intensity: [color.x, color.y, color.z, cos_inner],
+            kind,
+            _pad: [0; 3],
+        });
+    }
+
     /// Takes the first usable perspective camera.
     fn camera(&mut self, camera: &gltf::Camera, world: Mat4) {
         if self.model.camera.is_some() {
@@ -598,10 +635,10 @@ impl Walk<'_> {
                 "{file}: morph targets are not supported: the base shape is shown"
             ));
         }
-        if self.lights > 0 {
+        if self.unusable_lights > 0 {
             w.push(format!(
-                "{file}: {} punctual lights (KHR_lights_punctual) are not supported yet: ignored",
-                self.lights
+                "{file}: {} punctual lights (KHR_lights_punctual) have a non-finite or negative colour, intensity or range, or a degenerate node transform: ignored",
+                self.unusable_lights
             ));
         }
         self.model

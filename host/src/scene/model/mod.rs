@@ -19,7 +19,7 @@ mod ply;
 use super::attrs::{self, Normals};
 use super::{CameraSpec, Mesh, Scene, SceneError, SceneObject, Settings, Shape};
 use glam::{Mat3, Vec3};
-use shared::types::{Material, MaterialKind, Triangle, VertexAttrs};
+use shared::types::{Material, MaterialKind, PunctualLight, Triangle, VertexAttrs};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -44,6 +44,8 @@ pub struct Model {
     pub objects: Vec<SceneObject>,
     /// The file's camera, if it has one the renderer can use.
     pub camera: Option<CameraSpec>,
+    /// Its punctual lights in the file's world space.
+    pub punctual: Vec<PunctualLight>,
     /// What was ignored, approximated or assumed, each naming the file.
     pub warnings: Vec<String>,
     /// The same about the file's materials (textures, missing material libraries), apart
@@ -153,6 +155,7 @@ impl Model {
         };
         let mut scene = Scene {
             name: name.to_string(),
+            punctual: self.punctual,
             camera: self.camera.unwrap_or(framing::NO_CAMERA),
             settings,
             materials: self.materials,

@@ -146,6 +146,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
             animation: Animation::default(),
         }],
         camera: None,
+        punctual: Vec::new(),
         warnings,
         material_warnings: Vec::new(),
     })

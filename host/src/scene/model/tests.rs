@@ -375,6 +375,41 @@ fn gltf_camera_is_the_scene_camera() {
 }
 
 #[test]
+fn gltf_punctual_lights_are_placed_by_their_nodes() {
+    // A spot at (0, 3, 0) turned to look down (-z turned -90 degrees about x), a white point
+    // light, a directional light along -z, and one with a negative intensity (ignored).
+    let (s, c) = ((-45f32).to_radians().sin(), 45f32.to_radians().cos());
+    let nodes = format!(
+        r#"[{{"mesh": 0}},
+    {{"translation": [0, 3, 0], "rotation": [{s}, 0, 0, {c}], "extensions": {{"KHR_lights_punctual": {{"light": 0}}}}}},
+    {{"translation": [1, 2, 3], "extensions": {{"KHR_lights_punctual": {{"light": 1}}}}}},
+    {{"extensions": {{"KHR_lights_punctual": {{"light": 2}}}}}},
+    {{"extensions": {{"KHR_lights_punctual": {{"light": 3}}}}}}],
+  "scenes": [{{"nodes": [0, 1, 2, 3, 4]}}]"#
+    );
+    let extra = r#",
+  "extensionsUsed": ["KHR_lights_punctual"],
+  "extensions": {"KHR_lights_punctual": {"lights": [
+    {"type": "spot", "color": [1, 0.5, 0.25], "intensity": 4, "spot": {"innerConeAngle": 0.1, "outerConeAngle": 0.3}},
+    {"type": "point", "intensity": 2},
+    {"type": "directional", "intensity": 3},
+    {"type": "point", "intensity": -1}
+  ]}}"#;
+    let (_, model) = load_written("lights", &[("lights.gltf", one_triangle_gltf(&nodes, extra).as_bytes())]);
+    let model = model.unwrap_or_else(|e| panic!("{e}"));
+    let l = &model.punctual;
+    assert_eq!(l.len(), 3, "{l:?}");
+    assert_eq!(l[0].kind, shared::types::LIGHT_SPOT);
+    assert!((Vec3::from_slice(&l[0].position[..3]) - Vec3::new(0.0, 3.0, 0.0)).length() < 1e-6);
+    assert!((Vec3::from_slice(&l[0].direction[..3]) - Vec3::NEG_Y).length() < 1e-5, "{:?}", l[0]);
+    assert_eq!(&l[0].intensity[..3], &[4.0, 2.0, 1.0]);
+    assert!((l[0].direction[3] - 0.3f32.cos()).abs() < 1e-6 && (l[0].intensity[3] - 0.1f32.cos()).abs() < 1e-6);
+    assert_eq!((l[1].kind, &l[1].position[..3]), (shared::types::LIGHT_POINT, &[1.0, 2.0, 3.0][..]));
+    assert_eq!((l[2].kind, &l[2].direction[..3]), (shared::types::LIGHT_DIRECTIONAL, &[0.0, 0.0, -1.0][..]));
+    assert!(has_warning(&model.warnings, &["1 punctual lights", "ignored"]), "{:?}", model.warnings);
+}
+
+#[test]
 fn gltf_materials_map_onto_the_renderer_kinds() {
     let nodes = r#"[{"mesh": 0}, {"mesh": 1}, {"mesh": 2}, {"mesh": 3}],
   "scenes": [{"nodes": [0, 1, 2, 3]}]"#;
