@@ -6,6 +6,7 @@ use crate::picture::{self, Picture};
 use crate::render::{self, render_cpu, Backend, GpuRenderer};
 use crate::scene::{Scene, SceneGpu};
 use crate::vk::{Gpu, GpuOptions, Kernels};
+use glam::Vec3;
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use shared::types::Frame;
@@ -70,6 +71,40 @@ pub struct SceneArgs {
     /// Print which kernel features run and why.
     #[arg(long)]
     pub explain: bool,
+    /// Camera instead of the scene's: POSITION:LOOK_AT[:VFOV], e.g. `0,1,5:0,0.5,0:40`
+    /// (three numbers each, the vertical field of view in degrees).
+    #[arg(long, value_parser = parse_camera)]
+    pub camera: Option<(Vec3, Vec3, Option<f32>)>,
+}
+
+/// Parses `--camera`: `x,y,z:x,y,z[:vfov]`.
+pub fn parse_camera(s: &str) -> Result<(Vec3, Vec3, Option<f32>), String> {
+    let parts: Vec<&str> = s.split(':').collect();
+    let point = |p: &str| -> Result<Vec3, String> {
+        let v: Vec<f32> = p
+            .split(',')
+            .map(|x| x.trim().parse::<f32>().map_err(|e| format!("{x:?}: {e}")))
+            .collect::<Result<_, _>>()?;
+        match v[..] {
+            [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(Vec3::new(x, y, z)),
+            _ => Err(format!("{p:?} is not three finite numbers x,y,z")),
+        }
+    };
+    let (position, look_at, vfov) = match parts[..] {
+        [p, l] => (point(p)?, point(l)?, None),
+        [p, l, f] => {
+            let f: f32 = f.trim().parse().map_err(|e| format!("field of view {f:?}: {e}"))?;
+            if !(f > 0.0 && f < 180.0) {
+                return Err(format!("field of view {f} is not in (0, 180) degrees"));
+            }
+            (point(p)?, point(l)?, Some(f))
+        }
+        _ => return Err("write POSITION:LOOK_AT[:VFOV], e.g. 0,1,5:0,0.5,0:40".into()),
+    };
+    if position == look_at {
+        return Err("the camera's position and look-at point are the same".into());
+    }
+    Ok((position, look_at, vfov))
 }
 
 /// Whether the BVH build restructures treelets (see `BuildOptions`).
@@ -169,6 +204,18 @@ impl SceneArgs {
         }
         if let Some(seed) = self.seed {
             s.seed = seed;
+        }
+        if let Some((position, look_at, vfov)) = self.camera {
+            let c = &mut scene.camera;
+            // Keep "up" unless it is parallel to the new view direction.
+            let forward = (look_at - position).normalize();
+            if c.up.cross(forward).length_squared() < 1e-6 {
+                c.up = if forward.y.abs() < 0.9 { Vec3::Y } else { Vec3::Z };
+            }
+            (c.position, c.look_at, c.focus_distance) = (position, look_at, None);
+            if let Some(f) = vfov {
+                c.vfov_deg = f;
+            }
         }
         let data = scene.gpu_data(self.time);
         let frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
@@ -542,4 +589,32 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn camera_option_parses_and_bad_ones_are_named() {
+        let (p, l, f) = parse_camera("0,1,5:0,0.5,0:40").unwrap();
+        assert_eq!((p, l, f), (Vec3::new(0.0, 1.0, 5.0), Vec3::new(0.0, 0.5, 0.0), Some(40.0)));
+        assert_eq!(parse_camera(" 1, 2, 3 : 0,0,0").unwrap().2, None);
+        for (bad, says) in [
+            ("1,2:0,0,0", "three finite numbers"),
+            ("1,2,3", "POSITION:LOOK_AT"),
+            ("1,2,3:0,0,0:200", "(0, 180)"),
+            ("1,2,3:1,2,3", "the same"),
+            ("1,2,nan:0,0,0", "three finite numbers"),
+        ] {
+            let e = parse_camera(bad).unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+        // The scene's camera is replaced, its up kept unless parallel to the view.
+        let args = <SceneArgs as clap::Parser>::parse_from(["raytrace", "cornell", "--camera", "278,900,278:278,0,278:30"]);
+        let p = args.prepare().unwrap();
+        let c = p.scene.camera;
+        assert_eq!((c.position, c.look_at, c.vfov_deg), (Vec3::new(278.0, 900.0, 278.0), Vec3::new(278.0, 0.0, 278.0), 30.0));
+        assert!(c.up.cross(c.look_at - c.position).length() > 0.0);
+    }
 }
