@@ -1,7 +1,6 @@
 //! Helpers of the integration tests: opening the GPU (skip or fail without one), checking
 //! the validation layer, and writing both sides of a mismatch to a file.
-use raytrace::render::GpuRenderer;
-use raytrace::vk::{Gpu, GpuOptions, Kernels};
+use raytrace::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
 use std::fmt::Debug;
 use std::path::PathBuf;
 use std::sync::Arc;

@@ -1,11 +1,12 @@
 //! The `render` and `compare` commands: scene options shared by both, progress and summary
 //! lines, and the side-by-side comparison of the CPU and GPU backends.
 use crate::bvh::{BuildOptions, Layout, MortonBits};
+use crate::cpu::{render_cpu, CpuRender};
 use crate::features::{self, Features, Forced};
+use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
 use crate::picture::{self, Picture};
-use crate::render::{self, render_cpu, Backend, GpuRenderer};
+use crate::render::{self, Backend};
 use crate::scene::{Scene, SceneGpu};
-use crate::vk::{Gpu, GpuOptions, Kernels};
 use glam::Vec3;
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -307,7 +308,7 @@ pub fn render_gpu(r: &mut GpuRenderer, p: &Prepared, quiet: bool) -> Result<Rend
 }
 
 /// Renders on the CPU executor with a progress bar over rows.
-pub fn render_on_cpu(p: &Prepared, quiet: bool) -> (Rendered, render::CpuRender) {
+pub fn render_on_cpu(p: &Prepared, quiet: bool) -> (Rendered, CpuRender) {
     let bar = (!quiet).then(|| progress_bar(p.frame.height as u64, "rows"));
     let out = render_cpu(&p.data, &p.frame, p.spp, p.build(p.spp), &|rows| {
         if let Some(b) = &bar {

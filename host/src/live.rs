@@ -3,7 +3,8 @@
 //! renderer up to date (new transforms only, or the whole scene when objects came or went).
 //! The BVH is rebuilt from the current scene every frame by the renderer.
 use crate::features::{self, Forced};
-use crate::render::{with_bvh, GpuRenderer};
+use crate::gpu::GpuRenderer;
+use crate::render::with_bvh;
 use crate::scene::{material, Animation, Scene, SceneGpu, SceneObject, Shape, Transform};
 use anyhow::{bail, Result};
 use glam::Vec3;

@@ -5,9 +5,9 @@ use raytrace::bench::build::{bench_build, standard_inputs, write_report, BuildRe
 use raytrace::bench::slug;
 use raytrace::bvh::{BuildOptions, MortonBits};
 use raytrace::cli::{compare_command, render_command, SceneArgs};
+use raytrace::gpu::{Gpu, GpuOptions, Kernel};
 use raytrace::render::Backend;
 use raytrace::view::ViewArgs;
-use raytrace::vk::{Gpu, GpuOptions, Kernel};
 use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
@@ -292,7 +292,7 @@ fn main() -> Result<()> {
             }
             let gpu = Gpu::new(&opts)?;
             println!("{}", gpu.describe());
-            let k = raytrace::vk::Kernels::new(&gpu)?;
+            let k = raytrace::gpu::Kernels::new(&gpu)?;
             let stats = k.statistics()?;
             if stats.is_empty() {
                 println!("the driver offers no pipeline statistics");

@@ -22,7 +22,7 @@ fn picture(test: &str) -> String {
 
 /// Whether a Vulkan device that is not a CPU implementation exists.
 fn has_real_gpu() -> bool {
-    raytrace::vk::Gpu::list().is_ok_and(|d| d.iter().any(|d| !d.is_cpu()))
+    raytrace::gpu::Gpu::list().is_ok_and(|d| d.iter().any(|d| !d.is_cpu()))
 }
 
 #[test]
@@ -48,7 +48,7 @@ fn render_says_which_backend_it_chose_and_why() {
 
 #[test]
 fn backend_gpu_uses_a_cpu_vulkan_device_when_asked() {
-    let Ok(devices) = raytrace::vk::Gpu::list() else {
+    let Ok(devices) = raytrace::gpu::Gpu::list() else {
         eprintln!("SKIPPED backend_gpu_uses_a_cpu_vulkan_device_when_asked: no Vulkan");
         return;
     };
@@ -87,7 +87,7 @@ fn backend_gpu_uses_a_cpu_vulkan_device_when_asked() {
 #[test]
 fn info_lists_every_device_and_the_cpu_executor_with_a_speed() {
     let (o, stdout, stderr) = run(&["info"]);
-    let devices = raytrace::vk::Gpu::list().unwrap_or_default();
+    let devices = raytrace::gpu::Gpu::list().unwrap_or_default();
     assert_eq!(
         o.status.success(),
         !devices.is_empty(),

@@ -5,10 +5,9 @@
 use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu};
 use raytrace::bvh::{BuildOptions, BuildResult, MortonBits};
 use raytrace::cpu;
+use raytrace::gpu::{Gpu, GpuLbvh, Kernels};
 use raytrace::inputs::{assets_dir, generate, load_obj, Distribution};
-use raytrace::lbvh::GpuLbvh;
 use raytrace::validate::{validate, validate_wide};
-use raytrace::vk::{Gpu, Kernels};
 use shared::radix_sort as sort;
 use shared::types::{Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;

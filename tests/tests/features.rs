@@ -2,8 +2,8 @@
 //! backends, and leaving a feature out really removes it.
 use integration_tests::{assert_no_validation_errors, renderer};
 use raytrace::cli::{Prepared, SceneArgs};
+use raytrace::cpu::render_cpu;
 use raytrace::picture::{diff_stats, max_display_diff, Picture};
-use raytrace::render::render_cpu;
 use shared::types::FEATURES_ALL;
 
 fn prepared(scene: &str, features: &str) -> Prepared {

@@ -5,10 +5,11 @@ use glam::Vec3;
 use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu, renderer};
 use raytrace::bvh::{BuildOptions, MortonBits};
 use raytrace::cli::{compare, Prepared, SceneArgs};
+use raytrace::cpu::{render_cpu, CpuRender};
+use raytrace::gpu::{GpuRenderer, Kernels};
 use raytrace::picture::{diff_stats, Picture};
-use raytrace::render::{render_cpu, with_bvh, CpuRender, GpuRenderer};
+use raytrace::render::with_bvh;
 use raytrace::scene::{CameraSpec, Mesh, Scene, SceneObject, Settings, Shape, Transform};
-use raytrace::vk::Kernels;
 use shared::path::World;
 use shared::rng::Rng;
 use shared::traverse::Scene as Prims;
@@ -86,7 +87,7 @@ fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<H
             order: &cpu.bvh.sorted_prims,
             n_tris: p.frame.n_tris,
             n_prims: p.frame.n_prims,
-            features: raytrace::render::tracer_features(frame.features, p.build(1)),
+            features: raytrace::gpu::tracer_features(frame.features, p.build(1)),
         },
         objects: &p.data.objects,
         prim_object: &p.data.prim_object,

@@ -13,11 +13,10 @@
 use crate::bench::percentile;
 use crate::bvh::{BuildOptions, MortonBits};
 use crate::cli::{Prepared, SceneArgs};
+use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
 use crate::hard_cases::{closed_meshes, rays_at_vertices_and_edges, scene_of, OFFSETS};
 use crate::picture::Picture;
 use crate::plot::{line_chart, Chart, Scale, Series};
-use crate::render::{stage_ms, GpuRenderer};
-use crate::vk::{Gpu, Kernels};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use shared::types::{

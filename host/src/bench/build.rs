@@ -9,10 +9,9 @@ const COLUMNS: [&str; 6] = [STAGES[0], STAGES[1], STAGES[2], STAGES[3], STAGES[4
 use super::accuracy::{sah_cost, sah_cost_wide};
 use super::{percentile, write_files};
 use crate::cpu;
+use crate::gpu::{Gpu, GpuLbvh, Kernels};
 use crate::inputs::{assets_dir, generate, load_obj, Distribution};
-use crate::lbvh::GpuLbvh;
 use crate::validate::{validate, validate_wide};
-use crate::vk::{Gpu, Kernels};
 use anyhow::{bail, Result};
 use serde::Serialize;
 use shared::types::{Sphere, Triangle};

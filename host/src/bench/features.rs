@@ -4,9 +4,8 @@
 //! but time.
 use crate::bench::percentile;
 use crate::cli::{Prepared, SceneArgs};
+use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
 use crate::picture::{diff_stats, max_display_diff, Picture};
-use crate::render::{stage_ms, GpuRenderer};
-use crate::vk::{Gpu, Kernels};
 use anyhow::{Context, Result};
 use std::fmt::Write;
 use std::sync::Arc;

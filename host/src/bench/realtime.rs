@@ -5,9 +5,8 @@
 //! percentiles from GPU timestamps and from the host's clock.
 use crate::bench::percentile;
 use crate::cli::SceneArgs;
+use crate::gpu::{frame_timings, Commands, Gpu, GpuRenderer, Kernels};
 use crate::live::LiveScene;
-use crate::render::{frame_timings, GpuRenderer};
-use crate::vk::{Commands, Gpu, Kernels};
 use anyhow::{bail, Context, Result};
 use std::fmt::Write;
 use std::sync::Arc;

@@ -4,9 +4,10 @@
 //! BVH rebuilt every frame; BVH build times; and the GPU's speed-up over the CPU against rays
 //! per pixel for the Cornell box (the thesis's Figure 3).
 use crate::cli::{Prepared, SceneArgs};
+use crate::cpu::render_cpu;
+use crate::gpu::{Gpu, GpuRenderer, Kernels};
 use crate::plot::{line_chart, Chart, Scale, Series};
-use crate::render::{render_cpu, stage_totals, GpuRenderer};
-use crate::vk::{Gpu, Kernels};
+use crate::render::stage_totals;
 use anyhow::{Context, Result};
 use std::fmt::Write;
 use std::path::{Path, PathBuf};

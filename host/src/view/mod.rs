@@ -16,9 +16,8 @@ pub use camera::FlyCamera;
 pub use input::KEYS;
 
 use crate::cli::SceneArgs;
+use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
 use crate::live::LiveScene;
-use crate::render::GpuRenderer;
-use crate::vk::{Gpu, GpuOptions, Kernels};
 use anyhow::{anyhow, bail, Context, Result};
 use raw_window_handle::HasDisplayHandle;
 use std::ffi::CStr;

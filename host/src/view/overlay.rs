@@ -84,7 +84,7 @@ impl App {
             Ok(s) => println!("BVH valid: {s:?}"),
             Err(e) => println!("BVH INVALID: {e}"),
         }
-        let trace_ms = crate::render::stage_ms(&self.last_timings, "trace");
+        let trace_ms = crate::gpu::stage_ms(&self.last_timings, "trace");
         let rays = self.renderer.rays_per_sample()? * self.traced as f64;
         println!(
             "last frame: {:.0} rays in {trace_ms:.3} ms of tracing = {:.2} Grays/s",

@@ -4,10 +4,9 @@
 use super::input::Action;
 use super::overlay::Stats;
 use super::{FlyCamera, ViewArgs};
+use crate::gpu::{frame_timings, Buffer, Commands, Gpu, GpuRenderer, Swapchain};
 use crate::live::LiveScene;
 use crate::picture::{swap_red_blue, Picture};
-use crate::render::{frame_timings, GpuRenderer};
-use crate::vk::{Buffer, Commands, Gpu, Swapchain};
 use anyhow::{anyhow, bail, Context, Result};
 use gpu_allocator::MemoryLocation;
 use raw_window_handle::{HasDisplayHandle, HasWindowHandle};

@@ -66,7 +66,7 @@ impl World {
             order: &self.order,
             n_tris: self.tris.len() as u32,
             n_prims: (self.tris.len() + self.spheres.len()) as u32,
-            features: raytrace::render::tracer_features(FEATURES_ALL, World::build()),
+            features: raytrace::gpu::tracer_features(FEATURES_ALL, World::build()),
         }
     }
 }
@@ -153,8 +153,8 @@ pub fn returns_within<T: Send + 'static>(secs: u64, what: &str, f: impl FnOnce()
 /// object, one object per sphere translated to its centre: both exact) with the BVH the
 /// GPU builds, queried through the `cast_rays` kernel.
 pub struct GpuWorld {
-    pub gpu: std::sync::Arc<raytrace::vk::Gpu>,
-    renderer: raytrace::render::GpuRenderer,
+    pub gpu: std::sync::Arc<raytrace::gpu::Gpu>,
+    renderer: raytrace::gpu::GpuRenderer,
     frame: shared::types::Frame,
 }
 
@@ -162,8 +162,8 @@ impl GpuWorld {
     /// The device with validation on, or `None` (after a skip line) where there is none.
     pub fn open(test: &str) -> Option<GpuWorld> {
         let gpu = integration_tests::gpu(test)?;
-        let kernels = std::sync::Arc::new(raytrace::vk::Kernels::new(&gpu).expect("kernels"));
-        let renderer = raytrace::render::GpuRenderer::new(&gpu, &kernels).expect("renderer");
+        let kernels = std::sync::Arc::new(raytrace::gpu::Kernels::new(&gpu).expect("kernels"));
+        let renderer = raytrace::gpu::GpuRenderer::new(&gpu, &kernels).expect("renderer");
         Some(GpuWorld {
             gpu,
             renderer,

@@ -6,12 +6,16 @@ mod buffer;
 mod commands;
 mod context;
 mod kernels;
+mod lbvh;
+mod render;
 mod swapchain;
 
 pub use buffer::Buffer;
 pub use commands::{Commands, MAX_TIMESTAMPS};
 pub use context::{DeviceInfo, Gpu, GpuOptions};
 pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
+pub use lbvh::GpuLbvh;
+pub use render::{frame_timings, stage_ms, tracer_features, GpuRenderer};
 pub use swapchain::Swapchain;
 
 /// The SPIR-V module of `shader-crate`, compiled by `host/build.rs`.

@@ -1,11 +1,10 @@
 //! The GPU renderer. One command buffer per frame: transform every primitive to world space,
-//! rebuild the BVH (the LBVH of `crate::lbvh`), trace samples into the float accumulation
+//! rebuild the BVH (the LBVH of `GpuLbvh`), trace samples into the float accumulation
 //! image, and run the display pass; a timestamp after each stage.
 use crate::bvh::{BuildOptions, BuildResult, MortonBits};
-use crate::lbvh::GpuLbvh;
+use crate::gpu::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels};
 use crate::picture::{swap_red_blue, Picture};
 use crate::scene::SceneGpu;
-use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels};
 use anyhow::{bail, Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;

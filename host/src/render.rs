@@ -1,12 +1,6 @@
 //! Rendering a scene on either backend: the GPU renderer records transform, BVH build, path
 //! tracing and display into one command buffer; the CPU renderer runs the very same kernels
 //! of `shared` through the CPU executor. Both produce a [`Picture`] and per-stage times.
-mod cpu;
-mod gpu;
-
-pub use cpu::{render_cpu, CpuRender};
-pub use gpu::{frame_timings, stage_ms, tracer_features, GpuRenderer};
-
 use crate::picture::Picture;
 use shared::types::{Frame, FLAG_BVH};
 

@@ -1,8 +1,8 @@
 //! The GPU LBVH build: bounds, Morton codes, multi-workgroup radix sort, Karras tree and
 //! refit, recorded into one command buffer, with a timestamp after every stage or only around
 //! the whole build. Buffers grow to the largest input seen and are reused by every later build.
+use super::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels, BINDINGS};
 use crate::bvh::{BuildOptions, BuildResult, MortonBits, STAGES};
-use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels, BINDINGS};
 use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
@@ -375,7 +375,7 @@ impl GpuLbvh {
     }
 
     /// Builds one submission can time back to back (two timestamps each).
-    pub const STREAM_MAX: usize = crate::vk::MAX_TIMESTAMPS as usize / 2;
+    pub const STREAM_MAX: usize = super::MAX_TIMESTAMPS as usize / 2;
 
     /// Records `count` builds into one submission, runs it and returns its timings (the
     /// timestamps of the first builds, where there are more than the query pool holds).
