@@ -1,18 +1,13 @@
 //! The raytrace host: Vulkan core, GPU LBVH builder, CPU executor of the same kernels,
 //! inputs, scenes (live and editable), the windowed viewer, BVH validator and benchmarks.
 pub mod bench;
-pub mod builtin_assets;
 pub mod bvh;
 pub mod cli;
 pub mod cpu;
 pub mod features;
 pub mod gpu;
-pub mod hard_cases;
 pub mod inputs;
-pub mod live;
 pub mod picture;
-pub mod plot;
 pub mod render;
 pub mod scene;
-pub mod validate;
 pub mod view;

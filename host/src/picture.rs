@@ -1,7 +1,7 @@
 //! A rendered picture and what is done with it afterwards: linear radiance from the sample
 //! sums, saving (PNG from the display image, EXR from linear radiance), difference statistics
 //! between two renders, and a side-by-side comparison image with a difference heat map.
-//! (Plots are `crate::plot`'s.)
+//! (Plots are `crate::bench::plot`'s.)
 use anyhow::{bail, ensure, Context, Result};
 use image::{ImageFormat, Rgb, Rgb32FImage, RgbImage};
 use std::path::Path;

@@ -3,11 +3,10 @@
 //! bunny; random, all-equal, far-outlier, collinear and duplicate-heavy inputs; 30- and
 //! 63-bit codes, the wide collapse, and treelet restructuring.
 use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu};
-use raytrace::bvh::{BuildOptions, BuildResult, MortonBits};
+use raytrace::bvh::{validate, validate_wide, BuildOptions, BuildResult, MortonBits};
 use raytrace::cpu;
 use raytrace::gpu::{Gpu, GpuLbvh, Kernels};
 use raytrace::inputs::{assets_dir, generate, load_obj, Distribution};
-use raytrace::validate::{validate, validate_wide};
 use shared::radix_sort as sort;
 use shared::types::{Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;

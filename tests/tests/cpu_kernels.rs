@@ -1,10 +1,9 @@
 //! The build kernels run by the CPU executor: sort order and stability, Karras's worked
 //! example, valid trees on every input shape, a validator that catches broken trees, and
 //! clear errors for bad mesh files.
-use raytrace::bvh::{BuildOptions, MortonBits};
+use raytrace::bvh::{validate, BuildOptions, MortonBits};
 use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
-use raytrace::validate::validate;
 use shared::karras::range_and_split;
 use shared::radix_sort::WINDOW;
 use shared::types::{BuildParams, Node, TILE, WORKGROUP};

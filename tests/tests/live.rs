@@ -3,11 +3,11 @@
 //! a headless render of the edited scene loaded from scratch.
 use glam::Vec3;
 use integration_tests::{assert_no_validation_errors, gpu};
+use raytrace::bvh::validate;
 use raytrace::gpu::{Gpu, GpuRenderer, Kernels};
-use raytrace::live::LiveScene;
 use raytrace::picture::Picture;
 use raytrace::scene::Scene;
-use raytrace::validate::validate;
+use raytrace::view::LiveScene;
 use std::sync::Arc;
 
 const SPP: u32 = 4;

@@ -5,7 +5,7 @@ use glam::Vec3;
 use integration_tests::{assert_no_validation_errors, renderer};
 use raytrace::bvh::{BuildOptions, MortonBits};
 use raytrace::cpu::render_cpu;
-use raytrace::hard_cases::icosphere;
+use raytrace::inputs::hard_cases::icosphere;
 use raytrace::picture::{diff_stats, Picture};
 use raytrace::scene::attrs::{self, from_vertices};
 use raytrace::scene::{material, CameraSpec, Mesh, Scene, SceneObject, Settings, Shape, Transform};

@@ -16,7 +16,7 @@ mod common;
 const WIDE: bool = false;
 
 use common::*;
-use raytrace::hard_cases::closed_meshes;
+use raytrace::inputs::hard_cases::closed_meshes;
 use shared::glam::{DVec3, Vec3};
 use shared::intersect::{self, offset_origin, TriRay};
 use shared::material::{self, reflect};
@@ -1697,7 +1697,7 @@ fn lbvh_edge_cases_trace_like_brute_force() {
             raytrace::bvh::BuildOptions::lbvh(raytrace::bvh::MortonBits::B30),
         )
         .0;
-        if let Err(e) = raytrace::validate::validate(&bvh.nodes, &bvh.parents, &world.tris, &world.spheres) {
+        if let Err(e) = raytrace::bvh::validate(&bvh.nodes, &bvh.parents, &world.tris, &world.spheres) {
             wrong.push(format!("{name}: CPU BVH invalid: {e}"));
             continue;
         }
@@ -1718,8 +1718,7 @@ fn lbvh_edge_cases_trace_like_brute_force() {
             ..raytrace::bvh::BuildOptions::lbvh(raytrace::bvh::MortonBits::B30)
         };
         let restructured = raytrace::cpu::build(&world.tris, &world.spheres, opts).0;
-        if let Err(e) =
-            raytrace::validate::validate(&restructured.nodes, &restructured.parents, &world.tris, &world.spheres)
+        if let Err(e) = raytrace::bvh::validate(&restructured.nodes, &restructured.parents, &world.tris, &world.spheres)
         {
             wrong.push(format!("{name}: CPU BVH with treelets invalid: {e}"));
             continue;

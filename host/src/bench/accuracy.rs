@@ -11,12 +11,12 @@
 //!    robust slab test against the plain one (rays per second on the scene, and rays that
 //!    leak through closed meshes aimed at their shared vertices and edges).
 use crate::bench::percentile;
+use crate::bench::plot::{line_chart, Chart, Scale, Series};
 use crate::bvh::{BuildOptions, MortonBits};
 use crate::cli::{Prepared, SceneArgs};
 use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
-use crate::hard_cases::{closed_meshes, rays_at_vertices_and_edges, scene_of, OFFSETS};
+use crate::inputs::hard_cases::{closed_meshes, rays_at_vertices_and_edges, scene_of, OFFSETS};
 use crate::picture::Picture;
-use crate::plot::{line_chart, Chart, Scale, Series};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use shared::types::{
@@ -314,10 +314,10 @@ fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow
         ms.sort_by(f64::total_cmp);
         let bvh = r.bvh()?;
         let (tris, spheres) = r.world()?;
-        let stats = crate::validate::validate(&bvh.nodes, &bvh.parents, &tris, &spheres)
+        let stats = crate::bvh::validate(&bvh.nodes, &bvh.parents, &tris, &spheres)
             .map_err(|e| anyhow::anyhow!("{name}: the BVH is invalid: {e}"))?;
         let (sah, depth) = if build.wide {
-            let w = crate::validate::validate_wide(&bvh.wide, &bvh.sorted_prims, &tris, &spheres)
+            let w = crate::bvh::validate_wide(&bvh.wide, &bvh.sorted_prims, &tris, &spheres)
                 .map_err(|e| anyhow::anyhow!("{name}: the wide BVH is invalid: {e}"))?;
             (sah_cost_wide(&bvh.wide), w.depth)
         } else {

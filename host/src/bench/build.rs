@@ -2,7 +2,7 @@
 //! discarded, median of many runs), primitives per second, BVH bytes per primitive, and the
 //! CPU executor's time on the same input; the GPU result is checked against the CPU's after
 //! timing. Writes Markdown and JSON.
-use crate::bvh::{BuildOptions, MortonBits, STAGES};
+use crate::bvh::{validate, validate_wide, BuildOptions, MortonBits, STAGES};
 
 /// Reported columns: the stages, and the wide collapse (0 for binary builds).
 const COLUMNS: [&str; 6] = [STAGES[0], STAGES[1], STAGES[2], STAGES[3], STAGES[4], "wide"];
@@ -11,7 +11,6 @@ use super::{percentile, write_files};
 use crate::cpu;
 use crate::gpu::{Gpu, GpuLbvh, Kernels};
 use crate::inputs::{assets_dir, generate, load_obj, Distribution};
-use crate::validate::{validate, validate_wide};
 use anyhow::{bail, Result};
 use serde::Serialize;
 use shared::types::{Sphere, Triangle};

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 pub mod accuracy;
 pub mod build;
 pub mod features;
+pub mod plot;
 pub mod readme;
 pub mod realtime;
 pub mod table2;

@@ -6,7 +6,7 @@
 use crate::bench::percentile;
 use crate::cli::SceneArgs;
 use crate::gpu::{frame_timings, Commands, Gpu, GpuRenderer, Kernels};
-use crate::live::LiveScene;
+use crate::view::LiveScene;
 use anyhow::{bail, Context, Result};
 use std::fmt::Write;
 use std::sync::Arc;

@@ -3,10 +3,10 @@
 //! as its `rayColor`) on the CPU executor, the GPU by brute force and the GPU through the
 //! BVH rebuilt every frame; BVH build times; and the GPU's speed-up over the CPU against rays
 //! per pixel for the Cornell box (the thesis's Figure 3).
+use crate::bench::plot::{line_chart, Chart, Scale, Series};
 use crate::cli::{Prepared, SceneArgs};
 use crate::cpu::render_cpu;
 use crate::gpu::{Gpu, GpuRenderer, Kernels};
-use crate::plot::{line_chart, Chart, Scale, Series};
 use crate::render::stage_totals;
 use anyhow::{Context, Result};
 use std::fmt::Write;

@@ -5,10 +5,10 @@
 //! Markdown, JSON and a stacked-bar plot of the frame per scene and layout.
 use crate::bench::accuracy::{sah_cost, sah_cost_wide};
 use crate::bench::percentile;
+use crate::bench::plot::{stacked_bars, Bar};
 use crate::bvh::{BuildOptions, Layout};
 use crate::cli::{Prepared, SceneArgs};
 use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
-use crate::plot::{stacked_bars, Bar};
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use shared::glam::Vec3;

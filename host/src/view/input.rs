@@ -3,7 +3,7 @@
 //! by [`parse_action`]) share ([`Action`]).
 use super::overlay::on;
 use super::window::App;
-use crate::live::LiveScene;
+use super::LiveScene;
 use crate::scene::Shape;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::Vec3;

@@ -9,15 +9,16 @@
 //! the fly camera.
 mod camera;
 mod input;
+mod live;
 mod overlay;
 mod window;
 
 pub use camera::FlyCamera;
 pub use input::KEYS;
+pub use live::LiveScene;
 
 use crate::cli::SceneArgs;
 use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
-use crate::live::LiveScene;
 use anyhow::{anyhow, bail, Context, Result};
 use raw_window_handle::HasDisplayHandle;
 use std::ffi::CStr;

@@ -80,7 +80,7 @@ impl App {
         }
         let bvh = self.renderer.bvh()?;
         let (tris, spheres) = self.renderer.world()?;
-        match crate::validate::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
+        match crate::bvh::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
             Ok(s) => println!("BVH valid: {s:?}"),
             Err(e) => println!("BVH INVALID: {e}"),
         }

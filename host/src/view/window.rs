@@ -3,9 +3,9 @@
 //! camera's flight, then record, submit, present and wait (see ARCHITECTURE.md, "The viewer").
 use super::input::Action;
 use super::overlay::Stats;
+use super::LiveScene;
 use super::{FlyCamera, ViewArgs};
 use crate::gpu::{frame_timings, Buffer, Commands, Gpu, GpuRenderer, Swapchain};
-use crate::live::LiveScene;
 use crate::picture::{swap_red_blue, Picture};
 use anyhow::{anyhow, bail, Context, Result};
 use gpu_allocator::MemoryLocation;

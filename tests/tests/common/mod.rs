@@ -1,10 +1,10 @@
 //! Helpers of the stability tests: primitives with the BVH the CPU executor builds; closed
-//! meshes with shared vertices (from `raytrace::hard_cases`); random numbers from the kernels' own streams; units in the
+//! meshes with shared vertices (from `raytrace::inputs::hard_cases`); random numbers from the kernels' own streams; units in the
 //! last place; and a chi-square critical value.
 #![allow(dead_code)]
 
 use raytrace::bvh::{BuildOptions, MortonBits};
-pub use raytrace::hard_cases::{cube, icosphere, octahedron, rays_at_vertices_and_edges, Mesh, OFFSETS};
+pub use raytrace::inputs::hard_cases::{cube, icosphere, octahedron, rays_at_vertices_and_edges, Mesh, OFFSETS};
 use shared::glam::Vec3;
 use shared::rng::Rng;
 use shared::traverse::Scene;
@@ -34,7 +34,7 @@ impl World {
         });
         // Broken primitives (non-finite vertices) have no box to contain.
         if crate::WIDE && finite {
-            if let Err(e) = raytrace::validate::validate_wide(&r.wide, &r.sorted_prims, &tris, &spheres) {
+            if let Err(e) = raytrace::bvh::validate_wide(&r.wide, &r.sorted_prims, &tris, &spheres) {
                 panic!("the CPU's wide BVH is invalid: {e}");
             }
         }
@@ -174,7 +174,7 @@ impl GpuWorld {
     /// Loads `w`'s primitives and builds their BVH on the GPU, which must pass the validator;
     /// queries go through the BVH.
     pub fn load(&mut self, w: &World) {
-        let scene = raytrace::hard_cases::scene_of(&w.tris, &w.spheres);
+        let scene = raytrace::inputs::hard_cases::scene_of(&w.tris, &w.spheres);
         let data = scene.gpu_data(0.0);
         let mut frame = scene.frame(&data);
         frame.features = FEATURES_ALL;
@@ -188,11 +188,11 @@ impl GpuWorld {
             "the transform stage moved the primitives"
         );
         let bvh = r.bvh().expect("BVH");
-        if let Err(e) = raytrace::validate::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
+        if let Err(e) = raytrace::bvh::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
             panic!("the GPU's BVH is invalid: {e}");
         }
         if crate::WIDE {
-            if let Err(e) = raytrace::validate::validate_wide(&bvh.wide, &bvh.sorted_prims, &tris, &spheres) {
+            if let Err(e) = raytrace::bvh::validate_wide(&bvh.wide, &bvh.sorted_prims, &tris, &spheres) {
                 panic!("the GPU's wide BVH is invalid: {e}");
             }
             assert_eq!(bvh.wide, w.wide, "the GPU's wide BVH differs from the CPU executor's");

@@ -1,4 +1,8 @@
 //! What a BVH build produces, on either backend, and the choice of Morton code width.
+mod validate;
+
+pub use validate::{validate, validate_wide, BvhStats, WideStats};
+
 use shared::types::{Node, OrderedBounds};
 use shared::wide::WideNode;
 

@@ -6,8 +6,8 @@ use std::path::Path;
 
 /// The built-in copies, by file name (2.6 MB; `assets/README.md` says where they come from).
 pub const FILES: [(&str, &[u8]); 2] = [
-    ("bunny.obj", include_bytes!("../../assets/bunny.obj")),
-    ("suzanne.obj", include_bytes!("../../assets/suzanne.obj")),
+    ("bunny.obj", include_bytes!("../../../assets/bunny.obj")),
+    ("suzanne.obj", include_bytes!("../../../assets/suzanne.obj")),
 ];
 
 /// The built-in copy of file `name`.

@@ -1,6 +1,9 @@
 //! Build inputs: generated primitive sets for tests and benchmarks (fixed seeds), and OBJ
 //! meshes loaded with tobj. Bad input gets an error naming the file and the problem.
-use crate::builtin_assets;
+pub mod hard_cases;
+
+mod builtin_assets;
+
 use anyhow::{bail, Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
