@@ -1,0 +1,4 @@
+//! The command line: `raytrace`'s commands.
+mod render;
+
+pub use render::*;
