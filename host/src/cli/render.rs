@@ -1,17 +1,18 @@
-//! The `render` and `compare` commands: scene options shared by both, progress and summary
-//! lines, and the side-by-side comparison of the CPU and GPU backends.
+//! `raytrace render`, and what every command that opens a scene shares: the scene options
+//! (`compare`, `view` and the benchmarks take them too), the scene prepared from them,
+//! rendering on either backend with progress, the backend `auto` picks, the summary line.
 use crate::bvh::{BuildOptions, Layout, MortonBits};
 use crate::cpu::{render_cpu, CpuRender};
 use crate::features::{self, Features, Forced};
 use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
-use crate::picture::{self, Picture};
+use crate::picture::Picture;
 use crate::render::{self, Backend};
 use crate::scene::{Scene, SceneGpu};
+use anyhow::{bail, Result};
 use glam::Vec3;
-use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use shared::types::Frame;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -354,61 +355,6 @@ pub fn choose_backend(opts: &GpuOptions) -> (Backend, String) {
     }
 }
 
-/// `raytrace info`: every Vulkan device and the CPU executor with a rough speed (the Cornell
-/// box at 128x128, 4 spp, depth 4), and the backend `render` picks. Fails where no Vulkan
-/// device opens (after printing the rest).
-pub fn info_command(opts: &GpuOptions) -> Result<()> {
-    let args = ["raytrace", "cornell", "--size", "128x128", "--spp", "4", "--depth", "4"];
-    let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
-    let speed = |r: &Rendered| {
-        let trace: f64 = r.timings.iter().filter(|t| t.0 == "trace").map(|t| t.1).sum();
-        render::rays_traced(&r.picture) as f64 / trace.max(1e-9) / 1e6
-    };
-    let devices = Gpu::list();
-    let mut opened = None;
-    match &devices {
-        Ok(list) if list.is_empty() => println!("Vulkan: no device the kernels can run on"),
-        Ok(list) => {
-            for d in list {
-                let one = GpuOptions {
-                    device: Some(d.index.to_string()),
-                    ..opts.clone()
-                };
-                let line = match open_gpu(&one).and_then(|(gpu, kernels)| {
-                    let r = render_gpu(&mut GpuRenderer::new(&gpu, &kernels)?, &p, true)?;
-                    Ok((gpu, r))
-                }) {
-                    Ok((gpu, r)) => {
-                        opened.get_or_insert(gpu.describe());
-                        format!("{:.0} Mrays/s", speed(&r))
-                    }
-                    Err(e) => format!("unusable: {e:#}"),
-                };
-                println!(
-                    "Vulkan device {}: {} ({}, {}): {line}",
-                    d.index,
-                    d.name,
-                    d.kind_name(),
-                    d.driver
-                );
-            }
-        }
-        Err(e) => println!("Vulkan: {e:#}"),
-    }
-    let (cpu, _) = render_on_cpu(&p, true);
-    println!(
-        "CPU executor ({} threads): {:.0} Mrays/s",
-        rayon::current_num_threads(),
-        speed(&cpu)
-    );
-    println!("(rough speeds: the Cornell box, 128x128, 4 spp, depth 4, path tracing only)");
-    println!("`raytrace render` picks: {}", choose_backend(opts).1);
-    match opened {
-        Some(_) => Ok(()),
-        None => bail!("no Vulkan device opened"),
-    }
-}
-
 /// `raytrace render`.
 pub fn render_command(args: &SceneArgs, backend: Backend, out: Option<PathBuf>, opts: &GpuOptions) -> Result<PathBuf> {
     let p = args.prepare()?;
@@ -485,113 +431,6 @@ pub fn ms(t: f64) -> String {
     }
 }
 
-/// Outcome of `raytrace compare`.
-pub struct Comparison {
-    pub stats: picture::DiffStats,
-    /// Same tree: child links, parents and primitive order.
-    pub topology_identical: bool,
-    /// Same tree and bit-identical boxes.
-    pub bvh_identical: bool,
-    /// Largest difference between the backends' world-space coordinates, relative to the
-    /// largest coordinate magnitude of the scene.
-    pub world_max_error: f32,
-    pub cpu: Rendered,
-    pub gpu: Rendered,
-}
-
-/// Renders on both backends with the same random streams and compares them.
-pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool) -> Result<Comparison> {
-    let mut r = GpuRenderer::new(gpu, kernels)?;
-    // One submission: every sample sees the BVH built in it.
-    r.set_build(p.build(p.spp));
-    r.load(&p.data, &p.frame)?;
-    let timings = r.render(p.spp, true)?;
-    let g = Rendered {
-        picture: r.picture()?,
-        timings: render::stage_totals(&timings),
-        device: gpu.describe(),
-    };
-    let gpu_bvh = r.bvh()?;
-    let (gpu_tris, gpu_spheres) = r.world()?;
-    let (c, cpu_out) = render_on_cpu(p, quiet);
-    let links = |b: &crate::bvh::BuildResult| b.nodes.iter().map(|n| (n.a, n.b)).collect::<Vec<_>>();
-    let topology_identical = links(&gpu_bvh) == links(&cpu_out.bvh)
-        && gpu_bvh.parents == cpu_out.bvh.parents
-        && gpu_bvh.sorted_prims == cpu_out.bvh.sorted_prims;
-    let bvh_identical = topology_identical && gpu_bvh.nodes == cpu_out.bvh.nodes;
-    let floats = |t: &[shared::types::Triangle], s: &[shared::types::Sphere]| -> Vec<f32> {
-        let mut v: Vec<f32> = bytemuck::cast_slice(t).to_vec();
-        v.extend_from_slice(bytemuck::cast_slice(s));
-        v
-    };
-    let (on_gpu, on_cpu) = (floats(&gpu_tris, &gpu_spheres), floats(&cpu_out.tris, &cpu_out.spheres));
-    let scale = on_cpu.iter().fold(f32::MIN_POSITIVE, |m, x| m.max(x.abs()));
-    let world_max_error = on_gpu
-        .iter()
-        .zip(&on_cpu)
-        .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()))
-        / scale;
-    let stats = picture::diff_stats(&c.picture, &g.picture)?;
-    Ok(Comparison {
-        stats,
-        topology_identical,
-        bvh_identical,
-        world_max_error,
-        cpu: c,
-        gpu: g,
-    })
-}
-
-/// `raytrace compare`: writes CPU | GPU | difference, prints the stage table; an error when
-/// the images differ by more than `tolerance` (relative RMSE) or the BVHs differ.
-pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuOptions) -> Result<()> {
-    let p = args.prepare()?;
-    let (gpu, kernels) = open_gpu(opts).context("compare needs a Vulkan device")?;
-    let c = compare(&p, &gpu, &kernels, false)?;
-    let mean = c.cpu.picture.mean_luminance().max(1e-6) as f32;
-    picture::write_comparison(&c.cpu.picture, &c.gpu.picture, 0.5 * mean, out)?;
-    println!(
-        "{} {}x{}, {} spp, depth {}",
-        p.scene.name, p.frame.width, p.frame.height, p.spp, p.frame.max_depth
-    );
-    println!("| stage | CPU ({}) | GPU ({}) |", c.cpu.device, c.gpu.device);
-    println!("|---|---|---|");
-    let mut stages: Vec<&str> = c.cpu.timings.iter().map(|t| t.0).collect();
-    for (s, _) in &c.gpu.timings {
-        if !stages.contains(s) {
-            stages.push(s);
-        }
-    }
-    let find = |r: &Rendered, s: &str| r.timings.iter().find(|t| t.0 == s).map_or("-".into(), |t| ms(t.1));
-    for s in stages {
-        println!("| {s} | {} | {} |", find(&c.cpu, s), find(&c.gpu, s));
-    }
-    println!(
-        "world-space primitives: largest relative difference {:.2e}; BVH topology identical: {}; BVH boxes bit-identical: {}",
-        c.world_max_error, c.topology_identical, c.bvh_identical
-    );
-    println!(
-        "image difference: relative RMSE {:.4} (tolerance {tolerance}), max {:.3}, {:.2}% of pixels differ by > 5% of the mean",
-        c.stats.relative_rmse,
-        c.stats.max_abs,
-        c.stats.differing_pixels * 100.0
-    );
-    println!(
-        "wrote {} (CPU | GPU | |difference|, full scale = half the mean luminance)",
-        out.display()
-    );
-    if !c.topology_identical {
-        bail!("the CPU and GPU built BVHs of different topology");
-    }
-    if c.stats.relative_rmse > tolerance {
-        bail!(
-            "the images differ: relative RMSE {:.4} > tolerance {tolerance}",
-            c.stats.relative_rmse
-        );
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -599,7 +438,10 @@ mod tests {
     #[test]
     fn camera_option_parses_and_bad_ones_are_named() {
         let (p, l, f) = parse_camera("0,1,5:0,0.5,0:40").unwrap();
-        assert_eq!((p, l, f), (Vec3::new(0.0, 1.0, 5.0), Vec3::new(0.0, 0.5, 0.0), Some(40.0)));
+        assert_eq!(
+            (p, l, f),
+            (Vec3::new(0.0, 1.0, 5.0), Vec3::new(0.0, 0.5, 0.0), Some(40.0))
+        );
         assert_eq!(parse_camera(" 1, 2, 3 : 0,0,0").unwrap().2, None);
         for (bad, says) in [
             ("1,2:0,0,0", "three finite numbers"),
@@ -612,10 +454,14 @@ mod tests {
             assert!(e.contains(says), "{bad}: {e}");
         }
         // The scene's camera is replaced, its up kept unless parallel to the view.
-        let args = <SceneArgs as clap::Parser>::parse_from(["raytrace", "cornell", "--camera", "278,900,278:278,0,278:30"]);
+        let args =
+            <SceneArgs as clap::Parser>::parse_from(["raytrace", "cornell", "--camera", "278,900,278:278,0,278:30"]);
         let p = args.prepare().unwrap();
         let c = p.scene.camera;
-        assert_eq!((c.position, c.look_at, c.vfov_deg), (Vec3::new(278.0, 900.0, 278.0), Vec3::new(278.0, 0.0, 278.0), 30.0));
+        assert_eq!(
+            (c.position, c.look_at, c.vfov_deg),
+            (Vec3::new(278.0, 900.0, 278.0), Vec3::new(278.0, 0.0, 278.0), 30.0)
+        );
         assert!(c.up.cross(c.look_at - c.position).length() > 0.0);
     }
 }

@@ -1,0 +1,117 @@
+//! `raytrace compare`: one scene rendered on both backends with the same random streams, and
+//! what differs: the images (CPU | GPU | difference), the BVHs, the world-space primitives and
+//! the stage times.
+use super::render::{ms, open_gpu, render_on_cpu, Prepared, Rendered, SceneArgs};
+use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
+use crate::picture;
+use crate::render;
+use anyhow::{bail, Context, Result};
+use std::path::Path;
+use std::sync::Arc;
+
+/// Outcome of `raytrace compare`.
+pub struct Comparison {
+    pub stats: picture::DiffStats,
+    /// Same tree: child links, parents and primitive order.
+    pub topology_identical: bool,
+    /// Same tree and bit-identical boxes.
+    pub bvh_identical: bool,
+    /// Largest difference between the backends' world-space coordinates, relative to the
+    /// largest coordinate magnitude of the scene.
+    pub world_max_error: f32,
+    pub cpu: Rendered,
+    pub gpu: Rendered,
+}
+
+/// Renders on both backends with the same random streams and compares them.
+pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool) -> Result<Comparison> {
+    let mut r = GpuRenderer::new(gpu, kernels)?;
+    // One submission: every sample sees the BVH built in it.
+    r.set_build(p.build(p.spp));
+    r.load(&p.data, &p.frame)?;
+    let timings = r.render(p.spp, true)?;
+    let g = Rendered {
+        picture: r.picture()?,
+        timings: render::stage_totals(&timings),
+        device: gpu.describe(),
+    };
+    let gpu_bvh = r.bvh()?;
+    let (gpu_tris, gpu_spheres) = r.world()?;
+    let (c, cpu_out) = render_on_cpu(p, quiet);
+    let links = |b: &crate::bvh::BuildResult| b.nodes.iter().map(|n| (n.a, n.b)).collect::<Vec<_>>();
+    let topology_identical = links(&gpu_bvh) == links(&cpu_out.bvh)
+        && gpu_bvh.parents == cpu_out.bvh.parents
+        && gpu_bvh.sorted_prims == cpu_out.bvh.sorted_prims;
+    let bvh_identical = topology_identical && gpu_bvh.nodes == cpu_out.bvh.nodes;
+    let floats = |t: &[shared::types::Triangle], s: &[shared::types::Sphere]| -> Vec<f32> {
+        let mut v: Vec<f32> = bytemuck::cast_slice(t).to_vec();
+        v.extend_from_slice(bytemuck::cast_slice(s));
+        v
+    };
+    let (on_gpu, on_cpu) = (floats(&gpu_tris, &gpu_spheres), floats(&cpu_out.tris, &cpu_out.spheres));
+    let scale = on_cpu.iter().fold(f32::MIN_POSITIVE, |m, x| m.max(x.abs()));
+    let world_max_error = on_gpu
+        .iter()
+        .zip(&on_cpu)
+        .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()))
+        / scale;
+    let stats = picture::diff_stats(&c.picture, &g.picture)?;
+    Ok(Comparison {
+        stats,
+        topology_identical,
+        bvh_identical,
+        world_max_error,
+        cpu: c,
+        gpu: g,
+    })
+}
+
+/// `raytrace compare`: writes CPU | GPU | difference, prints the stage table; an error when
+/// the images differ by more than `tolerance` (relative RMSE) or the BVHs differ.
+pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuOptions) -> Result<()> {
+    let p = args.prepare()?;
+    let (gpu, kernels) = open_gpu(opts).context("compare needs a Vulkan device")?;
+    let c = compare(&p, &gpu, &kernels, false)?;
+    let mean = c.cpu.picture.mean_luminance().max(1e-6) as f32;
+    picture::write_comparison(&c.cpu.picture, &c.gpu.picture, 0.5 * mean, out)?;
+    println!(
+        "{} {}x{}, {} spp, depth {}",
+        p.scene.name, p.frame.width, p.frame.height, p.spp, p.frame.max_depth
+    );
+    println!("| stage | CPU ({}) | GPU ({}) |", c.cpu.device, c.gpu.device);
+    println!("|---|---|---|");
+    let mut stages: Vec<&str> = c.cpu.timings.iter().map(|t| t.0).collect();
+    for (s, _) in &c.gpu.timings {
+        if !stages.contains(s) {
+            stages.push(s);
+        }
+    }
+    let find = |r: &Rendered, s: &str| r.timings.iter().find(|t| t.0 == s).map_or("-".into(), |t| ms(t.1));
+    for s in stages {
+        println!("| {s} | {} | {} |", find(&c.cpu, s), find(&c.gpu, s));
+    }
+    println!(
+        "world-space primitives: largest relative difference {:.2e}; BVH topology identical: {}; BVH boxes bit-identical: {}",
+        c.world_max_error, c.topology_identical, c.bvh_identical
+    );
+    println!(
+        "image difference: relative RMSE {:.4} (tolerance {tolerance}), max {:.3}, {:.2}% of pixels differ by > 5% of the mean",
+        c.stats.relative_rmse,
+        c.stats.max_abs,
+        c.stats.differing_pixels * 100.0
+    );
+    println!(
+        "wrote {} (CPU | GPU | |difference|, full scale = half the mean luminance)",
+        out.display()
+    );
+    if !c.topology_identical {
+        bail!("the CPU and GPU built BVHs of different topology");
+    }
+    if c.stats.relative_rmse > tolerance {
+        bail!(
+            "the images differ: relative RMSE {:.4} > tolerance {tolerance}",
+            c.stats.relative_rmse
+        );
+    }
+    Ok(())
+}
