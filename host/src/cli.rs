@@ -4,10 +4,10 @@ use crate::bvh::{BuildOptions, Layout, MortonBits};
 use crate::features::{self, Features, Forced};
 use crate::picture::{self, Picture};
 use crate::render::{self, render_cpu, Backend, GpuRenderer};
-use crate::scene::{Scene, SceneGpu};
+use crate::scene::{Environment, Scene, SceneGpu};
 use crate::vk::{Gpu, GpuOptions, Kernels};
-use glam::Vec3;
 use anyhow::{bail, Context, Result};
+use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use shared::types::Frame;
 use std::path::{Path, PathBuf};
@@ -75,6 +75,16 @@ pub struct SceneArgs {
     /// (three numbers each, the vertical field of view in degrees).
     #[arg(long, value_parser = parse_camera)]
     pub camera: Option<(Vec3, Vec3, Option<f32>)>,
+    /// An HDR environment map (equirectangular .exr or .hdr) lighting the scene instead of
+    /// its sky or its own map.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// Turn of the environment map about the vertical axis, in degrees.
+    #[arg(long)]
+    pub env_rotation: Option<f32>,
+    /// Factor on the environment map's radiance.
+    #[arg(long)]
+    pub env_intensity: Option<f32>,
 }
 
 /// Parses `--camera`: `x,y,z:x,y,z[:vfov]`.
@@ -217,6 +227,7 @@ impl SceneArgs {
                 c.vfov_deg = f;
             }
         }
+        self.apply_environment(&mut scene)?;
         let data = scene.gpu_data(self.time);
         let frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
         let features = features::derive(&data, &frame, &Forced::parse(&self.features)?)?;
@@ -231,6 +242,32 @@ impl SceneArgs {
             treelets: self.treelets,
             layout: self.bvh,
         })
+    }
+}
+
+impl SceneArgs {
+    /// `--env`, `--env-rotation`, `--env-intensity` on top of the scene's environment.
+    fn apply_environment(&self, scene: &mut Scene) -> Result<()> {
+        let current = scene.environment.as_ref();
+        let rotation = self.env_rotation.or(current.map(|e| e.rotation_deg)).unwrap_or(0.0);
+        let intensity = self.env_intensity.or(current.map(|e| e.intensity)).unwrap_or(1.0);
+        if let Some(path) = &self.env {
+            let (env, warnings) = Environment::load(path, rotation, intensity)?;
+            for w in warnings {
+                eprintln!("warning: {w}");
+            }
+            scene.environment = Some(env);
+        } else if let Some(env) = scene.environment.as_mut() {
+            if !(rotation.is_finite() && intensity.is_finite() && intensity >= 0.0) {
+                bail!("--env-rotation must be finite and --env-intensity finite and at least 0");
+            }
+            (env.rotation_deg, env.intensity) = (rotation, intensity);
+        } else if self.env_rotation.is_some() || self.env_intensity.is_some() {
+            bail!(
+                "--env-rotation and --env-intensity need an environment map (--env FILE or the scene's [environment])"
+            );
+        }
+        Ok(())
     }
 }
 
@@ -598,7 +635,10 @@ mod tests {
     #[test]
     fn camera_option_parses_and_bad_ones_are_named() {
         let (p, l, f) = parse_camera("0,1,5:0,0.5,0:40").unwrap();
-        assert_eq!((p, l, f), (Vec3::new(0.0, 1.0, 5.0), Vec3::new(0.0, 0.5, 0.0), Some(40.0)));
+        assert_eq!(
+            (p, l, f),
+            (Vec3::new(0.0, 1.0, 5.0), Vec3::new(0.0, 0.5, 0.0), Some(40.0))
+        );
         assert_eq!(parse_camera(" 1, 2, 3 : 0,0,0").unwrap().2, None);
         for (bad, says) in [
             ("1,2:0,0,0", "three finite numbers"),
@@ -611,10 +651,14 @@ mod tests {
             assert!(e.contains(says), "{bad}: {e}");
         }
         // The scene's camera is replaced, its up kept unless parallel to the view.
-        let args = <SceneArgs as clap::Parser>::parse_from(["raytrace", "cornell", "--camera", "278,900,278:278,0,278:30"]);
+        let args =
+            <SceneArgs as clap::Parser>::parse_from(["raytrace", "cornell", "--camera", "278,900,278:278,0,278:30"]);
         let p = args.prepare().unwrap();
         let c = p.scene.camera;
-        assert_eq!((c.position, c.look_at, c.vfov_deg), (Vec3::new(278.0, 900.0, 278.0), Vec3::new(278.0, 0.0, 278.0), 30.0));
+        assert_eq!(
+            (c.position, c.look_at, c.vfov_deg),
+            (Vec3::new(278.0, 900.0, 278.0), Vec3::new(278.0, 0.0, 278.0), 30.0)
+        );
         assert!(c.up.cross(c.look_at - c.position).length() > 0.0);
     }
 }

@@ -13,8 +13,8 @@
 //! 2. A reflected direction (scattered or sampled toward a light) must leave on the
 //!    geometric side the ray came from, a refracted one on the other; anything else is
 //!    absorbed (`material::scatter`) or carries no light (`path`'s next-event estimation).
-use crate::math::sqrt;
 use crate::math::finite3;
+use crate::math::sqrt;
 use crate::sync::at;
 use crate::traverse::{self, Scene};
 use crate::types::{xyz, Hit, Object, VertexAttrs, FEATURE_SHADING_NORMALS, INVALID};
@@ -131,7 +131,7 @@ mod tests {
         assert_eq!(n, ng);
         assert!((s.length() - 1.0).abs() < 1e-5);
         let c = (-d).dot(s);
-        assert!(c >= MIN_COS_VIEW * 0.5 && c < 0.01, "cosine with the viewer {c}");
+        assert!((MIN_COS_VIEW * 0.5..0.01).contains(&c), "cosine with the viewer {c}");
         assert!(s.dot(ng) > 0.0);
     }
 }

@@ -22,6 +22,7 @@ fn ball(shape: Shape, meshes: Vec<Mesh>) -> Scene {
     Scene {
         name: "ball".into(),
         punctual: Vec::new(),
+        environment: None,
         camera: CameraSpec {
             position: Vec3::new(0.0, 0.0, 3.0),
             look_at: Vec3::ZERO,
@@ -187,7 +188,14 @@ fn punctual_lights_give_their_analytic_radiance() {
     let got = centre(&s);
     assert!((got - want).abs() < 1e-3 * want, "directional: {got} vs {want}");
     // A point light of intensity 8 two units above the floor's centre: L = a I / (pi h^2).
-    s.punctual = vec![light(LIGHT_POINT, Vec3::new(0.0, 2.0, 0.0), Vec3::ZERO, 8.0, -1.0, -1.0)];
+    s.punctual = vec![light(
+        LIGHT_POINT,
+        Vec3::new(0.0, 2.0, 0.0),
+        Vec3::ZERO,
+        8.0,
+        -1.0,
+        -1.0,
+    )];
     let want = 0.5 * 8.0 / (std::f64::consts::PI * 4.0);
     let got = centre(&s);
     assert!((got - want).abs() < 0.01 * want, "point: {got} vs {want}");

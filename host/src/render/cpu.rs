@@ -73,6 +73,7 @@ pub fn render_cpu(
         frame,
         attrs: &scene.attrs,
         punctual: &scene.punctual,
+        env: scene.env.as_ref().map_or(&[], |e| e.entries.as_slice()),
     };
     let push = RenderPush {
         sample_base: 0,

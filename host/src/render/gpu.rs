@@ -9,6 +9,7 @@ use crate::vk::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels};
 use anyhow::{bail, Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
+use shared::envmap::EnvEntry;
 use shared::types::{
     grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN, DISPLAY_BGRA,
     TILE_SIDE, VARIANT_WIDE_BVH, WORKGROUP,
@@ -37,6 +38,7 @@ struct SceneBuffers {
     hits: Buffer,
     attrs: Buffer,
     punctual: Buffer,
+    env: Buffer,
     /// Set 1 naming the buffers above; made again whenever one of them is replaced.
     set: Option<BindingSets>,
     n_objects: usize,
@@ -59,6 +61,7 @@ impl SceneBuffers {
             &self.hits,
             &self.attrs,
             &self.punctual,
+            &self.env,
         ];
         self.set = Some(BindingSets::new(gpu, kernels, 1, &[&buffers])?);
         Ok(())
@@ -189,6 +192,8 @@ impl GpuRenderer {
         let hits = dev("hits", size_of::<Hit>())?;
         let attrs = dev("vertex attributes", size_of_val(scene.attrs.as_slice()))?;
         let punctual = dev("punctual lights", size_of_val(scene.punctual.as_slice()))?;
+        let env_entries: &[EnvEntry] = scene.env.as_ref().map_or(&[], |e| e.entries.as_slice());
+        let env = dev("environment map", size_of_val(env_entries))?;
         self.upload(&model_tris, &scene.model_tris)?;
         self.upload(&model_spheres, &scene.model_spheres)?;
         self.upload(&prim_object, &scene.prim_object)?;
@@ -196,6 +201,7 @@ impl GpuRenderer {
         self.upload(&lights, &scene.lights)?;
         self.upload(&attrs, &scene.attrs)?;
         self.upload(&punctual, &scene.punctual)?;
+        self.upload(&env, env_entries)?;
         self.bufs = Some(SceneBuffers {
             objects,
             model_tris,
@@ -210,6 +216,7 @@ impl GpuRenderer {
             hits,
             attrs,
             punctual,
+            env,
             set: None,
             n_objects: scene.objects.len(),
         });

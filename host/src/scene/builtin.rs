@@ -39,6 +39,7 @@ impl Builder {
             scene: Scene {
                 name: name.to_string(),
                 punctual: Vec::new(),
+                environment: None,
                 camera,
                 settings,
                 materials: Vec::new(),

@@ -8,11 +8,12 @@
 //! above a rotation, or a mirror) the world matrix is baked into a copy of the triangles, the
 //! winding reversed under a mirror so that the front face stays the front face.
 //!
-//! Materials (metallic-roughness) become the renderer's kinds (docs/scenes.md, "Model files"):
-//! `baseColorFactor` is the albedo, `emissiveFactor` times `KHR_materials_emissive_strength`
-//! the emission; `KHR_materials_transmission` of at least 0.5 makes glass with the
-//! `KHR_materials_ior` index (else 1.5), `metallicFactor` of at least 0.5 a metal with the
-//! `roughnessFactor`, anything else is diffuse; a primitive without a material is grey diffuse.
+//! Materials become the renderer's metallic-roughness kind (`MaterialKind::Pbr`, docs/scenes.md,
+//! "Model files"): `baseColorFactor`, `metallicFactor`, `roughnessFactor`, the
+//! `KHR_materials_ior` index (else 1.5), `emissiveFactor` times
+//! `KHR_materials_emissive_strength` the emission; `KHR_materials_transmission` of at least 0.5
+//! makes smooth glass; a material that only emits is `Emissive`; a primitive without a material
+//! is grey diffuse.
 //! The first perspective camera met in the walk is the scene's camera.
 //!
 //! Vertex normals (NORMAL) and texture coordinates (TEXCOORD_0) are read; a primitive
@@ -23,13 +24,15 @@
 //! extensions that are ignored. Required extensions the renderer does not understand, unreadable
 //! buffers, accessors that point outside their data and out-of-range indices are errors.
 use super::{default_material, to_material, unique_name, Model};
-use crate::scene::{attrs, Animation, CameraSpec, Mesh, SceneError, SceneObject, Shape, Transform};
+use crate::scene::{attrs, material, Animation, CameraSpec, Mesh, SceneError, SceneObject, Shape, Transform};
 use base64::Engine;
 use glam::{EulerRot, Mat3, Mat4, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::{Mode, Semantic};
 use gltf::{Accessor, Document, Gltf};
-use shared::types::{Material, PunctualLight, Triangle, VertexAttrs, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT};
+use shared::types::{
+    Material, MaterialKind, PunctualLight, Triangle, VertexAttrs, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT,
+};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 use std::sync::Arc;
@@ -210,13 +213,23 @@ fn material_of(m: &gltf::Material) -> Material {
     let strength = m.emissive_strength().unwrap_or(1.0);
     let emission = m.emissive_factor().map(|e| e * strength);
     let transmission = m.transmission().map_or(0.0, |t| t.transmission_factor());
+    let ior = m.ior().filter(|&n| n >= 1.0 && n.is_finite()).unwrap_or(1.5);
     if transmission >= 0.5 {
-        let ior = m.ior().filter(|&n| n >= 1.0 && n.is_finite()).unwrap_or(1.5);
-        to_material([r, g, b], emission, None, Some(ior))
-    } else if pbr.metallic_factor() >= 0.5 {
-        to_material([r, g, b], emission, Some(pbr.roughness_factor()), None)
-    } else {
-        to_material([r, g, b], emission, None, None)
+        return to_material([r, g, b], emission, None, Some(ior));
+    }
+    let base = to_material([r, g, b], emission, None, None);
+    if base.kind == MaterialKind::Emissive as u32 {
+        return base;
+    }
+    let unit = |x: f32| if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+    Material {
+        emission: base.emission,
+        ..material::pbr(
+            [base.albedo[0], base.albedo[1], base.albedo[2]],
+            unit(pbr.metallic_factor()),
+            unit(pbr.roughness_factor()),
+            ior,
+        )
     }
 }
 
@@ -296,8 +309,13 @@ fn triangles(primitive: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<(Vec<Tr
         check_accessor(&normals, &[DataType::F32], Dimensions::Vec3, buffers).map_err(|e| format!("NORMAL: {e}"))?;
     }
     if let Some(uvs) = primitive.get(&Semantic::TexCoords(0)) {
-        check_accessor(&uvs, &[DataType::F32, DataType::U8, DataType::U16], Dimensions::Vec2, buffers)
-            .map_err(|e| format!("TEXCOORD_0: {e}"))?;
+        check_accessor(
+            &uvs,
+            &[DataType::F32, DataType::U8, DataType::U16],
+            Dimensions::Vec2,
+            buffers,
+        )
+        .map_err(|e| format!("TEXCOORD_0: {e}"))?;
     }
     let reader = primitive.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
     let points: Vec<[f32; 3]> = reader

@@ -156,6 +156,7 @@ impl Model {
         let mut scene = Scene {
             name: name.to_string(),
             punctual: self.punctual,
+            environment: None,
             camera: self.camera.unwrap_or(framing::NO_CAMERA),
             settings,
             materials: self.materials,
