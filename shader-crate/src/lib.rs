@@ -9,6 +9,7 @@ use shared::path::{self, World};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
 use shared::refit::{FitState, RefitState};
 use shared::scan;
+use shared::texture::TextureInfo;
 use shared::traverse::Scene;
 use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, PunctualLight, Ray,
@@ -335,7 +336,7 @@ pub fn transform(
 
 /// The scene as the render kernels see it (set 0: world primitives and BVH; set 1: the rest).
 macro_rules! world {
-    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $attrs:ident, $punctual:ident, $env:ident, $features:expr) => {
+    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $attrs:ident, $punctual:ident, $env:ident, $textures:ident, $texels:ident, $features:expr) => {
         World {
             scene: Scene {
                 tris: $tris,
@@ -355,6 +356,8 @@ macro_rules! world {
             attrs: $attrs,
             punctual: $punctual,
             env: $env,
+            textures: $textures,
+            texels: $texels,
         }
     };
 }
@@ -378,6 +381,8 @@ pub fn path_trace(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
     #[spirv(spec_constant(id = 0, default = 64575))] features: u32,
 ) {
     let w = world!(
@@ -394,6 +399,8 @@ pub fn path_trace(
         attrs,
         punctual,
         env,
+        textures,
+        texels,
         features
     );
     path::render_pixel(id.x, id.y, p, &w, accum);
@@ -431,6 +438,8 @@ pub fn cast_rays(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
     #[spirv(spec_constant(id = 0, default = 64575))] features: u32,
 ) {
     let w = world!(
@@ -447,6 +456,8 @@ pub fn cast_rays(
         attrs,
         punctual,
         env,
+        textures,
+        texels,
         features
     );
     path::cast(flat_index(id.x, id.y), p, &w, rays, hits);

@@ -29,6 +29,7 @@ pub mod sampling;
 pub mod scan;
 pub mod shading;
 pub mod sync;
+pub mod texture;
 pub mod transform;
 pub mod traverse;
 pub mod treelet;

@@ -12,10 +12,11 @@ use crate::rng::Rng;
 use crate::sampling;
 use crate::shading::{self, facing};
 use crate::sync;
+use crate::texture::TextureInfo;
 use crate::traverse::{self, Scene};
 use crate::types::{
-    xyz, Camera, Frame, Hit, Material, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY, CAST_SPAWN,
-    FEATURE_ENVMAP, FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE,
+    xyz, Camera, Frame, Hit, Material, MaterialKind, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY,
+    CAST_SPAWN, FEATURE_ENVMAP, FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE,
     FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
 };
 use core::f32::consts::PI;
@@ -39,6 +40,9 @@ pub struct World<'a> {
     pub punctual: &'a [PunctualLight],
     /// The environment map's texels and alias table (with [`FEATURE_ENVMAP`]).
     pub env: &'a [EnvEntry],
+    /// Every texture's place in `texels`, and the texels (with `FEATURE_TEXTURES`).
+    pub textures: &'a [TextureInfo],
+    pub texels: &'a [u32],
 }
 
 impl World<'_> {
@@ -222,7 +226,8 @@ fn direct_light(
         return material::eval(m, d, wi, n, sn, features).0 * e * (count as f32 / (1.0 - env_prob));
     }
     let light = w.lights[pick as usize];
-    let (q, nl, light_scale) = w.sample_point(light, rng.next_f32(), rng.next_f32());
+    let (u1, u2) = (rng.next_f32(), rng.next_f32());
+    let (q, nl, light_scale) = w.sample_point(light, u1, u2);
     let to = q - p;
     let dist = to.length();
     let wi = to / dist;
@@ -248,7 +253,13 @@ fn direct_light(
     } else {
         1.0
     };
-    let le = xyz(w.material(light).emission);
+    let le = if w.scene.is_triangle(light) {
+        let (b1, b2) = sampling::uniform_triangle(u1, u2);
+        let uv = shading::uv_at(w.objects, w.prim_object, w.attrs, light, b1, b2);
+        shading::emission_at(&w.material(light), uv, w.textures, w.texels, features)
+    } else {
+        xyz(w.material(light).emission)
+    };
     f_cos * le * (weight / pdf_light)
 }
 
@@ -348,11 +359,17 @@ struct Path {
     prev_diffuse: bool,
     depth: u32,
     rays: u32,
+    /// The ray cone's width where the ray starts and the angle it opens by (texture level of
+    /// detail, `crate::texture`).
+    cone_width: f32,
+    cone_spread: f32,
 }
 
 impl Path {
-    fn new(origin: Vec3, dir: Vec3) -> Path {
+    fn new(origin: Vec3, dir: Vec3, spread: f32) -> Path {
         Path {
+            cone_width: 0.0,
+            cone_spread: spread,
             origin,
             dir,
             l: Vec3::ZERO,
@@ -386,8 +403,17 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
         q.l += q.beta * sky(w, d) * weight;
         return false;
     }
-    let m = w.material(hit.prim);
-    let sp = shading::surface_point(&w.scene, w.objects, w.prim_object, w.attrs, o, d, &hit);
+    let mut sp = shading::surface_point(&w.scene, w.objects, w.prim_object, w.attrs, o, d, &hit);
+    let cone_width = q.cone_width + q.cone_spread * hit.t;
+    let m = shading::textured(
+        &w.material(hit.prim),
+        &mut sp,
+        d,
+        cone_width,
+        w.textures,
+        w.texels,
+        w.scene.features,
+    );
     let (p, ng, scale) = (sp.p, sp.ng, sp.scale);
     let le = xyz(m.emission);
     let cos_l = World::light_cos(ng, d);
@@ -419,6 +445,16 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
     q.prev_pdf = s.pdf;
     q.prev_diffuse = s.diffuse;
     q.depth += 1;
+    // The cone goes on from the hit; a rough bounce opens it (a texture seen through a
+    // diffuse reflection needs little detail): by a radian after Lambert, by GGX's alpha.
+    q.cone_width = cone_width;
+    if s.diffuse {
+        q.cone_spread += if m.kind == MaterialKind::Pbr as u32 {
+            m.roughness * m.roughness
+        } else {
+            1.0
+        };
+    }
     if mode.roulette && q.depth >= ROULETTE_AFTER {
         let survive = max3(q.beta).min(0.95);
         if rng.next_f32() >= survive {
@@ -456,7 +492,7 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
     let mut sum = Vec3::ZERO;
     let mut rays = 0;
     let mut started = 0;
-    let mut q = Path::new(Vec3::ZERO, Vec3::Z);
+    let mut q = Path::new(Vec3::ZERO, Vec3::Z, 0.0);
     let mut rng = Rng::new(pixel, p.sample_base, f.seed);
     let mut live = false;
     loop {
@@ -466,7 +502,7 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
             }
             rng = Rng::new(pixel, p.sample_base + started, f.seed);
             let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
-            q = Path::new(o, d);
+            q = Path::new(o, d, f.pixel_spread);
             started += 1;
             if f.max_depth == 0 {
                 continue;

@@ -259,10 +259,12 @@ pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
 // | 11      | `[VertexAttrs]` every mesh's per-vertex normals and UVs, once a mesh |
 // | 12      | `[PunctualLight]` point, spot and directional lights       |
 // | 13      | `[EnvEntry]` the environment map's texels and alias table  |
+// | 14      | `[TextureInfo]` every texture's place and size in binding 15 |
+// | 15      | texels of every texture and mip level, RGBA8 in a `u32`    |
 // ---------------------------------------------------------------------------------------------
 
 /// Storage buffers of descriptor set 1.
-pub const RENDER_BINDINGS: u32 = 14;
+pub const RENDER_BINDINGS: u32 = 16;
 /// Render kernels run on 8x8 pixel tiles.
 pub const TILE_SIDE: u32 = 8;
 
@@ -434,7 +436,10 @@ pub struct Frame {
     pub env_rotation: [f32; 2],
     pub env_intensity: f32,
     pub env_prob: f32,
-    pub _pad: [u32; 3],
+    /// Angle a camera ray's cone opens per pixel (radians): texture level of detail by ray
+    /// cones (`crate::texture`).
+    pub pixel_spread: f32,
+    pub _pad: [u32; 2],
 }
 
 /// Push constants of the render kernels.

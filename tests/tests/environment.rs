@@ -44,6 +44,7 @@ fn ball_under(map: EnvMap, m: shared::types::Material, nee: bool) -> Scene {
             animation: Default::default(),
         }],
         punctual: Vec::new(),
+        textures: Default::default(),
         environment: Some(Environment {
             map: Arc::new(map),
             rotation_deg: 30.0,

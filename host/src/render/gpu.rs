@@ -39,6 +39,8 @@ struct SceneBuffers {
     attrs: Buffer,
     punctual: Buffer,
     env: Buffer,
+    textures: Buffer,
+    texels: Buffer,
     /// Set 1 naming the buffers above; made again whenever one of them is replaced.
     set: Option<BindingSets>,
     n_objects: usize,
@@ -62,6 +64,8 @@ impl SceneBuffers {
             &self.attrs,
             &self.punctual,
             &self.env,
+            &self.textures,
+            &self.texels,
         ];
         self.set = Some(BindingSets::new(gpu, kernels, 1, &[&buffers])?);
         Ok(())
@@ -194,6 +198,8 @@ impl GpuRenderer {
         let punctual = dev("punctual lights", size_of_val(scene.punctual.as_slice()))?;
         let env_entries: &[EnvEntry] = scene.env.as_ref().map_or(&[], |e| e.entries.as_slice());
         let env = dev("environment map", size_of_val(env_entries))?;
+        let textures = dev("textures", size_of_val(scene.textures.infos.as_slice()))?;
+        let texels = dev("texels", size_of_val(scene.textures.texels.as_slice()))?;
         self.upload(&model_tris, &scene.model_tris)?;
         self.upload(&model_spheres, &scene.model_spheres)?;
         self.upload(&prim_object, &scene.prim_object)?;
@@ -202,6 +208,8 @@ impl GpuRenderer {
         self.upload(&attrs, &scene.attrs)?;
         self.upload(&punctual, &scene.punctual)?;
         self.upload(&env, env_entries)?;
+        self.upload(&textures, &scene.textures.infos)?;
+        self.upload(&texels, &scene.textures.texels)?;
         self.bufs = Some(SceneBuffers {
             objects,
             model_tris,
@@ -217,6 +225,8 @@ impl GpuRenderer {
             attrs,
             punctual,
             env,
+            textures,
+            texels,
             set: None,
             n_objects: scene.objects.len(),
         });

@@ -40,6 +40,7 @@ impl Builder {
                 name: name.to_string(),
                 punctual: Vec::new(),
                 environment: None,
+                textures: Default::default(),
                 camera,
                 settings,
                 materials: Vec::new(),

@@ -10,7 +10,9 @@ use shared::envmap::{luminance, texel_weight, Env, EnvEntry};
 use std::path::Path;
 
 /// Widest map kept; wider ones are halved (2x2 box filter) until they fit, with a warning.
-pub const MAX_WIDTH: u32 = 8192;
+/// 4096 x 2048 is 2^23 texels: the sampler picks a texel from one `f32` uniform number,
+/// whose 24 bits of mantissa could not reach every texel of an 8192 x 4096 map.
+pub const MAX_WIDTH: u32 = 4096;
 
 /// An environment map ready for the GPU.
 #[derive(Clone, Debug)]
@@ -228,7 +230,8 @@ mod tests {
             let Some(path) = hdri(name) else { return };
             let (map, warnings) = EnvMap::load(&path).unwrap_or_else(|e| panic!("{e}"));
             assert_eq!((map.width, map.height), (512, 256), "{name}");
-            assert!(warnings.is_empty(), "{name}: {warnings:?}");
+            // Some of these maps hold slightly negative texels (studio.exr: 2028 components).
+            assert!(warnings.iter().all(|w| w.contains("negative")), "{name}: {warnings:?}");
             assert!(map.power() > 0.0);
             assert!(map.entries.iter().all(|e| e.rgb.iter().all(|c| c.is_finite())));
             // The table's probabilities sum to one, and the sampled estimate of the map's

@@ -192,6 +192,7 @@ pub(super) fn parse(text: &str, file: &str, base_dir: &Path) -> Result<(Scene, V
         name,
         punctual: Vec::new(),
         environment,
+        textures: Default::default(),
         camera: to_camera(&doc.camera),
         settings: to_settings(file, &doc.render)?,
         materials,

@@ -4,6 +4,7 @@
 //! Primitives are every mesh object's triangles (objects in order, each object's mesh copied),
 //! then every sphere object's sphere; all in model space, placed by their object's matrix.
 use super::envmap::EnvMap;
+use super::texture::TextureSet;
 use super::{material, Scene, Shape};
 use glam::Vec3;
 use shared::types::{
@@ -31,6 +32,8 @@ pub struct SceneGpu {
     pub punctual: Vec<PunctualLight>,
     /// The environment map, if the scene has one (its turn and intensity go in the frame).
     pub env: Option<Arc<EnvMap>>,
+    /// Every texture of the materials and their texels (`Material::textures` index them).
+    pub textures: Arc<TextureSet>,
 }
 
 /// Probability with which next-event estimation samples the environment map when the scene
@@ -155,6 +158,7 @@ impl Scene {
             attrs,
             punctual: self.punctual.clone(),
             env: self.environment.as_ref().map(|e| e.map.clone()),
+            textures: self.textures.clone(),
         }
     }
 
@@ -212,7 +216,9 @@ impl Scene {
                 Some(_) if gpu.lights.is_empty() && gpu.punctual.is_empty() => 1.0,
                 Some(_) => ENV_LIGHT_PROB,
             },
-            _pad: [0; 3],
+            // A pixel's angular size at the image centre.
+            pixel_spread: (viewport_h / s.height as f32).atan(),
+            _pad: [0; 2],
         }
     }
 }
@@ -237,6 +243,7 @@ mod tests {
             name: "small".into(),
             punctual: Vec::new(),
             environment: None,
+            textures: Default::default(),
             camera: CameraSpec {
                 position: Vec3::new(0.0, 0.0, 5.0),
                 look_at: Vec3::ZERO,

@@ -14,6 +14,7 @@ mod gpu;
 pub mod material;
 pub mod model;
 pub mod shapes;
+pub mod texture;
 mod transform;
 mod validate;
 
@@ -40,6 +41,8 @@ pub struct Scene {
     pub punctual: Vec<PunctualLight>,
     /// An HDR environment map lighting the scene instead of the sky gradient.
     pub environment: Option<Environment>,
+    /// Every texture the materials use (`Material::textures` indexes them).
+    pub textures: Arc<texture::TextureSet>,
 }
 
 /// An environment map as a scene uses it.

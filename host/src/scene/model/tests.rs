@@ -103,17 +103,22 @@ fn suzi_glb_opens_framed_and_lit() {
 }
 
 #[test]
-fn pmndrs_glb_opens_with_its_texture_ignored() {
+fn pmndrs_glb_opens_with_its_texture() {
     let path = assets().join("pmndrs.glb");
     let (scene, warnings) = Scene::from_model(&path).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(scene.counts(), (1_552, 1));
     check_framed(&scene);
     let (_, m) = &scene.materials[scene.objects[0].material as usize];
-    assert_eq!(m.kind, MaterialKind::Diffuse as u32, "metallicFactor 0");
-    assert!(
-        has_warning(&warnings, &["textures are not supported", "1 images"]),
-        "{warnings:?}"
-    );
+    assert_eq!((m.kind, m.metallic), (MaterialKind::Pbr as u32, 0.0));
+    // Its embedded base colour texture, decoded with a full mip chain, and UVs on the mesh.
+    assert_eq!(m.textures[shared::types::TEX_BASE_COLOR], 1, "{warnings:?}");
+    let t = scene.textures.infos[0];
+    assert!(t.width > 1 && t.levels > 1, "{t:?}");
+    assert!(scene
+        .meshes
+        .iter()
+        .all(|mesh| crate::scene::attrs::has_uvs(&mesh.attrs)));
+    assert!(!has_warning(&warnings, &["texture"]), "{warnings:?}");
     // Opening by path through the CLI's entry point gives the same scene.
     let (opened, _) = Scene::open_with_warnings(path.to_str().unwrap()).unwrap();
     assert_eq!(opened.counts(), scene.counts());
@@ -558,9 +563,12 @@ fn missing_gltf_texture_is_a_warning() {
     let (_, model) = load_written("texture", &[("tex.gltf", text.as_bytes())]);
     let model = model.unwrap_or_else(|e| panic!("{e}"));
     let w = &model.material_warnings;
-    assert!(has_warning(w, &["tex.gltf", "gone.png", "missing"]), "{w:?}");
-    assert!(has_warning(w, &["textures are not supported"]), "{w:?}");
+    assert!(has_warning(w, &["gone.png", "cannot read"]), "{w:?}");
     assert_eq!(albedo(&model.materials[0].1), [0.5; 3], "the base colour factor");
+    assert_eq!(
+        model.materials[0].1.textures, [0; 4],
+        "no texture where its image is missing"
+    );
 }
 
 #[test]
