@@ -7,13 +7,14 @@
 use crate::scene::SceneGpu;
 use anyhow::{bail, Result};
 use shared::types::{
-    Frame, MaterialKind, FEATURES_ALL, FEATURE_DIELECTRIC, FEATURE_METAL, FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_SHADING_NORMALS,
-    FEATURE_SPHERES, FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_NEE, INVALID,
+    Frame, MaterialKind, FEATURES_ALL, FEATURE_DIELECTRIC, FEATURE_ENVMAP, FEATURE_METAL, FEATURE_NEE,
+    FEATURE_NORMAL_MAPS, FEATURE_PBR, FEATURE_PUNCTUAL, FEATURE_SHADING_NORMALS, FEATURE_SPHERES, FEATURE_TEXTURES,
+    FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_NEE, INVALID, TEX_NORMAL,
 };
 use std::fmt::Write;
 
 /// Feature names as `--features` takes them, with their bits.
-pub const NAMES: [(&str, u32); 8] = [
+pub const NAMES: [(&str, u32); 12] = [
     ("triangles", FEATURE_TRIANGLES),
     ("spheres", FEATURE_SPHERES),
     ("nee", FEATURE_NEE),
@@ -22,6 +23,10 @@ pub const NAMES: [(&str, u32); 8] = [
     ("thin-lens", FEATURE_THIN_LENS),
     ("shading-normals", FEATURE_SHADING_NORMALS),
     ("punctual", FEATURE_PUNCTUAL),
+    ("pbr", FEATURE_PBR),
+    ("textures", FEATURE_TEXTURES),
+    ("normal-maps", FEATURE_NORMAL_MAPS),
+    ("envmap", FEATURE_ENVMAP),
 ];
 
 /// What the user asked for beyond the scene's own needs.
@@ -134,7 +139,9 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
     };
     let metal = count_kind(MaterialKind::Metal);
     let glass = count_kind(MaterialKind::Dielectric);
-    let diffuse = count_kind(MaterialKind::Diffuse);
+    let pbr = count_kind(MaterialKind::Pbr);
+    // Surfaces next-event estimation lights: Lambert and GGX.
+    let diffuse = count_kind(MaterialKind::Diffuse) + pbr;
     let punctual = data.punctual.len();
     let lights = data.lights.len() + punctual;
     let lens = frame.camera.u[3];
@@ -166,6 +173,7 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
         ("spheres", FEATURE_SPHERES, n_spheres, "sphere"),
         ("metal", FEATURE_METAL, metal, "metal object"),
         ("dielectric", FEATURE_DIELECTRIC, glass, "glass object"),
+        ("pbr", FEATURE_PBR, pbr, "metallic-roughness object"),
     ];
     for (name, bit, n, what) in counted {
         decide(
@@ -195,7 +203,10 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
         match (punctual, nee) {
             (0, _) => "no punctual lights".into(),
             (n, true) => plural(n, "punctual light"),
-            (n, false) => format!("{} unseen: they are reached by next-event estimation only", plural(n, "punctual light")),
+            (n, false) => format!(
+                "{} unseen: they are reached by next-event estimation only",
+                plural(n, "punctual light")
+            ),
         },
     );
     decide(
@@ -206,6 +217,43 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
             format!("aperture {}", 2.0 * lens)
         } else {
             "pinhole camera (aperture 0)".into()
+        },
+    );
+    let textured = |slot: usize| {
+        data.objects
+            .iter()
+            .filter(|o| kind_of(o).is_some_and(|m| m.textures[slot] != 0))
+            .count()
+    };
+    let with_textures = (0..4).map(textured).max().unwrap_or(0);
+    decide(
+        "textures",
+        FEATURE_TEXTURES,
+        with_textures > 0,
+        if with_textures > 0 {
+            format!("{} with textures", plural(with_textures, "object"))
+        } else {
+            "no textures".into()
+        },
+    );
+    let normal_mapped = textured(TEX_NORMAL);
+    decide(
+        "normal-maps",
+        FEATURE_NORMAL_MAPS,
+        normal_mapped > 0,
+        if normal_mapped > 0 {
+            format!("{} with normal maps", plural(normal_mapped, "object"))
+        } else {
+            "no normal maps".into()
+        },
+    );
+    decide(
+        "envmap",
+        FEATURE_ENVMAP,
+        data.env.is_some(),
+        match &data.env {
+            Some(e) => format!("environment map {}", e.source),
+            None => "no environment map (the sky gradient)".into(),
         },
     );
     let smooth = if crate::scene::attrs::has_normals(&data.attrs) {
@@ -242,6 +290,7 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
             (k == MaterialKind::Diffuse as u32 && m.albedo[..3].iter().any(|&a| a > 0.0))
                 || (k == MaterialKind::Metal as u32 && bits & FEATURE_METAL != 0)
                 || (k == MaterialKind::Dielectric as u32 && bits & FEATURE_DIELECTRIC != 0)
+                || (k == MaterialKind::Pbr as u32 && bits & FEATURE_PBR != 0)
         })
     });
     let emits = lights > 0

@@ -4,19 +4,21 @@
 #![cfg_attr(target_arch = "spirv", no_std)]
 
 use shared::bounds::{self, BoundsState};
+use shared::envmap::EnvEntry;
 use shared::path::{self, World};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
 use shared::refit::{FitState, RefitState};
 use shared::scan;
+use shared::texture::TextureInfo;
 use shared::traverse::Scene;
 use shared::types::{
-    flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, Ray, RenderPush, Sphere,
-    PunctualLight, Triangle, VertexAttrs, FEATURES_ALL,
+    flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, PunctualLight, Ray,
+    RenderPush, Sphere, Triangle, VertexAttrs, FEATURES_ALL,
 };
 use shared::wide::{self, MarkState, ScanState, WideNode};
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
-const _: () = assert!(FEATURES_ALL == 33855);
+const _: () = assert!(FEATURES_ALL == 64575);
 use shared::{display, karras, morton, refit, transform as xform};
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
 use spirv_std::glam::UVec3;
@@ -334,7 +336,7 @@ pub fn transform(
 
 /// The scene as the render kernels see it (set 0: world primitives and BVH; set 1: the rest).
 macro_rules! world {
-    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $attrs:ident, $punctual:ident, $features:expr) => {
+    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $attrs:ident, $punctual:ident, $env:ident, $textures:ident, $texels:ident, $features:expr) => {
         World {
             scene: Scene {
                 tris: $tris,
@@ -353,6 +355,9 @@ macro_rules! world {
             frame: $frame,
             attrs: $attrs,
             punctual: $punctual,
+            env: $env,
+            textures: $textures,
+            texels: $texels,
         }
     };
 }
@@ -375,7 +380,10 @@ pub fn path_trace(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
-    #[spirv(spec_constant(id = 0, default = 33855))] features: u32,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+    #[spirv(spec_constant(id = 0, default = 64575))] features: u32,
 ) {
     let w = world!(
         tris,
@@ -390,6 +398,9 @@ pub fn path_trace(
         frame,
         attrs,
         punctual,
+        env,
+        textures,
+        texels,
         features
     );
     path::render_pixel(id.x, id.y, p, &w, accum);
@@ -426,7 +437,10 @@ pub fn cast_rays(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
-    #[spirv(spec_constant(id = 0, default = 33855))] features: u32,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+    #[spirv(spec_constant(id = 0, default = 64575))] features: u32,
 ) {
     let w = world!(
         tris,
@@ -441,6 +455,9 @@ pub fn cast_rays(
         frame,
         attrs,
         punctual,
+        env,
+        textures,
+        texels,
         features
     );
     path::cast(flat_index(id.x, id.y), p, &w, rays, hits);

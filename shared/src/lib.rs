@@ -10,7 +10,10 @@
 #![cfg_attr(target_arch = "spirv", feature(asm_experimental_arch))]
 
 pub mod bounds;
+#[cfg(test)]
+mod chi2;
 pub mod display;
+pub mod envmap;
 pub mod intersect;
 pub mod karras;
 pub mod material;
@@ -18,6 +21,7 @@ pub mod math;
 pub mod morton;
 pub mod node_words;
 pub mod path;
+pub mod pbr;
 pub mod radix_sort;
 pub mod refit;
 pub mod rng;
@@ -25,6 +29,7 @@ pub mod sampling;
 pub mod scan;
 pub mod shading;
 pub mod sync;
+pub mod texture;
 pub mod transform;
 pub mod traverse;
 pub mod treelet;

@@ -5,15 +5,18 @@
 //! Directions follow the shading normal and are kept on the geometric side they belong to
 //! (`crate::shading`'s rules).
 use crate::math::sqrt;
-use crate::shading::facing;
+use crate::pbr::{self, Pbr};
 use crate::rng::Rng;
 use crate::sampling;
-use crate::types::{xyz, Material, MaterialKind, FEATURE_DIELECTRIC, FEATURE_METAL};
+use crate::shading::facing;
+use crate::types::{xyz, Material, MaterialKind, FEATURE_DIELECTRIC, FEATURE_METAL, FEATURE_PBR};
+use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
 
 /// The outcome of a scattering event: the new direction and the throughput factor
-/// `f cos / pdf`. `diffuse` marks a non-delta event whose direction had density `pdf`
-/// (the only kind next-event estimation and MIS apply to). `absorbed`: the path ends.
+/// `f cos / pdf`. `diffuse` marks a non-delta event (Lambert or GGX) whose direction had
+/// density `pdf` (the only kind next-event estimation and MIS apply to). `absorbed`: the
+/// path ends.
 #[derive(Copy, Clone, Debug)]
 pub struct Scatter {
     pub dir: Vec3,
@@ -64,6 +67,15 @@ pub fn scatter(m: &Material, d: Vec3, ng: Vec3, ns: Vec3, features: u32, rng: &m
         s.pdf = sampling::cosine_pdf(s.dir.dot(sn));
         s.diffuse = true;
         s.absorbed = s.pdf <= 0.0;
+    } else if features & FEATURE_PBR != 0 && m.kind == MaterialKind::Pbr as u32 {
+        let (t, b) = sampling::basis(sn);
+        let wo = local(-d, t, b, sn);
+        let ps = pbr::sample(&pbr_of(m), wo, rng.next_f32(), rng.next_f32(), rng.next_f32());
+        s.dir = t * ps.wi.x + b * ps.wi.y + sn * ps.wi.z;
+        s.weight = ps.weight;
+        s.pdf = ps.pdf;
+        s.diffuse = true;
+        s.absorbed = ps.pdf <= 0.0 || ps.pdf.is_nan();
     } else if features & FEATURE_METAL != 0 && m.kind == MaterialKind::Metal as u32 {
         let fuzz = sampling::uniform_ball(rng.next_f32(), rng.next_f32(), rng.next_f32()) * m.roughness;
         s.dir = (reflect(d, sn) + fuzz).normalize();
@@ -88,4 +100,40 @@ pub fn scatter(m: &Material, d: Vec3, ng: Vec3, ns: Vec3, features: u32, rng: &m
         s.absorbed = true;
     }
     s
+}
+
+/// `v` in the frame `(t, b, n)`.
+fn local(v: Vec3, t: Vec3, b: Vec3, n: Vec3) -> Vec3 {
+    Vec3::new(v.dot(t), v.dot(b), v.dot(n))
+}
+
+/// The GGX model's view of a [`MaterialKind::Pbr`] material.
+fn pbr_of(m: &Material) -> Pbr {
+    Pbr {
+        base_color: xyz(m.albedo),
+        metallic: m.metallic,
+        roughness: m.roughness,
+        ior: m.ior,
+    }
+}
+
+/// What a non-delta material (Lambert, or GGX where `features` has [`FEATURE_PBR`])
+/// reflects toward a path arriving along unit `d` from light arriving from unit direction
+/// `wi`: `(f cos, pdf)`, the BSDF times the cosine at the shading normal and the density
+/// with which [`scatter`] picks `wi`. `n` and `sn` are the geometric and shading normals on
+/// the side the path is on ([`facing`]); light from below the geometric surface counts zero
+/// (`crate::shading`'s rule 2).
+pub fn eval(m: &Material, d: Vec3, wi: Vec3, n: Vec3, sn: Vec3, features: u32) -> (Vec3, f32) {
+    let cos = wi.dot(sn);
+    if wi.dot(n) <= 0.0 {
+        return (Vec3::ZERO, 0.0);
+    }
+    if features & FEATURE_PBR != 0 && m.kind == MaterialKind::Pbr as u32 {
+        let (t, b) = sampling::basis(sn);
+        return pbr::eval(&pbr_of(m), local(-d, t, b, sn), local(wi, t, b, sn));
+    }
+    if cos <= 0.0 {
+        return (Vec3::ZERO, 0.0);
+    }
+    (xyz(m.albedo) * (cos / PI), sampling::cosine_pdf(cos))
 }

@@ -37,6 +37,21 @@ pub fn powf(x: f32, y: f32) -> f32 {
     spirv_std::num_traits::Float::powf(x, y)
 }
 
+/// The angle of `(x, y)` from the x axis, in `(-pi, pi]`.
+pub fn atan2(y: f32, x: f32) -> f32 {
+    spirv_std::num_traits::Float::atan2(y, x)
+}
+
+/// The largest integer not above `x`.
+pub fn floor(x: f32) -> f32 {
+    spirv_std::num_traits::Float::floor(x)
+}
+
+/// Arc cosine of `x` clamped to `[-1, 1]`.
+pub fn acos(x: f32) -> f32 {
+    spirv_std::num_traits::Float::acos(x.clamp(-1.0, 1.0))
+}
+
 /// `a * b - c * d` with its sign exact: Kahan's difference of products (error at most
 /// 1.5 ulp, so zero exactly when the products are equal). Contraction-proof: every
 /// multiply-add is an explicit [`fma`].

@@ -4,6 +4,7 @@
 //! estimation toward emissive triangles and spheres weighted against BSDF sampling by
 //! multiple importance sampling (Veach 1997, power heuristic), and toward punctual lights.
 //! One invocation per pixel adds its samples' radiance into the accumulation image.
+use crate::envmap::{Env, EnvEntry};
 use crate::intersect::{self, offset_origin};
 use crate::material;
 use crate::math::{finite3, max3};
@@ -11,11 +12,12 @@ use crate::rng::Rng;
 use crate::sampling;
 use crate::shading::{self, facing};
 use crate::sync;
+use crate::texture::TextureInfo;
 use crate::traverse::{self, Scene};
 use crate::types::{
-    xyz, Camera, Frame, Hit, Material, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY, CAST_SPAWN,
-    FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
-    LIGHT_DIRECTIONAL, LIGHT_SPOT,
+    xyz, Camera, Frame, Hit, Material, MaterialKind, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY,
+    CAST_SPAWN, FEATURE_ENVMAP, FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE,
+    FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -36,6 +38,11 @@ pub struct World<'a> {
     pub attrs: &'a [VertexAttrs],
     /// Point, spot and directional lights (`frame.n_punctual` of them).
     pub punctual: &'a [PunctualLight],
+    /// The environment map's texels and alias table (with [`FEATURE_ENVMAP`]).
+    pub env: &'a [EnvEntry],
+    /// Every texture's place in `texels`, and the texels (with `FEATURE_TEXTURES`).
+    pub textures: &'a [TextureInfo],
+    pub texels: &'a [u32],
 }
 
 impl World<'_> {
@@ -106,10 +113,39 @@ impl World<'_> {
         self.frame.n_lights + punctual
     }
 
+    /// Whether the scene has an environment map.
+    fn has_env(&self) -> bool {
+        let f = self.frame;
+        self.scene.features & FEATURE_ENVMAP != 0 && f.env_width > 0 && f.env_height > 0
+    }
+
+    /// The environment map (meaningful where [`World::has_env`]). Not an `Option`: rust-gpu
+    /// cannot build one around a slice.
+    fn env(&self) -> Env<'_> {
+        let f = self.frame;
+        Env {
+            entries: self.env,
+            width: f.env_width,
+            height: f.env_height,
+            rotation: (f.env_rotation[0], f.env_rotation[1]),
+            intensity: f.env_intensity,
+        }
+    }
+
+    /// Probability that next-event estimation samples the environment map rather than the
+    /// emissive primitives and punctual lights.
+    fn env_prob(&self) -> f32 {
+        if self.has_env() {
+            self.frame.env_prob
+        } else {
+            0.0
+        }
+    }
+
     /// Solid-angle density with which next-event estimation picks the direction to a point
     /// at distance `dist` on light `prim`, seen at `cos_light` from its normal.
     fn light_pdf(&self, prim: u32, dist: f32, cos_light: f32) -> f32 {
-        dist * dist / (cos_light * self.area(prim) * self.light_count() as f32)
+        (1.0 - self.env_prob()) * dist * dist / (cos_light * self.area(prim) * self.light_count() as f32)
     }
 
     /// Cosine between a light's normal and the direction `to_light` from a point toward it;
@@ -143,33 +179,65 @@ pub fn leave(p: Vec3, ng: Vec3, scale: f32, dir: Vec3) -> Vec3 {
     offset_origin(p, if dir.dot(ng) > 0.0 { ng } else { -ng }, scale)
 }
 
-/// Radiance of rays that leave the scene.
-fn sky(f: &Frame, d: Vec3) -> Vec3 {
+/// Radiance of rays that leave the scene: the environment map, or the sky gradient.
+fn sky(w: &World, d: Vec3) -> Vec3 {
+    if w.has_env() {
+        return w.env().radiance(d);
+    }
+    let f = w.frame;
     let a = 0.5 * (d.y + 1.0);
     xyz(f.sky_bottom) * (1.0 - a) + xyz(f.sky_top) * a
 }
 
-/// Next-event estimation from point `p` (unit geometric normal `n` and shading normal `sn`
-/// on the side the path is on, `scale` its primitive's for [`offset_origin`]) of a diffuse
-/// surface of albedo `albedo`: one light chosen uniformly, one point on it uniformly by area,
-/// one shadow ray. Returns the weighted contribution.
+/// Next-event estimation for a path arriving along `d` at point `p` (unit geometric normal
+/// `n` and shading normal `sn` on the side the path is on, `scale` its primitive's for
+/// [`offset_origin`]) of a non-delta material `m`: the environment map with probability
+/// `frame.env_prob`, else one light chosen uniformly among the emissive primitives and
+/// punctual lights, for an emitter one point on it uniformly by area; one shadow ray.
+/// Returns the weighted contribution.
 #[allow(clippy::too_many_arguments)]
-fn direct_light(w: &World, p: Vec3, n: Vec3, sn: Vec3, scale: f32, albedo: Vec3, mis: bool, rng: &mut Rng) -> Vec3 {
+fn direct_light(
+    w: &World,
+    m: &Material,
+    d: Vec3,
+    p: Vec3,
+    n: Vec3,
+    sn: Vec3,
+    scale: f32,
+    mis: bool,
+    rng: &mut Rng,
+) -> Vec3 {
     let count = w.light_count();
-    let pick = ((rng.next_f32() * count as f32) as u32).min(count - 1);
+    let features = w.scene.features;
+    let env_prob = w.env_prob();
+    let u = rng.next_f32();
+    if u < env_prob || count == 0 {
+        return env_light(w, m, d, p, n, sn, scale, mis, rng);
+    }
+    // The rest of the unit interval picks among the local lights.
+    let local = (u - env_prob) / (1.0 - env_prob);
+    let pick = ((local * count as f32) as u32).min(count - 1);
     if pick >= w.frame.n_lights {
         let l = sync::at(w.punctual, pick - w.frame.n_lights);
-        return albedo * (1.0 / PI) * punctual_light(w, l, p, n, sn, scale) * count as f32;
+        let (wi, e) = punctual_light(w, l, p, n, scale);
+        if max3(e) <= 0.0 {
+            return Vec3::ZERO;
+        }
+        return material::eval(m, d, wi, n, sn, features).0 * e * (count as f32 / (1.0 - env_prob));
     }
     let light = w.lights[pick as usize];
-    let (q, nl, light_scale) = w.sample_point(light, rng.next_f32(), rng.next_f32());
+    let (u1, u2) = (rng.next_f32(), rng.next_f32());
+    let (q, nl, light_scale) = w.sample_point(light, u1, u2);
     let to = q - p;
     let dist = to.length();
     let wi = to / dist;
-    let cos_s = wi.dot(sn);
     let cos_l = World::light_cos(nl, wi);
-    // The light must lie above both the shading and the geometric surface.
-    if cos_s <= 0.0 || wi.dot(n) <= 0.0 || cos_l <= 0.0 || dist.is_nan() || dist <= 0.0 {
+    if cos_l <= 0.0 || dist.is_nan() || dist <= 0.0 {
+        return Vec3::ZERO;
+    }
+    // The light must lie above both the shading and the geometric surface (eval says zero).
+    let (f_cos, pdf_bsdf) = material::eval(m, d, wi, n, sn, features);
+    if max3(f_cos) <= 0.0 {
         return Vec3::ZERO;
     }
     // Both ends offset off their surfaces; the shadow ray runs over t in (0, 1).
@@ -181,20 +249,62 @@ fn direct_light(w: &World, p: Vec3, n: Vec3, sn: Vec3, scale: f32, albedo: Vec3,
     }
     let pdf_light = w.light_pdf(light, dist, cos_l);
     let weight = if mis {
-        sampling::power_heuristic(pdf_light, sampling::cosine_pdf(cos_s))
+        sampling::power_heuristic(pdf_light, pdf_bsdf)
     } else {
         1.0
     };
-    let le = xyz(w.material(light).emission);
-    albedo * (1.0 / PI) * le * (cos_s * weight / pdf_light)
+    let le = if w.scene.is_triangle(light) {
+        let (b1, b2) = sampling::uniform_triangle(u1, u2);
+        let uv = shading::uv_at(w.objects, w.prim_object, w.attrs, light, b1, b2);
+        shading::emission_at(&w.material(light), uv, w.textures, w.texels, features)
+    } else {
+        xyz(w.material(light).emission)
+    };
+    f_cos * le * (weight / pdf_light)
 }
 
-/// Irradiance (times the cosine at the shading normal `sn`) that punctual light `l` brings to
-/// point `p` (geometric normal `n` and `sn` on the path's side, `scale` its primitive's),
+/// Next-event estimation toward the environment map (see [`direct_light`]): a direction by
+/// the map's alias table, a shadow ray to infinity, weighted against BSDF sampling by MIS.
+#[allow(clippy::too_many_arguments)]
+fn env_light(
+    w: &World,
+    m: &Material,
+    d: Vec3,
+    p: Vec3,
+    n: Vec3,
+    sn: Vec3,
+    scale: f32,
+    mis: bool,
+    rng: &mut Rng,
+) -> Vec3 {
+    if !w.has_env() {
+        return Vec3::ZERO;
+    }
+    let s = w
+        .env()
+        .sample(rng.next_f32(), rng.next_f32(), rng.next_f32(), rng.next_f32());
+    if s.pdf <= 0.0 || s.pdf.is_nan() {
+        return Vec3::ZERO;
+    }
+    let (f_cos, pdf_bsdf) = material::eval(m, d, s.dir, n, sn, w.scene.features);
+    if max3(f_cos) <= 0.0 || w.any(offset_origin(p, n, scale), s.dir, f32::INFINITY) {
+        return Vec3::ZERO;
+    }
+    let pdf_light = w.env_prob() * s.pdf;
+    let weight = if mis {
+        sampling::power_heuristic(pdf_light, pdf_bsdf)
+    } else {
+        1.0
+    };
+    f_cos * s.radiance * (weight / pdf_light)
+}
+
+/// Direction toward punctual light `l` from point `p` (geometric normal `n` on the path's
+/// side, `scale` its primitive's) and the irradiance it brings there on a surface facing it:
 /// zero where it is shadowed, behind the surface or outside a spot's cone. A spot fades from
 /// `cos_inner` to `cos_outer` as glTF's `KHR_lights_punctual` recommends (the square of a
 /// linear ramp in the cosine).
-fn punctual_light(w: &World, l: &PunctualLight, p: Vec3, n: Vec3, sn: Vec3, scale: f32) -> Vec3 {
+fn punctual_light(w: &World, l: &PunctualLight, p: Vec3, n: Vec3, scale: f32) -> (Vec3, Vec3) {
     let from = offset_origin(p, n, scale);
     let (wi, to, t_max, mut e) = if l.kind == LIGHT_DIRECTIONAL {
         let wi = -xyz(l.direction);
@@ -209,11 +319,10 @@ fn punctual_light(w: &World, l: &PunctualLight, p: Vec3, n: Vec3, sn: Vec3, scal
         let ramp = ((-wi.dot(xyz(l.direction)) - cos_outer) / (cos_inner - cos_outer).max(1e-3)).clamp(0.0, 1.0);
         e *= ramp * ramp;
     }
-    let cos_s = wi.dot(sn);
-    if cos_s <= 0.0 || wi.dot(n) <= 0.0 || !(max3(e) > 0.0) || !finite3(e) || w.any(from, to, t_max) {
-        return Vec3::ZERO;
+    if wi.dot(n) <= 0.0 || !finite3(e) || max3(e) <= 0.0 || w.any(from, to, t_max) {
+        return (wi, Vec3::ZERO);
     }
-    e * cos_s
+    (wi, e)
 }
 
 /// The switches of the bounce loop, read once per invocation.
@@ -227,7 +336,8 @@ struct Mode {
 impl Mode {
     fn of(w: &World) -> Mode {
         let f = w.frame;
-        let nee = w.scene.features & FEATURE_NEE != 0 && f.flags & FLAG_NEE != 0 && w.light_count() > 0;
+        let lights = w.light_count() > 0 || w.env_prob() > 0.0;
+        let nee = w.scene.features & FEATURE_NEE != 0 && f.flags & FLAG_NEE != 0 && lights;
         Mode {
             nee,
             mis: nee && f.flags & FLAG_MIS != 0,
@@ -249,11 +359,17 @@ struct Path {
     prev_diffuse: bool,
     depth: u32,
     rays: u32,
+    /// The ray cone's width where the ray starts and the angle it opens by (texture level of
+    /// detail, `crate::texture`).
+    cone_width: f32,
+    cone_spread: f32,
 }
 
 impl Path {
-    fn new(origin: Vec3, dir: Vec3) -> Path {
+    fn new(origin: Vec3, dir: Vec3, spread: f32) -> Path {
         Path {
+            cone_width: 0.0,
+            cone_spread: spread,
             origin,
             dir,
             l: Vec3::ZERO,
@@ -274,11 +390,30 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
     let hit = w.closest(o, d, f32::INFINITY);
     q.rays += 1;
     if hit.prim == INVALID {
-        q.l += q.beta * sky(f, d);
+        // Paths that next-event estimation also reaches toward the map count with their MIS
+        // weight (without MIS, not at all: next-event estimation counts them).
+        let env_prob = w.env_prob();
+        let weight = if !(q.prev_diffuse && mode.nee && env_prob > 0.0) {
+            1.0
+        } else if mode.mis {
+            sampling::power_heuristic(q.prev_pdf, env_prob * w.env().pdf(d))
+        } else {
+            0.0
+        };
+        q.l += q.beta * sky(w, d) * weight;
         return false;
     }
-    let m = w.material(hit.prim);
-    let sp = shading::surface_point(&w.scene, w.objects, w.prim_object, w.attrs, o, d, &hit);
+    let mut sp = shading::surface_point(&w.scene, w.objects, w.prim_object, w.attrs, o, d, &hit);
+    let cone_width = q.cone_width + q.cone_spread * hit.t;
+    let m = shading::textured(
+        &w.material(hit.prim),
+        &mut sp,
+        d,
+        cone_width,
+        w.textures,
+        w.texels,
+        w.scene.features,
+    );
     let (p, ng, scale) = (sp.p, sp.ng, sp.scale);
     let le = xyz(m.emission);
     let cos_l = World::light_cos(ng, d);
@@ -294,13 +429,15 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
         q.l += q.beta * le * weight;
     }
     let s = material::scatter(&m, d, ng, sp.ns, w.scene.features, rng);
-    if s.absorbed {
-        return false;
-    }
+    // Next-event estimation lights every non-delta surface, whether or not the direction
+    // the BSDF sampled goes on (a GGX sample below the surface ends the path, not the light).
     if s.diffuse && mode.nee && q.depth + 1 < f.max_depth {
         let (side, shading_side) = facing(d, ng, sp.ns);
-        q.l += q.beta * direct_light(w, p, side, shading_side, scale, xyz(m.albedo), mode.mis, rng);
+        q.l += q.beta * direct_light(w, &m, d, p, side, shading_side, scale, mode.mis, rng);
         q.rays += 1;
+    }
+    if s.absorbed {
+        return false;
     }
     q.beta *= s.weight;
     q.origin = leave(p, ng, scale, s.dir);
@@ -308,6 +445,16 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
     q.prev_pdf = s.pdf;
     q.prev_diffuse = s.diffuse;
     q.depth += 1;
+    // The cone goes on from the hit; a rough bounce opens it (a texture seen through a
+    // diffuse reflection needs little detail): by a radian after Lambert, by GGX's alpha.
+    q.cone_width = cone_width;
+    if s.diffuse {
+        q.cone_spread += if m.kind == MaterialKind::Pbr as u32 {
+            m.roughness * m.roughness
+        } else {
+            1.0
+        };
+    }
     if mode.roulette && q.depth >= ROULETTE_AFTER {
         let survive = max3(q.beta).min(0.95);
         if rng.next_f32() >= survive {
@@ -345,7 +492,7 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
     let mut sum = Vec3::ZERO;
     let mut rays = 0;
     let mut started = 0;
-    let mut q = Path::new(Vec3::ZERO, Vec3::Z);
+    let mut q = Path::new(Vec3::ZERO, Vec3::Z, 0.0);
     let mut rng = Rng::new(pixel, p.sample_base, f.seed);
     let mut live = false;
     loop {
@@ -355,7 +502,7 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
             }
             rng = Rng::new(pixel, p.sample_base + started, f.seed);
             let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
-            q = Path::new(o, d);
+            q = Path::new(o, d, f.pixel_spread);
             started += 1;
             if f.max_depth == 0 {
                 continue;

@@ -258,10 +258,13 @@ pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
 // | 9, 10   | ray casts: `[Ray]` in, `[Hit]` out                         |
 // | 11      | `[VertexAttrs]` every mesh's per-vertex normals and UVs, once a mesh |
 // | 12      | `[PunctualLight]` point, spot and directional lights       |
+// | 13      | `[EnvEntry]` the environment map's texels and alias table  |
+// | 14      | `[TextureInfo]` every texture's place and size in binding 15 |
+// | 15      | texels of every texture and mip level, RGBA8 in a `u32`    |
 // ---------------------------------------------------------------------------------------------
 
 /// Storage buffers of descriptor set 1.
-pub const RENDER_BINDINGS: u32 = 13;
+pub const RENDER_BINDINGS: u32 = 16;
 /// Render kernels run on 8x8 pixel tiles.
 pub const TILE_SIDE: u32 = 8;
 
@@ -310,19 +313,47 @@ pub enum MaterialKind {
     Dielectric = 2,
     /// A light that does not scatter.
     Emissive = 3,
+    /// glTF's metallic-roughness model: GGX specular over Lambert diffuse, mixed with a GGX
+    /// metal by `metallic` (`crate::pbr`).
+    Pbr = 4,
 }
 
-/// A material: `kind` is a [`MaterialKind`]; every kind may also emit `emission`.
+/// [`Material::textures`] slots.
+pub const TEX_BASE_COLOR: usize = 0;
+/// Metallic (blue) and roughness (green), multiplying the factors.
+pub const TEX_METAL_ROUGH: usize = 1;
+/// Tangent-space normal map.
+pub const TEX_NORMAL: usize = 2;
+pub const TEX_EMISSIVE: usize = 3;
+
+/// A material (112 bytes): `kind` is a [`MaterialKind`]; every kind may also emit `emission`.
+/// A zeroed material is black diffuse without textures, so `..Default::default()` fills the
+/// rest of any material soundly.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Material {
-    /// Reflectance (`xyz`); `w` unused.
+    /// Reflectance, the base colour (`xyz`); `w` unused.
     pub albedo: [f32; 4],
     /// Emitted radiance (`xyz`); `w` unused.
     pub emission: [f32; 4],
     pub kind: u32,
+    /// Metal: blur radius; PBR: perceptual roughness (GGX alpha = roughness^2).
     pub roughness: f32,
     pub ior: f32,
+    /// PBR: 0 dielectric, 1 metal.
+    pub metallic: f32,
+    /// Textures by slot (`TEX_*`): index + 1 into the texture table, 0 for none.
+    pub textures: [u32; 4],
+    /// Texture coordinate transform (glTF `KHR_texture_transform`) minus the identity, so
+    /// that zeros leave coordinates alone: `uv' = uv + (r0 . (u, v, 1), r1 . (u, v, 1))`.
+    pub uv_delta: [[f32; 4]; 2],
+    /// glTF `alphaMode` MASK: where `alpha` times the base colour texture's alpha falls
+    /// below this the surface is a hole; 0: opaque.
+    pub alpha_cutoff: f32,
+    /// Base colour alpha factor (glTF `baseColorFactor[3]`), used with `alpha_cutoff`.
+    pub alpha: f32,
+    /// Strength of the normal map (glTF `normalTexture.scale`).
+    pub normal_scale: f32,
     pub _pad: u32,
 }
 
@@ -397,7 +428,18 @@ pub struct Frame {
     pub features: u32,
     /// Number of punctual lights (binding 12).
     pub n_punctual: u32,
-    pub _pad: u32,
+    /// The environment map (binding 13, with [`FEATURE_ENVMAP`]): its size, its turn about
+    /// `+y` (cosine, sine), the factor on its radiance, and the probability with which
+    /// next-event estimation samples it rather than the other lights.
+    pub env_width: u32,
+    pub env_height: u32,
+    pub env_rotation: [f32; 2],
+    pub env_intensity: f32,
+    pub env_prob: f32,
+    /// Angle a camera ray's cone opens per pixel (radians): texture level of detail by ray
+    /// cones (`crate::texture`).
+    pub pixel_spread: f32,
+    pub _pad: [u32; 2],
 }
 
 /// Push constants of the render kernels.
@@ -432,10 +474,24 @@ pub const FEATURE_DIELECTRIC: u32 = 1 << 4;
 pub const FEATURE_THIN_LENS: u32 = 1 << 5;
 /// Shading normals interpolated from vertex normals (else the geometric normal shades).
 pub const FEATURE_SHADING_NORMALS: u32 = 1 << 10;
+/// Texture coordinates interpolated and material textures sampled.
+pub const FEATURE_TEXTURES: u32 = 1 << 11;
+/// Tangent-space normal maps perturb the shading normal.
+pub const FEATURE_NORMAL_MAPS: u32 = 1 << 12;
+/// The metallic-roughness GGX material scatters (else it absorbs).
+pub const FEATURE_PBR: u32 = 1 << 13;
+/// An HDR environment map lights the scene (else the sky gradient).
+pub const FEATURE_ENVMAP: u32 = 1 << 14;
 /// Next-event estimation toward punctual lights (point, spot, directional).
 pub const FEATURE_PUNCTUAL: u32 = 1 << 15;
 /// Every feature: the kernel that runs any scene. Bits 6-9 are the `VARIANT_*` bits.
-pub const FEATURES_ALL: u32 = (1 << 6) - 1 | FEATURE_SHADING_NORMALS | FEATURE_PUNCTUAL;
+pub const FEATURES_ALL: u32 = ((1 << 6) - 1)
+    | FEATURE_SHADING_NORMALS
+    | FEATURE_TEXTURES
+    | FEATURE_NORMAL_MAPS
+    | FEATURE_PBR
+    | FEATURE_ENVMAP
+    | FEATURE_PUNCTUAL;
 
 // Intersection variants, bits of the same specialisation constant: less robust tests that
 // only `raytrace bench accuracy` sets (what the robust defaults of DESIGN.md section 3
@@ -496,9 +552,9 @@ impl Hit {
 const _: () = assert!(size_of::<Object>() == 112);
 const _: () = assert!(size_of::<VertexAttrs>() == 64);
 const _: () = assert!(size_of::<PunctualLight>() == 64);
-const _: () = assert!(size_of::<Material>() == 48);
+const _: () = assert!(size_of::<Material>() == 112);
 const _: () = assert!(size_of::<Camera>() == 96);
-const _: () = assert!(size_of::<Frame>() == 176);
+const _: () = assert!(size_of::<Frame>() == 208);
 const _: () = assert!(size_of::<RenderPush>() == 16);
 const _: () = assert!(size_of::<Ray>() == 32);
 const _: () = assert!(size_of::<Hit>() == 16);

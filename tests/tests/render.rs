@@ -96,6 +96,9 @@ fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<H
         frame,
         attrs: &p.data.attrs,
         punctual: &p.data.punctual,
+        env: &[],
+        textures: &[],
+        texels: &[],
     };
     rays.iter()
         .map(|r| {
@@ -211,6 +214,8 @@ fn furnace(a: f32, e: f32, depth: u32, extra: &[(&str, bool)]) -> Scene {
     Scene {
         name: "furnace".into(),
         punctual: Vec::new(),
+        environment: None,
+        textures: Default::default(),
         camera: CameraSpec {
             position: Vec3::new(0.1, -0.2, 0.3),
             look_at: Vec3::new(1.0, 0.5, -0.2),

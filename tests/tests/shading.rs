@@ -22,6 +22,8 @@ fn ball(shape: Shape, meshes: Vec<Mesh>) -> Scene {
     Scene {
         name: "ball".into(),
         punctual: Vec::new(),
+        environment: None,
+        textures: Default::default(),
         camera: CameraSpec {
             position: Vec3::new(0.0, 0.0, 3.0),
             look_at: Vec3::ZERO,
@@ -187,7 +189,14 @@ fn punctual_lights_give_their_analytic_radiance() {
     let got = centre(&s);
     assert!((got - want).abs() < 1e-3 * want, "directional: {got} vs {want}");
     // A point light of intensity 8 two units above the floor's centre: L = a I / (pi h^2).
-    s.punctual = vec![light(LIGHT_POINT, Vec3::new(0.0, 2.0, 0.0), Vec3::ZERO, 8.0, -1.0, -1.0)];
+    s.punctual = vec![light(
+        LIGHT_POINT,
+        Vec3::new(0.0, 2.0, 0.0),
+        Vec3::ZERO,
+        8.0,
+        -1.0,
+        -1.0,
+    )];
     let want = 0.5 * 8.0 / (std::f64::consts::PI * 4.0);
     let got = centre(&s);
     assert!((got - want).abs() < 0.01 * want, "point: {got} vs {want}");
@@ -259,5 +268,107 @@ fn cpu_and_gpu_agree_with_vertex_normals_and_punctual_lights() {
     let g = r.picture().expect("picture");
     let d = diff_stats(&cpu, &g).unwrap();
     assert!(d.relative_rmse < 0.02, "relative RMSE {}", d.relative_rmse);
+    assert_no_validation_errors(&gpu);
+}
+
+#[test]
+fn an_emissive_texture_shows_on_a_quad_as_its_image_has_it() {
+    use raytrace::scene::texture::{Sampler, TextureSet};
+    use shared::types::TEX_EMISSIVE;
+    // A 2x2 image: red, green / blue, white (row 0 at the top, as glTF's (0, 0) is).
+    let img = image::RgbaImage::from_fn(2, 2, |x, y| match (x, y) {
+        (0, 0) => image::Rgba([255, 0, 0, 255]),
+        (1, 0) => image::Rgba([0, 255, 0, 255]),
+        (0, 1) => image::Rgba([0, 0, 255, 255]),
+        _ => image::Rgba([255, 255, 255, 255]),
+    });
+    let mut set = TextureSet::new();
+    let mut warnings = Vec::new();
+    let t = set.add_image(
+        &image::DynamicImage::ImageRgba8(img),
+        true,
+        Sampler::default(),
+        "checker",
+        &mut warnings,
+    );
+    assert!(warnings.is_empty(), "{warnings:?}");
+    // The unit quad at y = 0 facing up, u along +x and v along +z, seen from above with +z
+    // down the picture: texel (0, 0) at the top left.
+    let quad = raytrace::scene::shapes::by_name("quad").unwrap();
+    let uv: Vec<[f32; 2]> = vec![[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]];
+    let corners: Vec<[u32; 3]> = vec![[0, 1, 2], [0, 2, 3]];
+    assert_eq!(
+        quad[0].v1,
+        [-0.5, 0.0, 0.5, 0.0],
+        "the quad's corners as the UVs assume"
+    );
+    let attrs = from_vertices(&corners, None, Some(&uv));
+    let mut s = ball(
+        Shape::Mesh(0),
+        vec![Mesh {
+            name: "quad".into(),
+            tris: Arc::new(quad),
+            attrs: Arc::new(attrs),
+        }],
+    );
+    let mut lamp = material::emissive([1.0; 3]);
+    lamp.textures[TEX_EMISSIVE] = t + 1;
+    s.materials[0].1 = lamp;
+    s.textures = Arc::new(set);
+    s.camera.position = Vec3::new(0.0, 2.0, 0.0);
+    s.camera.up = Vec3::NEG_Z;
+    s.camera.vfov_deg = 20.0;
+    s.settings.max_depth = 1;
+    let data = s.gpu_data(0.0);
+    let frame = s.frame(&data);
+    let p = render_cpu(&data, &frame, 4, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture;
+    let lin = p.linear();
+    // The quad spans about 2 * atan(0.25) / 20 degrees of the picture; texel centres lie a
+    // quarter of it from the centre.
+    let quarter = (SIZE as f32 * (0.25f32.atan().to_degrees() / 20.0) / 2.0) as u32;
+    let at = |dx: i32, dy: i32| {
+        let (x, y) = (
+            (SIZE / 2) as i32 + dx * quarter as i32,
+            (SIZE / 2) as i32 + dy * quarter as i32,
+        );
+        lin[(y as u32 * SIZE + x as u32) as usize]
+    };
+    // Bilinear filtering and the pixels' jitter blend a little of the neighbours in.
+    let close = |c: [f32; 3], want: [f32; 3]| (0..3).all(|k| (c[k] - want[k]).abs() < 0.15);
+    assert!(close(at(-1, -1), [1.0, 0.0, 0.0]), "top left {:?}", at(-1, -1));
+    assert!(close(at(1, -1), [0.0, 1.0, 0.0]), "top right {:?}", at(1, -1));
+    assert!(close(at(-1, 1), [0.0, 0.0, 1.0]), "bottom left {:?}", at(-1, 1));
+    assert!(close(at(1, 1), [1.0, 1.0, 1.0]), "bottom right {:?}", at(1, 1));
+}
+
+#[test]
+fn the_damaged_helmet_opens_textured_and_cpu_and_gpu_agree() {
+    use shared::types::{FEATURE_NORMAL_MAPS, FEATURE_PBR, FEATURE_TEXTURES};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/damaged_helmet.glb");
+    let args = <raytrace::cli::SceneArgs as clap::Parser>::parse_from([
+        "raytrace",
+        path.to_str().unwrap(),
+        "--size",
+        "32x32",
+        "--spp",
+        "4",
+    ]);
+    let p = args.prepare().expect("the helmet opens");
+    let m = p.scene.materials[p.scene.objects[0].material as usize].1;
+    assert!(
+        m.textures.iter().all(|&t| t != 0),
+        "base colour, metallic-roughness, normal, emissive: {:?}",
+        m.textures
+    );
+    for bit in [FEATURE_TEXTURES, FEATURE_NORMAL_MAPS, FEATURE_PBR] {
+        assert_ne!(p.frame.features & bit, 0, "{}", p.features.explain());
+    }
+    let Some((gpu, _)) = renderer("the_damaged_helmet_opens_textured_and_cpu_and_gpu_agree") else {
+        return;
+    };
+    let kernels = Arc::new(raytrace::gpu::Kernels::new(&gpu).expect("kernels"));
+    let c = raytrace::cli::compare(&p, &gpu, &kernels, true).expect("compare");
+    assert!(c.topology_identical);
+    assert!(c.stats.relative_rmse < 0.03, "relative RMSE {}", c.stats.relative_rmse);
     assert_no_validation_errors(&gpu);
 }

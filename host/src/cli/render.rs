@@ -7,7 +7,7 @@ use crate::features::{self, Features, Forced};
 use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
 use crate::picture::Picture;
 use crate::render::{self, Backend};
-use crate::scene::{Scene, SceneGpu};
+use crate::scene::{Environment, Scene, SceneGpu};
 use anyhow::{bail, Result};
 use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -77,6 +77,16 @@ pub struct SceneArgs {
     /// (three numbers each, the vertical field of view in degrees).
     #[arg(long, value_parser = parse_camera)]
     pub camera: Option<(Vec3, Vec3, Option<f32>)>,
+    /// An HDR environment map (equirectangular .exr or .hdr) lighting the scene instead of
+    /// its sky or its own map.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// Turn of the environment map about the vertical axis, in degrees.
+    #[arg(long)]
+    pub env_rotation: Option<f32>,
+    /// Factor on the environment map's radiance.
+    #[arg(long)]
+    pub env_intensity: Option<f32>,
 }
 
 /// Parses `--camera`: `x,y,z:x,y,z[:vfov]`.
@@ -219,6 +229,7 @@ impl SceneArgs {
                 c.vfov_deg = f;
             }
         }
+        self.apply_environment(&mut scene)?;
         let data = scene.gpu_data(self.time);
         let frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
         let features = features::derive(&data, &frame, &Forced::parse(&self.features)?)?;
@@ -233,6 +244,32 @@ impl SceneArgs {
             treelets: self.treelets,
             layout: self.bvh,
         })
+    }
+}
+
+impl SceneArgs {
+    /// `--env`, `--env-rotation`, `--env-intensity` on top of the scene's environment.
+    fn apply_environment(&self, scene: &mut Scene) -> Result<()> {
+        let current = scene.environment.as_ref();
+        let rotation = self.env_rotation.or(current.map(|e| e.rotation_deg)).unwrap_or(0.0);
+        let intensity = self.env_intensity.or(current.map(|e| e.intensity)).unwrap_or(1.0);
+        if let Some(path) = &self.env {
+            let (env, warnings) = Environment::load(path, rotation, intensity)?;
+            for w in warnings {
+                eprintln!("warning: {w}");
+            }
+            scene.environment = Some(env);
+        } else if let Some(env) = scene.environment.as_mut() {
+            if !(rotation.is_finite() && intensity.is_finite() && intensity >= 0.0) {
+                bail!("--env-rotation must be finite and --env-intensity finite and at least 0");
+            }
+            (env.rotation_deg, env.intensity) = (rotation, intensity);
+        } else if self.env_rotation.is_some() || self.env_intensity.is_some() {
+            bail!(
+                "--env-rotation and --env-intensity need an environment map (--env FILE or the scene's [environment])"
+            );
+        }
+        Ok(())
     }
 }
 

@@ -73,6 +73,9 @@ pub fn render_cpu(
         frame,
         attrs: &scene.attrs,
         punctual: &scene.punctual,
+        env: scene.env.as_ref().map_or(&[], |e| e.entries.as_slice()),
+        textures: &scene.textures.infos,
+        texels: &scene.textures.texels,
     };
     let push = RenderPush {
         sample_base: 0,

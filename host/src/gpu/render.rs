@@ -8,6 +8,7 @@ use crate::scene::SceneGpu;
 use anyhow::{bail, Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
+use shared::envmap::EnvEntry;
 use shared::types::{
     grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN, DISPLAY_BGRA,
     TILE_SIDE, VARIANT_WIDE_BVH, WORKGROUP,
@@ -36,6 +37,9 @@ struct SceneBuffers {
     hits: Buffer,
     attrs: Buffer,
     punctual: Buffer,
+    env: Buffer,
+    textures: Buffer,
+    texels: Buffer,
     /// Set 1 naming the buffers above; made again whenever one of them is replaced.
     set: Option<BindingSets>,
     n_objects: usize,
@@ -58,6 +62,9 @@ impl SceneBuffers {
             &self.hits,
             &self.attrs,
             &self.punctual,
+            &self.env,
+            &self.textures,
+            &self.texels,
         ];
         self.set = Some(BindingSets::new(gpu, kernels, 1, &[&buffers])?);
         Ok(())
@@ -188,6 +195,10 @@ impl GpuRenderer {
         let hits = dev("hits", size_of::<Hit>())?;
         let attrs = dev("vertex attributes", size_of_val(scene.attrs.as_slice()))?;
         let punctual = dev("punctual lights", size_of_val(scene.punctual.as_slice()))?;
+        let env_entries: &[EnvEntry] = scene.env.as_ref().map_or(&[], |e| e.entries.as_slice());
+        let env = dev("environment map", size_of_val(env_entries))?;
+        let textures = dev("textures", size_of_val(scene.textures.infos.as_slice()))?;
+        let texels = dev("texels", size_of_val(scene.textures.texels.as_slice()))?;
         self.upload(&model_tris, &scene.model_tris)?;
         self.upload(&model_spheres, &scene.model_spheres)?;
         self.upload(&prim_object, &scene.prim_object)?;
@@ -195,6 +206,9 @@ impl GpuRenderer {
         self.upload(&lights, &scene.lights)?;
         self.upload(&attrs, &scene.attrs)?;
         self.upload(&punctual, &scene.punctual)?;
+        self.upload(&env, env_entries)?;
+        self.upload(&textures, &scene.textures.infos)?;
+        self.upload(&texels, &scene.textures.texels)?;
         self.bufs = Some(SceneBuffers {
             objects,
             model_tris,
@@ -209,6 +223,9 @@ impl GpuRenderer {
             hits,
             attrs,
             punctual,
+            env,
+            textures,
+            texels,
             set: None,
             n_objects: scene.objects.len(),
         });

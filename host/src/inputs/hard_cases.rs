@@ -272,6 +272,8 @@ pub fn scene_of(tris: &[Triangle], spheres: &[Sphere]) -> Scene {
     Scene {
         name: "primitives".into(),
         punctual: Vec::new(),
+        environment: None,
+        textures: Default::default(),
         camera: CameraSpec {
             position: Vec3::Z,
             look_at: Vec3::ZERO,

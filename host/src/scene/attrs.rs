@@ -69,7 +69,10 @@ pub fn smooth(tris: &[Triangle], attrs: &[VertexAttrs], crease_deg: f32) -> Vec<
             let (e1, e2) = (p[(k + 1) % 3] - p[k], p[(k + 2) % 3] - p[k]);
             let angle = e1.angle_between(e2);
             let weight = if angle.is_finite() { angle * area2 } else { 0.0 };
-            at_point.entry(key(p[k])).or_default().push((f, face_normal[f] * weight));
+            at_point
+                .entry(key(p[k]))
+                .or_default()
+                .push((f, face_normal[f] * weight));
         }
     }
     let cos_crease = crease_deg.to_radians().cos();
@@ -107,7 +110,9 @@ pub fn has_normals(attrs: &[VertexAttrs]) -> bool {
 
 /// Whether any corner of `attrs` has non-zero texture coordinates.
 pub fn has_uvs(attrs: &[VertexAttrs]) -> bool {
-    attrs.iter().any(|a| a.normal_u.iter().any(|n| n[3] != 0.0) || a.v[..3] != [0.0; 3])
+    attrs
+        .iter()
+        .any(|a| a.normal_u.iter().any(|n| n[3] != 0.0) || a.v[..3] != [0.0; 3])
 }
 
 /// `attrs` of triangles whose positions moved by the linear part `linear` of a matrix baked
@@ -174,7 +179,10 @@ mod tests {
         // On the shared edge both faces see the same normal, halfway between theirs.
         let shared = normal(&smooth45[0], 0);
         assert!((shared - normal(&smooth45[1], 1)).length() < 1e-6);
-        assert!((shared.angle_between(Vec3::Z).to_degrees() - 15.0).abs() < 1.0, "{shared}");
+        assert!(
+            (shared.angle_between(Vec3::Z).to_degrees() - 15.0).abs() < 1.0,
+            "{shared}"
+        );
         // Off the edge each corner keeps its own face's normal.
         assert!((normal(&smooth45[0], 2) - Vec3::Z).length() < 1e-6);
         // A crease angle below the fold keeps the faces apart.
@@ -195,7 +203,11 @@ mod tests {
     fn degenerate_faces_and_bad_file_values_give_no_normal() {
         let line = tri([0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]);
         assert!(!has_normals(&smooth(&[line], &[], 60.0)));
-        let a = from_vertices(&[[0, 1, 2]], Some(&[[f32::NAN, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0; 3]]), None);
+        let a = from_vertices(
+            &[[0, 1, 2]],
+            Some(&[[f32::NAN, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0; 3]]),
+            None,
+        );
         assert_eq!(normal(&a[0], 0), Vec3::ZERO);
         assert_eq!(normal(&a[0], 1), Vec3::Z);
         assert!(!has_uvs(&a));
@@ -204,7 +216,11 @@ mod tests {
     #[test]
     fn a_mirror_keeps_normals_on_the_front_side() {
         let t = tri([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
-        let a = from_vertices(&[[0, 1, 2]], Some(&[[0.0, 0.0, 1.0]; 3]), Some(&[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]));
+        let a = from_vertices(
+            &[[0, 1, 2]],
+            Some(&[[0.0, 0.0, 1.0]; 3]),
+            Some(&[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
+        );
         let mirror = Mat3::from_diagonal(Vec3::new(-1.0, 1.0, 1.0));
         let moved = transformed(&a, mirror, true);
         // The baked triangle (corners 1 and 2 swapped) faces the same way as its normals.
@@ -215,7 +231,11 @@ mod tests {
         assert_eq!((moved[0].normal_u[1][3], moved[0].v[1]), (0.0, 1.0));
         // A non-uniform scale bends normals the inverse-transpose way.
         let squash = Mat3::from_diagonal(Vec3::new(1.0, 2.0, 1.0));
-        let n = transformed(&from_vertices(&[[0, 0, 0]], Some(&[[0.0, 1.0, 1.0]]), None), squash, false);
+        let n = transformed(
+            &from_vertices(&[[0, 0, 0]], Some(&[[0.0, 1.0, 1.0]]), None),
+            squash,
+            false,
+        );
         let want = Vec3::new(0.0, 0.5, 1.0).normalize();
         assert!((normal(&n[0], 0) - want).length() < 1e-6);
     }

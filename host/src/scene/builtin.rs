@@ -39,6 +39,8 @@ impl Builder {
             scene: Scene {
                 name: name.to_string(),
                 punctual: Vec::new(),
+                environment: None,
+                textures: Default::default(),
                 camera,
                 settings,
                 materials: Vec::new(),

@@ -26,7 +26,7 @@ pub enum SceneError {
     },
     /// A material's `kind` is none of the known kinds.
     #[error(
-        "{file}: material \"{material}\" has unknown kind \"{kind}\" (kinds: diffuse, metal, dielectric, emissive)"
+        "{file}: material \"{material}\" has unknown kind \"{kind}\" (kinds: diffuse, metal, dielectric, emissive, pbr)"
     )]
     UnknownKind {
         file: String,
@@ -45,6 +45,9 @@ pub enum SceneError {
     /// with the line ("line 12: ...") where the parser knows it.
     #[error("{file}: {message}")]
     Model { file: String, message: String },
+    /// An environment map that cannot be read or used.
+    #[error("{file}: environment map: {message}")]
+    Environment { file: String, message: String },
     /// The scene has no objects.
     #[error("{file}: the scene has no objects")]
     Empty { file: String },

@@ -27,6 +27,22 @@ struct SceneFile {
     materials: IndexMap<String, MaterialFile>,
     #[serde(default)]
     objects: Vec<ObjectFile>,
+    environment: Option<EnvironmentFile>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EnvironmentFile {
+    /// An equirectangular `.exr` or `.hdr`, relative to the scene file's folder.
+    file: String,
+    #[serde(default)]
+    rotation: f32,
+    #[serde(default = "one")]
+    intensity: f32,
+}
+
+fn one() -> f32 {
+    1.0
 }
 
 #[derive(Deserialize)]
@@ -85,6 +101,7 @@ struct MaterialFile {
     emission: [f32; 3],
     roughness: Option<f32>,
     ior: Option<f32>,
+    metallic: Option<f32>,
 }
 
 #[derive(Deserialize)]
@@ -163,9 +180,19 @@ pub(super) fn parse(text: &str, file: &str, base_dir: &Path) -> Result<(Scene, V
             .file_stem()
             .map_or(file.to_string(), |s| s.to_string_lossy().into_owned())
     });
+    let environment = match &doc.environment {
+        Some(e) => {
+            let (env, warnings) = super::Environment::load(&base_dir.join(&e.file), e.rotation, e.intensity)?;
+            meshes.warnings.extend(warnings);
+            Some(env)
+        }
+        None => None,
+    };
     let scene = Scene {
         name,
         punctual: Vec::new(),
+        environment,
+        textures: Default::default(),
         camera: to_camera(&doc.camera),
         settings: to_settings(file, &doc.render)?,
         materials,
@@ -205,29 +232,42 @@ fn to_material(file: &str, name: &str, m: &MaterialFile) -> Result<Material, Sce
         material: name.to_string(),
         kind: m.kind.clone(),
     })?;
-    if m.roughness.is_some() && kind != MaterialKind::Metal {
-        return Err(invalid("`roughness` applies to kind \"metal\" only"));
+    let pbr = kind == MaterialKind::Pbr;
+    if m.roughness.is_some() && kind != MaterialKind::Metal && !pbr {
+        return Err(invalid("`roughness` applies to kinds \"metal\" and \"pbr\" only"));
     }
-    if m.ior.is_some() && kind != MaterialKind::Dielectric {
-        return Err(invalid("`ior` applies to kind \"dielectric\" only"));
+    if m.ior.is_some() && kind != MaterialKind::Dielectric && !pbr {
+        return Err(invalid("`ior` applies to kinds \"dielectric\" and \"pbr\" only"));
+    }
+    if m.metallic.is_some() && !pbr {
+        return Err(invalid("`metallic` applies to kind \"pbr\" only"));
+    }
+    let unit = |x: Option<f32>, what: &str| match x {
+        Some(v) if !(0.0..=1.0).contains(&v) => Err(invalid(&format!("`{what}` must be in [0, 1]"))),
+        _ => Ok(()),
+    };
+    unit(m.metallic, "metallic")?;
+    if pbr {
+        unit(m.roughness, "roughness")?;
     }
     let albedo = match (m.albedo, kind) {
         (Some(a), _) => a,
         (None, MaterialKind::Dielectric) => [1.0; 3],
         (None, MaterialKind::Emissive) => [0.0; 3],
-        (None, _) => return Err(invalid("kinds \"diffuse\" and \"metal\" need an `albedo`")),
+        (None, _) => return Err(invalid("kinds \"diffuse\", \"metal\" and \"pbr\" need an `albedo`")),
     };
     let ior = match kind {
-        MaterialKind::Dielectric => m.ior.unwrap_or(1.5),
+        MaterialKind::Dielectric | MaterialKind::Pbr => m.ior.unwrap_or(1.5),
         _ => 0.0,
     };
     Ok(Material {
         albedo: [albedo[0], albedo[1], albedo[2], 0.0],
         emission: [m.emission[0], m.emission[1], m.emission[2], 0.0],
         kind: kind as u32,
-        roughness: m.roughness.unwrap_or(0.0),
+        roughness: m.roughness.unwrap_or(if pbr { 0.5 } else { 0.0 }),
         ior,
-        _pad: 0,
+        metallic: m.metallic.unwrap_or(0.0),
+        ..Default::default()
     })
 }
 

@@ -3,12 +3,15 @@
 //!
 //! Primitives are every mesh object's triangles (objects in order, each object's mesh copied),
 //! then every sphere object's sphere; all in model space, placed by their object's matrix.
+use super::envmap::EnvMap;
+use super::texture::TextureSet;
 use super::{material, Scene, Shape};
 use glam::Vec3;
 use shared::types::{
-    Camera, Frame, Material, Object, PunctualLight, Sphere, Triangle, VertexAttrs, FEATURES_ALL, INVALID, FLAG_BVH, FLAG_GAMMA2, FLAG_MIS, FLAG_NEE,
-    FLAG_RUSSIAN_ROULETTE,
+    Camera, Frame, Material, Object, PunctualLight, Sphere, Triangle, VertexAttrs, FEATURES_ALL, FLAG_BVH, FLAG_GAMMA2,
+    FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
 };
+use std::sync::Arc;
 
 /// The render buffers of a scene at one moment.
 #[derive(Clone, Debug, Default)]
@@ -27,7 +30,15 @@ pub struct SceneGpu {
     pub attrs: Vec<VertexAttrs>,
     /// Point, spot and directional lights.
     pub punctual: Vec<PunctualLight>,
+    /// The environment map, if the scene has one (its turn and intensity go in the frame).
+    pub env: Option<Arc<EnvMap>>,
+    /// Every texture of the materials and their texels (`Material::textures` index them).
+    pub textures: Arc<TextureSet>,
 }
+
+/// Probability with which next-event estimation samples the environment map when the scene
+/// also has other lights (1 without them).
+pub const ENV_LIGHT_PROB: f32 = 0.5;
 
 fn v4(v: Vec3) -> [f32; 4] {
     [v.x, v.y, v.z, 0.0]
@@ -146,6 +157,8 @@ impl Scene {
             lights,
             attrs,
             punctual: self.punctual.clone(),
+            env: self.environment.as_ref().map(|e| e.map.clone()),
+            textures: self.textures.clone(),
         }
     }
 
@@ -166,6 +179,8 @@ impl Scene {
         let vertical = focus * viewport_h * v;
         let lower_left = c.position - horizontal / 2.0 - vertical / 2.0 - focus * w;
         let flag = |on: bool, f: u32| if on { f } else { 0 };
+        let env = self.environment.as_ref();
+        let rotation = env.map_or(0.0, |e| e.rotation_deg).to_radians().sin_cos();
         Frame {
             camera: Camera {
                 origin: v4(c.position),
@@ -192,7 +207,18 @@ impl Scene {
             exposure: s.exposure,
             features: FEATURES_ALL,
             n_punctual: gpu.punctual.len() as u32,
-            _pad: 0,
+            env_width: env.map_or(0, |e| e.map.width),
+            env_height: env.map_or(0, |e| e.map.height),
+            env_rotation: [rotation.1, rotation.0],
+            env_intensity: env.map_or(0.0, |e| e.intensity),
+            env_prob: match env {
+                None => 0.0,
+                Some(_) if gpu.lights.is_empty() && gpu.punctual.is_empty() => 1.0,
+                Some(_) => ENV_LIGHT_PROB,
+            },
+            // A pixel's angular size at the image centre.
+            pixel_spread: (viewport_h / s.height as f32).atan(),
+            _pad: [0; 2],
         }
     }
 }
@@ -216,6 +242,8 @@ mod tests {
         Scene {
             name: "small".into(),
             punctual: Vec::new(),
+            environment: None,
+            textures: Default::default(),
             camera: CameraSpec {
                 position: Vec3::new(0.0, 0.0, 5.0),
                 look_at: Vec3::ZERO,

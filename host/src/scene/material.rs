@@ -43,9 +43,26 @@ pub fn emissive(emission: [f32; 3]) -> Material {
     }
 }
 
-/// The kind called `name` in scene files: "diffuse", "metal", "dielectric" or "emissive".
+/// glTF's metallic-roughness material: base colour, metallic in `[0, 1]`, perceptual
+/// roughness in `[0, 1]`, and the dielectric's index of refraction (1.5 in glTF).
+pub fn pbr(base_color: [f32; 3], metallic: f32, roughness: f32, ior: f32) -> Material {
+    Material {
+        albedo: rgb(base_color),
+        kind: MaterialKind::Pbr as u32,
+        metallic,
+        roughness,
+        ior,
+        alpha: 1.0,
+        normal_scale: 1.0,
+        ..Default::default()
+    }
+}
+
+/// The kind called `name` in scene files: "diffuse", "metal", "dielectric", "emissive" or
+/// "pbr".
 pub fn kind_from_name(name: &str) -> Option<MaterialKind> {
     match name {
+        "pbr" => Some(MaterialKind::Pbr),
         "diffuse" => Some(MaterialKind::Diffuse),
         "metal" => Some(MaterialKind::Metal),
         "dielectric" => Some(MaterialKind::Dielectric),

@@ -7,12 +7,14 @@
 //! copies them per object (instances duplicate triangles) and gives every object its matrix.
 pub mod attrs;
 mod builtin;
+pub mod envmap;
 mod error;
 mod format;
 mod gpu;
 pub mod material;
 pub mod model;
 pub mod shapes;
+pub mod texture;
 mod transform;
 mod validate;
 
@@ -37,6 +39,46 @@ pub struct Scene {
     pub objects: Vec<SceneObject>,
     /// Point, spot and directional lights, in world space.
     pub punctual: Vec<PunctualLight>,
+    /// An HDR environment map lighting the scene instead of the sky gradient.
+    pub environment: Option<Environment>,
+    /// Every texture the materials use (`Material::textures` indexes them).
+    pub textures: Arc<texture::TextureSet>,
+}
+
+/// An environment map as a scene uses it.
+#[derive(Clone, Debug)]
+pub struct Environment {
+    pub map: Arc<envmap::EnvMap>,
+    /// Turn about `+y`, in degrees.
+    pub rotation_deg: f32,
+    /// Factor on the map's radiance.
+    pub intensity: f32,
+}
+
+impl Environment {
+    /// Loads the map at `path` (see [`envmap::EnvMap::load`]), turned by `rotation_deg` and
+    /// scaled by `intensity` (finite; intensity at least 0), with its warnings.
+    pub fn load(path: &Path, rotation_deg: f32, intensity: f32) -> Result<(Environment, Vec<String>), SceneError> {
+        let invalid = |problem: &str| SceneError::Environment {
+            file: path.display().to_string(),
+            message: problem.to_string(),
+        };
+        if !rotation_deg.is_finite() {
+            return Err(invalid("the rotation must be a finite number of degrees"));
+        }
+        if !(intensity.is_finite() && intensity >= 0.0) {
+            return Err(invalid("the intensity must be a finite number at least 0"));
+        }
+        let (map, warnings) = envmap::EnvMap::load(path)?;
+        Ok((
+            Environment {
+                map: Arc::new(map),
+                rotation_deg,
+                intensity,
+            },
+            warnings,
+        ))
+    }
 }
 
 /// A triangle mesh in model space (`w` components 0), shared by every object that shows it.

@@ -105,14 +105,17 @@ fn material(m: &Material) -> Result<(), String> {
     let xyz = |v: [f32; 4]| Vec3::new(v[0], v[1], v[2]);
     non_negative("albedo", xyz(m.albedo))?;
     non_negative("emission", xyz(m.emission))?;
-    if m.kind > MaterialKind::Emissive as u32 {
+    if m.kind > MaterialKind::Pbr as u32 {
         return Err(format!("kind {} is not a material kind", m.kind));
     }
     if !(0.0..=1.0).contains(&m.roughness) {
         return Err(format!("roughness must lie in [0, 1], got {}", m.roughness));
     }
-    if m.kind == MaterialKind::Dielectric as u32 {
+    if m.kind == MaterialKind::Dielectric as u32 || m.kind == MaterialKind::Pbr as u32 {
         positive("ior", m.ior)?;
+    }
+    if !(0.0..=1.0).contains(&m.metallic) {
+        return Err(format!("metallic must lie in [0, 1], got {}", m.metallic));
     }
     Ok(())
 }

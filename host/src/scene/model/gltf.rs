@@ -8,11 +8,12 @@
 //! above a rotation, or a mirror) the world matrix is baked into a copy of the triangles, the
 //! winding reversed under a mirror so that the front face stays the front face.
 //!
-//! Materials (metallic-roughness) become the renderer's kinds (docs/scenes.md, "Model files"):
-//! `baseColorFactor` is the albedo, `emissiveFactor` times `KHR_materials_emissive_strength`
-//! the emission; `KHR_materials_transmission` of at least 0.5 makes glass with the
-//! `KHR_materials_ior` index (else 1.5), `metallicFactor` of at least 0.5 a metal with the
-//! `roughnessFactor`, anything else is diffuse; a primitive without a material is grey diffuse.
+//! Materials become the renderer's metallic-roughness kind (`MaterialKind::Pbr`, docs/scenes.md,
+//! "Model files"): `baseColorFactor`, `metallicFactor`, `roughnessFactor`, the
+//! `KHR_materials_ior` index (else 1.5), `emissiveFactor` times
+//! `KHR_materials_emissive_strength` the emission; `KHR_materials_transmission` of at least 0.5
+//! makes smooth glass; a material that only emits is `Emissive`; a primitive without a material
+//! is grey diffuse.
 //! The first perspective camera met in the walk is the scene's camera.
 //!
 //! Vertex normals (NORMAL) and texture coordinates (TEXCOORD_0) are read; a primitive
@@ -23,13 +24,17 @@
 //! extensions that are ignored. Required extensions the renderer does not understand, unreadable
 //! buffers, accessors that point outside their data and out-of-range indices are errors.
 use super::{default_material, to_material, unique_name, Model};
-use crate::scene::{attrs, Animation, CameraSpec, Mesh, SceneError, SceneObject, Shape, Transform};
+use crate::scene::texture::Sampler;
+use crate::scene::{attrs, material, Animation, CameraSpec, Mesh, SceneError, SceneObject, Shape, Transform};
 use base64::Engine;
 use glam::{EulerRot, Mat3, Mat4, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::{Mode, Semantic};
 use gltf::{Accessor, Document, Gltf};
-use shared::types::{Material, PunctualLight, Triangle, VertexAttrs, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT};
+use shared::types::{
+    Material, MaterialKind, PunctualLight, Triangle, VertexAttrs, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT,
+};
+use shared::types::{TEX_BASE_COLOR, TEX_EMISSIVE, TEX_METAL_ROUGH, TEX_NORMAL};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 use std::sync::Arc;
@@ -76,6 +81,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
     let buffers = load_buffers(&document, blob, dir).map_err(error)?;
     let mut walk = Walk {
         file,
+        dir,
         buffers: &buffers,
         model: Model::default(),
         parsed: HashMap::new(),
@@ -83,6 +89,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         skipped_modes: BTreeSet::new(),
         morph_targets: false,
         unusable_lights: 0,
+        other_uv_sets: false,
     };
     document_warnings(&document, dir, file, &mut walk.model);
     walk.scene(&document).map_err(error)?;
@@ -163,25 +170,7 @@ fn document_warnings(document: &Document, dir: &Path, file: &str, model: &mut Mo
         ));
     }
     let warnings = &mut model.material_warnings;
-    let images = document.images().len();
-    if images > 0 || document.textures().len() > 0 {
-        warnings.push(format!(
-            "{file}: textures are not supported yet and are ignored ({images} images): base colour factors are used"
-        ));
-    }
-    for image in document.images() {
-        if let gltf::image::Source::Uri { uri, .. } = image.source() {
-            if uri.starts_with("data:") {
-                continue;
-            }
-            match uri_path(uri, dir) {
-                Ok(path) if path.exists() => {}
-                _ => warnings.push(format!(
-                    "{file}: texture image \"{uri}\" is missing (textures are ignored anyway)"
-                )),
-            }
-        }
-    }
+    let _ = dir;
     if document
         .materials()
         .any(|m| m.alpha_mode() != gltf::material::AlphaMode::Opaque)
@@ -210,13 +199,23 @@ fn material_of(m: &gltf::Material) -> Material {
     let strength = m.emissive_strength().unwrap_or(1.0);
     let emission = m.emissive_factor().map(|e| e * strength);
     let transmission = m.transmission().map_or(0.0, |t| t.transmission_factor());
+    let ior = m.ior().filter(|&n| n >= 1.0 && n.is_finite()).unwrap_or(1.5);
     if transmission >= 0.5 {
-        let ior = m.ior().filter(|&n| n >= 1.0 && n.is_finite()).unwrap_or(1.5);
-        to_material([r, g, b], emission, None, Some(ior))
-    } else if pbr.metallic_factor() >= 0.5 {
-        to_material([r, g, b], emission, Some(pbr.roughness_factor()), None)
-    } else {
-        to_material([r, g, b], emission, None, None)
+        return to_material([r, g, b], emission, None, Some(ior));
+    }
+    let base = to_material([r, g, b], emission, None, None);
+    if base.kind == MaterialKind::Emissive as u32 {
+        return base;
+    }
+    let unit = |x: f32| if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+    Material {
+        emission: base.emission,
+        ..material::pbr(
+            [base.albedo[0], base.albedo[1], base.albedo[2]],
+            unit(pbr.metallic_factor()),
+            unit(pbr.roughness_factor()),
+            ior,
+        )
     }
 }
 
@@ -296,8 +295,13 @@ fn triangles(primitive: &gltf::Primitive, buffers: &[Vec<u8>]) -> Result<(Vec<Tr
         check_accessor(&normals, &[DataType::F32], Dimensions::Vec3, buffers).map_err(|e| format!("NORMAL: {e}"))?;
     }
     if let Some(uvs) = primitive.get(&Semantic::TexCoords(0)) {
-        check_accessor(&uvs, &[DataType::F32, DataType::U8, DataType::U16], Dimensions::Vec2, buffers)
-            .map_err(|e| format!("TEXCOORD_0: {e}"))?;
+        check_accessor(
+            &uvs,
+            &[DataType::F32, DataType::U8, DataType::U16],
+            Dimensions::Vec2,
+            buffers,
+        )
+        .map_err(|e| format!("TEXCOORD_0: {e}"))?;
     }
     let reader = primitive.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
     let points: Vec<[f32; 3]> = reader
@@ -372,6 +376,8 @@ struct Parsed {
 /// The walk over the scene's nodes, collecting the model.
 struct Walk<'a> {
     file: &'a str,
+    /// The folder of the file (for images beside it).
+    dir: &'a Path,
     buffers: &'a [Vec<u8>],
     model: Model,
     /// Parsed primitives by mesh index.
@@ -381,6 +387,8 @@ struct Walk<'a> {
     skipped_modes: BTreeSet<String>,
     morph_targets: bool,
     unusable_lights: usize,
+    /// A texture read texture coordinates other than TEXCOORD_0.
+    other_uv_sets: bool,
 }
 
 impl Walk<'_> {
@@ -434,10 +442,11 @@ impl Walk<'_> {
             return i;
         }
         let (name, material) = match m.index() {
-            Some(i) => (
-                m.name().map_or(format!("material {i}"), str::to_string),
-                material_of(&m),
-            ),
+            Some(i) => {
+                let mut material = material_of(&m);
+                self.textures_of(&m, &mut material);
+                (m.name().map_or(format!("material {i}"), str::to_string), material)
+            }
             None => ("default".to_string(), default_material()),
         };
         let name = unique_name(&self.model.materials, &name);
@@ -445,6 +454,98 @@ impl Walk<'_> {
         let index = self.model.materials.len() as u32 - 1;
         self.materials.insert(m.index(), index);
         index
+    }
+
+    /// Gives `material` the textures of glTF material `m`: base colour and emissive (sRGB),
+    /// metallic-roughness and normal (linear), and the base colour's `KHR_texture_transform`
+    /// for all of them. Occlusion is not read: the path tracer finds occlusion itself.
+    fn textures_of(&mut self, m: &gltf::Material, material: &mut Material) {
+        let pbr = m.pbr_metallic_roughness();
+        let base = pbr.base_color_texture();
+        if let Some(info) = &base {
+            if let Some(t) = info.texture_transform() {
+                let (s, c) = t.rotation().sin_cos();
+                let ([ox, oy], [sx, sy]) = (t.offset(), t.scale());
+                material.uv_delta = [[sx * c - 1.0, -sy * s, ox, 0.0], [sx * s, sy * c - 1.0, oy, 0.0]];
+            }
+        }
+        let slot = |info: Option<(gltf::Texture, u32)>, srgb: bool, walk: &mut Walk| -> u32 {
+            let Some((texture, set)) = info else { return 0 };
+            if set != 0 {
+                walk.other_uv_sets = true;
+                return 0;
+            }
+            walk.texture(&texture, srgb).map_or(0, |i| i + 1)
+        };
+        material.textures[TEX_BASE_COLOR] = slot(base.map(|i| (i.texture(), i.tex_coord())), true, self);
+        material.textures[TEX_METAL_ROUGH] = slot(
+            pbr.metallic_roughness_texture().map(|i| (i.texture(), i.tex_coord())),
+            false,
+            self,
+        );
+        material.textures[TEX_EMISSIVE] = slot(m.emissive_texture().map(|i| (i.texture(), i.tex_coord())), true, self);
+        if let Some(normal) = m.normal_texture() {
+            material.normal_scale = normal.scale();
+            material.textures[TEX_NORMAL] = slot(Some((normal.texture(), normal.tex_coord())), false, self);
+        }
+        // The emissive texture multiplies the emissive factor (black by default).
+        if material.textures[TEX_EMISSIVE] != 0 && material.emission[..3] == [0.0; 3] {
+            material.textures[TEX_EMISSIVE] = 0;
+        }
+    }
+
+    /// The texture set's index of glTF texture `t` read as sRGB or linear (added once; a
+    /// missing or undecodable image is a warning and no texture).
+    fn texture(&mut self, t: &gltf::Texture, srgb: bool) -> Option<u32> {
+        let sampler = Sampler::from_gltf(&t.sampler());
+        let Some(image) = t.source() else {
+            self.model
+                .material_warnings
+                .push(format!("{}: texture {} has no image: no texture", self.file, t.index()));
+            return None;
+        };
+        let name = format!(
+            "{}: image {}",
+            self.file,
+            image.name().map_or(image.index().to_string(), str::to_string)
+        );
+        let warnings = &mut self.model.material_warnings;
+        match image.source() {
+            gltf::image::Source::View { view, mime_type } => {
+                let bytes = self
+                    .buffers
+                    .get(view.buffer().index())
+                    .and_then(|b| b.get(view.offset()..view.offset() + view.length()));
+                match bytes {
+                    Some(bytes) => {
+                        self.model
+                            .textures
+                            .add_bytes(bytes, Some(mime_type), &name, srgb, sampler, warnings)
+                    }
+                    None => {
+                        warnings.push(format!("{name}: its buffer view lies outside its buffer: no texture"));
+                        None
+                    }
+                }
+            }
+            gltf::image::Source::Uri { uri, mime_type } if uri.starts_with("data:") => match read_uri(uri, self.dir) {
+                Ok(bytes) => self
+                    .model
+                    .textures
+                    .add_bytes(&bytes, mime_type, &name, srgb, sampler, warnings),
+                Err(e) => {
+                    warnings.push(format!("{name}: {e}: no texture"));
+                    None
+                }
+            },
+            gltf::image::Source::Uri { uri, .. } => match uri_path(uri, self.dir) {
+                Ok(path) => self.model.textures.add_file(&path, srgb, sampler, warnings),
+                Err(e) => {
+                    warnings.push(format!("{name}: {e}: no texture"));
+                    None
+                }
+            },
+        }
     }
 
     /// Parses the primitives of `mesh` (once).
@@ -635,6 +736,12 @@ impl Walk<'_> {
                 "{file}: morph targets are not supported: the base shape is shown"
             ));
         }
+        if self.other_uv_sets {
+            self.model.material_warnings.push(format!(
+                "{file}: textures on texture coordinate sets other than TEXCOORD_0 are not supported: left out"
+            ));
+        }
+        let w = &mut self.model.warnings;
         if self.unusable_lights > 0 {
             w.push(format!(
                 "{file}: {} punctual lights (KHR_lights_punctual) have a non-finite or negative colour, intensity or range, or a degenerate node transform: ignored",

@@ -46,6 +46,8 @@ pub struct Model {
     pub camera: Option<CameraSpec>,
     /// Its punctual lights in the file's world space.
     pub punctual: Vec<PunctualLight>,
+    /// The textures its materials use.
+    pub textures: super::texture::TextureSet,
     /// What was ignored, approximated or assumed, each naming the file.
     pub warnings: Vec<String>,
     /// The same about the file's materials (textures, missing material libraries), apart
@@ -156,6 +158,8 @@ impl Model {
         let mut scene = Scene {
             name: name.to_string(),
             punctual: self.punctual,
+            environment: None,
+            textures: Arc::new(self.textures),
             camera: self.camera.unwrap_or(framing::NO_CAMERA),
             settings,
             materials: self.materials,

@@ -13,9 +13,10 @@
 //! A material library that is missing or malformed, and a `usemtl` of an undefined material,
 //! is a warning: those faces get a grey diffuse. OBJ syntax errors name the line.
 use super::{default_material, to_material, unique_name, Model};
+use crate::scene::texture::Sampler;
 use crate::scene::{attrs, Animation, Mesh, SceneError, SceneObject, Shape, Transform};
 use indexmap::IndexMap;
-use shared::types::{Material, Triangle, VertexAttrs};
+use shared::types::{Material, Triangle, VertexAttrs, TEX_BASE_COLOR};
 use std::cell::RefCell;
 use std::collections::HashSet;
 use std::io::{BufRead, Read};
@@ -243,8 +244,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
     let textured: Vec<&str> = libraries
         .iter()
         .filter(|m| {
-            m.diffuse_texture.is_some()
-                || m.ambient_texture.is_some()
+            m.ambient_texture.is_some()
                 || m.specular_texture.is_some()
                 || m.normal_texture.is_some()
                 || m.shininess_texture.is_some()
@@ -254,7 +254,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         .collect();
     if !textured.is_empty() {
         warnings.push(format!(
-            "{file}: textures are not supported yet and are ignored (materials {}); colours come from Kd, Ks, Ke",
+            "{file}: textures other than map_Kd are not supported and are ignored (materials {})",
             textured.join(", ")
         ));
     }
@@ -289,7 +289,9 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         let uvs = m.mesh.texcoords.as_chunks::<2>().0;
         let per_vertex = |n: usize| n * 3 == pos.len();
         let normals = per_vertex(normals.len()).then_some(normals);
-        let uvs = per_vertex(uvs.len()).then_some(uvs);
+        // OBJ's v points up the image; the renderer's (glTF's) down from its top row.
+        let flipped: Vec<[f32; 2]> = uvs.iter().map(|t| [t[0], 1.0 - t[1]]).collect();
+        let uvs = per_vertex(uvs.len()).then_some(flipped.as_slice());
         attrs.extend(attrs::from_vertices(faces, normals, uvs));
     }
 
@@ -305,7 +307,17 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
             continue;
         }
         let (name, m) = match material {
-            Some(i) => (libraries[i].name.clone(), mtl_material(&libraries[i])),
+            Some(i) => {
+                let mut m = mtl_material(&libraries[i]);
+                if let Some(map) = &libraries[i].diffuse_texture {
+                    let t =
+                        model
+                            .textures
+                            .add_file(&dir.join(map), true, Sampler::default(), &mut model.material_warnings);
+                    m.textures[TEX_BASE_COLOR] = t.map_or(0, |t| t + 1);
+                }
+                (libraries[i].name.clone(), m)
+            }
             None => ("default".to_string(), default_material()),
         };
         let name = unique_name(&model.materials, &name);

@@ -147,6 +147,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         }],
         camera: None,
         punctual: Vec::new(),
+        textures: Default::default(),
         warnings,
         material_warnings: Vec::new(),
     })

@@ -85,8 +85,8 @@ fn suzi_glb_opens_framed_and_lit() {
     // Material "base" has no factors: the glTF defaults, white and fully metallic, rough.
     let (name, m) = &scene.materials[scene.objects[0].material as usize];
     assert_eq!(name, "base");
-    assert_eq!(m.kind, MaterialKind::Metal as u32);
-    assert_eq!((albedo(m), m.roughness), ([1.0; 3], 1.0));
+    assert_eq!(m.kind, MaterialKind::Pbr as u32);
+    assert_eq!((albedo(m), m.metallic, m.roughness), ([1.0; 3], 1.0, 1.0));
     let light = scene.objects.last().unwrap();
     assert!(matches!(light.shape, Shape::Sphere { .. }));
     assert!(light.transform.translation.y > 0.6, "the key light is above the model");
@@ -103,17 +103,22 @@ fn suzi_glb_opens_framed_and_lit() {
 }
 
 #[test]
-fn pmndrs_glb_opens_with_its_texture_ignored() {
+fn pmndrs_glb_opens_with_its_texture() {
     let path = assets().join("pmndrs.glb");
     let (scene, warnings) = Scene::from_model(&path).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(scene.counts(), (1_552, 1));
     check_framed(&scene);
     let (_, m) = &scene.materials[scene.objects[0].material as usize];
-    assert_eq!(m.kind, MaterialKind::Diffuse as u32, "metallicFactor 0");
-    assert!(
-        has_warning(&warnings, &["textures are not supported", "1 images"]),
-        "{warnings:?}"
-    );
+    assert_eq!((m.kind, m.metallic), (MaterialKind::Pbr as u32, 0.0));
+    // Its embedded base colour texture, decoded with a full mip chain, and UVs on the mesh.
+    assert_eq!(m.textures[shared::types::TEX_BASE_COLOR], 1, "{warnings:?}");
+    let t = scene.textures.infos[0];
+    assert!(t.width > 1 && t.levels > 1, "{t:?}");
+    assert!(scene
+        .meshes
+        .iter()
+        .all(|mesh| crate::scene::attrs::has_uvs(&mesh.attrs)));
+    assert!(!has_warning(&warnings, &["texture"]), "{warnings:?}");
     // Opening by path through the CLI's entry point gives the same scene.
     let (opened, _) = Scene::open_with_warnings(path.to_str().unwrap()).unwrap();
     assert_eq!(opened.counts(), scene.counts());
@@ -395,18 +400,35 @@ fn gltf_punctual_lights_are_placed_by_their_nodes() {
     {"type": "directional", "intensity": 3},
     {"type": "point", "intensity": -1}
   ]}}"#;
-    let (_, model) = load_written("lights", &[("lights.gltf", one_triangle_gltf(&nodes, extra).as_bytes())]);
+    let (_, model) = load_written(
+        "lights",
+        &[("lights.gltf", one_triangle_gltf(&nodes, extra).as_bytes())],
+    );
     let model = model.unwrap_or_else(|e| panic!("{e}"));
     let l = &model.punctual;
     assert_eq!(l.len(), 3, "{l:?}");
     assert_eq!(l[0].kind, shared::types::LIGHT_SPOT);
     assert!((Vec3::from_slice(&l[0].position[..3]) - Vec3::new(0.0, 3.0, 0.0)).length() < 1e-6);
-    assert!((Vec3::from_slice(&l[0].direction[..3]) - Vec3::NEG_Y).length() < 1e-5, "{:?}", l[0]);
+    assert!(
+        (Vec3::from_slice(&l[0].direction[..3]) - Vec3::NEG_Y).length() < 1e-5,
+        "{:?}",
+        l[0]
+    );
     assert_eq!(&l[0].intensity[..3], &[4.0, 2.0, 1.0]);
     assert!((l[0].direction[3] - 0.3f32.cos()).abs() < 1e-6 && (l[0].intensity[3] - 0.1f32.cos()).abs() < 1e-6);
-    assert_eq!((l[1].kind, &l[1].position[..3]), (shared::types::LIGHT_POINT, &[1.0, 2.0, 3.0][..]));
-    assert_eq!((l[2].kind, &l[2].direction[..3]), (shared::types::LIGHT_DIRECTIONAL, &[0.0, 0.0, -1.0][..]));
-    assert!(has_warning(&model.warnings, &["1 punctual lights", "ignored"]), "{:?}", model.warnings);
+    assert_eq!(
+        (l[1].kind, &l[1].position[..3]),
+        (shared::types::LIGHT_POINT, &[1.0, 2.0, 3.0][..])
+    );
+    assert_eq!(
+        (l[2].kind, &l[2].direction[..3]),
+        (shared::types::LIGHT_DIRECTIONAL, &[0.0, 0.0, -1.0][..])
+    );
+    assert!(
+        has_warning(&model.warnings, &["1 punctual lights", "ignored"]),
+        "{:?}",
+        model.warnings
+    );
 }
 
 #[test]
@@ -436,8 +458,8 @@ fn gltf_materials_map_onto_the_renderer_kinds() {
     let m = |name: &str| model.materials.iter().find(|(n, _)| n == name).unwrap().1;
     let gold = m("gold");
     assert_eq!(
-        (gold.kind, albedo(&gold), gold.roughness),
-        (MaterialKind::Metal as u32, [1.0, 0.8, 0.3], 0.2)
+        (gold.kind, albedo(&gold), gold.metallic, gold.roughness, gold.ior),
+        (MaterialKind::Pbr as u32, [1.0, 0.8, 0.3], 1.0, 0.2, 1.5)
     );
     let glass = m("glass");
     assert_eq!((glass.kind, glass.ior), (MaterialKind::Dielectric as u32, 1.4));
@@ -541,9 +563,12 @@ fn missing_gltf_texture_is_a_warning() {
     let (_, model) = load_written("texture", &[("tex.gltf", text.as_bytes())]);
     let model = model.unwrap_or_else(|e| panic!("{e}"));
     let w = &model.material_warnings;
-    assert!(has_warning(w, &["tex.gltf", "gone.png", "missing"]), "{w:?}");
-    assert!(has_warning(w, &["textures are not supported"]), "{w:?}");
+    assert!(has_warning(w, &["gone.png", "cannot read"]), "{w:?}");
     assert_eq!(albedo(&model.materials[0].1), [0.5; 3], "the base colour factor");
+    assert_eq!(
+        model.materials[0].1.textures, [0; 4],
+        "no texture where its image is missing"
+    );
 }
 
 #[test]
