@@ -1,5 +1,10 @@
-//! The raytrace host: Vulkan core, GPU LBVH builder, CPU executor of the same kernels,
-//! inputs, scenes (live and editable), the windowed viewer, BVH validator and benchmarks.
+//! The raytrace host, a module per role: `gpu` (the Vulkan core, the GPU LBVH builder, the
+//! GPU renderer), `cpu` (the CPU executor of the same kernels: the build and the renderer),
+//! `bvh` (what a build produces on either backend, and its validator), `render` (what the two
+//! renderers share), `scene` (scene files, built-in scenes, model files), `features` (the
+//! kernel features a scene needs), `picture` (rendered images), `inputs` (generated and loaded
+//! primitives, the hard cases), `view` (the windowed viewer and its live scene), `cli` (the
+//! command line) and `bench` (the benchmarks).
 pub mod bench;
 pub mod bvh;
 pub mod cli;

@@ -1,6 +1,7 @@
-//! Rendering a scene on either backend: the GPU renderer records transform, BVH build, path
-//! tracing and display into one command buffer; the CPU renderer runs the very same kernels
-//! of `shared` through the CPU executor. Both produce a [`Picture`] and per-stage times.
+//! What the two renderers share: the GPU's (`crate::gpu::GpuRenderer`) records transform,
+//! BVH build, path tracing and display into one command buffer; the CPU's
+//! (`crate::cpu::render_cpu`) runs the very same kernels of `shared` through the CPU
+//! executor. Both produce a [`Picture`] and per-stage times.
 use crate::picture::Picture;
 use shared::types::{Frame, FLAG_BVH};
 
@@ -9,7 +10,7 @@ use shared::types::{Frame, FLAG_BVH};
 pub enum Backend {
     /// The GPU, unless every Vulkan device is a CPU implementation (lavapipe, SwiftShader)
     /// or there is none: then the CPU executor, which runs the same kernels much faster
-    /// there (`crate::cli::choose_backend`).
+    /// there (`choose_backend` in `cli/render.rs`).
     Auto,
     Gpu,
     Cpu,

@@ -2,7 +2,8 @@
 //! BVH build (`build`), the thesis's tables (`table2`), real-time frames (`realtime`), trace
 //! throughput per BVH layout (`trace`), specialised kernels (`features`), what accuracy costs
 //! in time (`accuracy`), and README's performance section made from their results (`readme`).
-//! Results go to `bench/results`, each file naming the GPU and driver.
+//! Results go to `bench/results`, each file naming the GPU and driver; `plot` draws their
+//! charts.
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 

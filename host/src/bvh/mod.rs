@@ -1,4 +1,5 @@
-//! What a BVH build produces, on either backend, and the choice of Morton code width.
+//! What a BVH build produces, on either backend, the choice of Morton code width, and the
+//! check that a built BVH is sound (`validate`).
 mod validate;
 
 pub use validate::{validate, validate_wide, BvhStats, WideStats};

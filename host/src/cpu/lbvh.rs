@@ -1,6 +1,6 @@
-//! The CPU executor: runs the very kernels of `shared` that the GPU runs. Per-item steps run
-//! for every index in turn; workgroup kernels run each phase for every lane before the next
-//! phase (a barrier), with workgroup memory as a plain struct per group.
+//! The CPU executor's BVH build: the very build kernels of `shared` that the GPU runs.
+//! Per-item steps run for every index in turn; workgroup kernels run each phase for every lane
+//! before the next phase (a barrier), with workgroup memory as a plain struct per group.
 use crate::bvh::{BuildOptions, BuildResult, MortonBits};
 use bytemuck::Pod;
 use shared::bounds::{self, BoundsState};

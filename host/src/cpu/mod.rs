@@ -1,6 +1,6 @@
-//! The CPU executor: the very kernels of `shared` that the GPU runs, run on the CPU. Per-item
-//! steps run for every index in turn; workgroup kernels run each phase for every lane before
-//! the next (a barrier). `lbvh` builds the BVH, `render` renders a frame (pixels in parallel).
+//! The CPU executor: the very kernels of `shared` that the GPU runs, run on the CPU, where
+//! the tests check them against the GPU and where `--backend auto` renders without a GPU.
+//! `lbvh` builds the BVH ([`build`]), `render` renders a frame ([`render_cpu`]).
 mod lbvh;
 mod render;
 

@@ -1,7 +1,8 @@
-//! The Vulkan host core: context (instance, device, allocator, validation), buffers,
+//! The GPU side. The Vulkan core: context (instance, device, allocator, validation), buffers,
 //! compute pipelines from the embedded SPIR-V, command recording with timestamps, and the
-//! window swapchain of the viewer.
-//! Every Vulkan object is owned by a type that frees it on `Drop`.
+//! window swapchain of the viewer; every Vulkan object is owned by a type that frees it on
+//! `Drop`. On it, the LBVH build (`lbvh`: [`GpuLbvh`]) and the renderer (`render`:
+//! [`GpuRenderer`]).
 mod buffer;
 mod commands;
 mod context;

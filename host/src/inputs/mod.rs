@@ -1,5 +1,7 @@
 //! Build inputs: generated primitive sets for tests and benchmarks (fixed seeds), and OBJ
-//! meshes loaded with tobj. Bad input gets an error naming the file and the problem.
+//! meshes loaded with tobj (from the assets folder, else from the copies built into the
+//! binary: `builtin_assets`). Bad input gets an error naming the file and the problem.
+//! `hard_cases` holds the inputs that break naive ray tracers.
 pub mod hard_cases;
 
 mod builtin_assets;
@@ -87,7 +89,7 @@ pub fn generate(n: usize, dist: Distribution, spheres: bool, seed: u64) -> (Vec<
 /// Loads an OBJ mesh (faces triangulated) as triangles; rejects empty meshes and NaN or
 /// infinite vertices with an error naming the file, object and vertex. A file of the assets
 /// folder ([`assets_dir`]) that is missing there is read from the binary's built-in copy
-/// where it has one ([`builtin_assets`]).
+/// where it has one (`builtin_assets`).
 pub fn load_obj(path: &Path) -> Result<Vec<Triangle>> {
     let opts = tobj::LoadOptions {
         triangulate: true,

@@ -6,7 +6,8 @@
 //! This file holds the entry point and its options; `window` the event loop and the frame,
 //! `input` the key bindings and the actions they and `--script` take, `overlay` what the
 //! viewer reports besides the picture (the title bar, the statistics `I` prints), `camera`
-//! the fly camera.
+//! the fly camera, `live` the scene being edited ([`LiveScene`], which `bench realtime` and the
+//! tests drive without a window).
 mod camera;
 mod input;
 mod live;
