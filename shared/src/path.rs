@@ -211,13 +211,15 @@ fn direct_light(
     let features = w.scene.features;
     let env_prob = w.env_prob();
     let u = rng.next_f32();
-    if u < env_prob || count == 0 {
+    if features & FEATURE_ENVMAP != 0 && (u < env_prob || count == 0) {
         return env_light(w, m, d, p, n, sn, scale, mis, rng);
     }
     // The rest of the unit interval picks among the local lights.
     let local = (u - env_prob) / (1.0 - env_prob);
     let pick = ((local * count as f32) as u32).min(count - 1);
-    if pick >= w.frame.n_lights {
+    // The feature test first: a kernel without punctual lights then has no code (no second
+    // inlined shadow-ray traversal) for them.
+    if features & FEATURE_PUNCTUAL != 0 && pick >= w.frame.n_lights {
         let l = sync::at(w.punctual, pick - w.frame.n_lights);
         let (wi, e) = punctual_light(w, l, p, n, scale);
         if max3(e) <= 0.0 {
