@@ -70,10 +70,9 @@ pub const NO_TEXTURE: u32 = u32::MAX;
 
 /// Flags of a texture: sRGB or linear, bilinear or nearest, and a `WRAP_*` mode per axis.
 pub const fn tex_flags(srgb: bool, nearest: bool, wrap_u: u32, wrap_v: u32) -> u32 {
-    ((srgb as u32) * TEX_SRGB)
-        | ((nearest as u32) * TEX_NEAREST)
-        | (wrap_u & TEX_WRAP_MASK) << TEX_WRAP_U_SHIFT
-        | (wrap_v & TEX_WRAP_MASK) << TEX_WRAP_V_SHIFT
+    let colour = if srgb { TEX_SRGB } else { 0 };
+    let filter = if nearest { TEX_NEAREST } else { 0 };
+    colour | filter | (wrap_u & TEX_WRAP_MASK) << TEX_WRAP_U_SHIFT | (wrap_v & TEX_WRAP_MASK) << TEX_WRAP_V_SHIFT
 }
 
 /// Levels of a full mip chain of a `width` x `height` texture (both at least 1): halving
@@ -114,7 +113,8 @@ pub fn level_base(info: &TextureInfo, level: u32) -> (u32, u32, u32) {
     (info.offset + chain_texels(info.width, info.height, level), w, h)
 }
 
-/// The exact sRGB decoding function (IEC 61966-2-1 EOTF) of an encoded value in `[0, 1]`.
+/// The exact piecewise sRGB decoding function of IEC 61966-2-1 (what GPUs apply to `*_SRGB`
+/// texture formats): an encoded value in `[0, 1]` to linear.
 pub fn srgb_to_linear(c: f32) -> f32 {
     if c <= 0.04045 {
         c * (1.0 / 12.92)
@@ -225,17 +225,14 @@ fn reduce(u: f32, mode: u32) -> f32 {
         u
     };
     const LIMIT: f32 = (1 << 20) as f32;
-    // Not `RangeInclusive::contains`: rust-gpu 0.11 emits an invalid load for it.
-    #[allow(clippy::manual_range_contains)]
-    let inside = r >= -LIMIT && r <= LIMIT;
-    if inside {
-        r
-    } else if r > 0.0 {
+    if r > LIMIT {
         LIMIT
-    } else if r < 0.0 {
+    } else if r < -LIMIT {
         -LIMIT
-    } else {
+    } else if r.is_nan() {
         0.0
+    } else {
+        r
     }
 }
 
@@ -325,11 +322,13 @@ pub fn resolution_lod(info: &TextureInfo) -> f32 {
     0.5 * log2(info.width as f32 * info.height as f32)
 }
 
-/// The level of detail of a ray cone of width `cone_width` at the hit (its spread angle times
-/// the distance travelled, accumulated over bounces) hitting a triangle of LOD constant
-/// `lod_constant` at `cos_n_d` between its normal and the ray: `Delta + log2(|W| / |n . d|)`
-/// (Ray Tracing Gems ch. 20, eq. 34). Finite: the width is at least `f32::MIN_POSITIVE` and
-/// the cosine at least `1e-6` in magnitude.
+/// The level of detail of a ray cone of width `cone_width` at the hit hitting a triangle of
+/// LOD constant `lod_constant` at `cos_n_d` between its normal and the ray:
+/// `Delta + log2(|W| / |n . d|)` (Ray Tracing Gems ch. 20, eq. 34). The width is the cone's
+/// diameter where it meets the surface: `2 t tan(alpha / 2)`, about `alpha t`, for spread angle
+/// `alpha` (the whole cone angle; JCGT 2021 erratum) after distance `t`, accumulated over
+/// bounces as `W_i = W_(i-1) + alpha_(i-1) t_i`. Finite: the width is taken as at least
+/// `f32::MIN_POSITIVE` and the cosine as at least `1e-6` in magnitude.
 pub fn ray_cone_lod(lod_constant: f32, cone_width: f32, cos_n_d: f32) -> f32 {
     let w = cone_width.abs();
     let w = if w > f32::MIN_POSITIVE { w } else { f32::MIN_POSITIVE };
@@ -368,9 +367,14 @@ mod tests {
         (info, texels)
     }
 
+    /// Byte `b` as [`decode`] reads it (times the float nearest 1/255).
+    fn unorm(b: u32) -> f32 {
+        b as f32 * (1.0 / 255.0)
+    }
+
     /// The byte pattern's red at integer coordinates `(x, y)` of the 3x2 texture.
     fn red(x: u32, y: u32) -> f32 {
-        (40 * x + 100 * y) as f32 / 255.0
+        unorm(40 * x + 100 * y)
     }
 
     #[test]
@@ -388,7 +392,7 @@ mod tests {
         let clamp: Vec<u32> = (-4..7).map(|i| wrap(i, 3, WRAP_CLAMP)).collect();
         assert_eq!(clamp, [0, 0, 0, 0, 0, 1, 2, 2, 2, 2, 2]);
         let mirror: Vec<u32> = (-4..7).map(|i| wrap(i, 3, WRAP_MIRROR)).collect();
-        assert_eq!(mirror, [2, 1, 0, 0, 0, 1, 2, 2, 1, 0, 0]);
+        assert_eq!(mirror, [2, 2, 1, 0, 0, 1, 2, 2, 1, 0, 0]);
         assert_eq!(wrap(i32::MIN, 3, WRAP_REPEAT), (i32::MIN as i64).rem_euclid(3) as u32);
         assert_eq!(wrap(i32::MAX, 3, WRAP_CLAMP), 2);
 
@@ -404,8 +408,8 @@ mod tests {
                     let (xi, yi) = (wrap(x, 3, wrap_u), wrap(y, 2, wrap_v));
                     let t = texel(&info, &texels, 0, x, y);
                     assert_eq!(t.x, red(xi, yi), "texel ({x}, {y}) wrap {wrap_u} {wrap_v}");
-                    assert_eq!(t.y, (10 + xi) as f32 / 255.0);
-                    assert_eq!(t.z, (20 + yi) as f32 / 255.0);
+                    assert_eq!(t.y, unorm(10 + xi));
+                    assert_eq!(t.z, unorm(20 + yi));
                     assert_eq!(t.w, 1.0);
                 }
             }
@@ -494,8 +498,9 @@ mod tests {
             assert!((got.x as f64 - table).abs() < 1e-6, "byte {b}: {} vs {table}", got.x);
             assert_eq!(got.x, got.y);
             assert_eq!(got.x, got.z);
-            assert_eq!(got.w, b as f32 / 255.0, "alpha stays linear");
-            assert_eq!(decode(rgba(b, 0, 0, 0), false).x, b as f32 / 255.0);
+            assert_eq!(got.w, unorm(b), "alpha stays linear");
+            assert_eq!(decode(rgba(b, 0, 0, 0), false).x, unorm(b));
+            assert!((unorm(b) - b as f32 / 255.0).abs() <= f32::EPSILON * unorm(b));
             assert_eq!((linear_to_srgb(got.x) * 255.0).round() as u32, b);
         }
         // Through a texture flagged sRGB.
@@ -508,7 +513,7 @@ mod tests {
         };
         let t = texel(&info, &[rgba(128, 0, 255, 128)], 0, 0, 0);
         assert!((t.x - 0.215_860_5).abs() < 1e-6 && t.y == 0.0 && (t.z - 1.0).abs() < 1e-6);
-        assert_eq!(t.w, 128.0 / 255.0);
+        assert_eq!(t.w, unorm(128));
     }
 
     /// A 4x4 linear texture of red 0 with a chain whose level 1 (2x2) is red 100 and

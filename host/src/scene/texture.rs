@@ -6,9 +6,9 @@
 //! to RGBA8; float images are linear and are sRGB-encoded when they are colours). Mip levels
 //! halve each side, rounding down (pbrt-v4 `util/mipmap.cpp` builds the same pyramid, after
 //! rounding up to powers of two, which this does not need): each texel of a smaller level is the
-//! area-weighted box-filter average of the texels it covers, 2x2 texels where a side is even
-//! and three with weights 1/2.5 : 1/2.5 : 0.5/2.5 etc. where it is odd, so the average of the
-//! texture is kept exactly at every level. Colour (sRGB) textures are filtered in linear space
+//! area-weighted box-filter average of the texels it covers: 2x2 texels where both sides are
+//! even, three along an odd side (5 to 2: weights 0.4, 0.4, 0.2 and 0.2, 0.4, 0.4), so the
+//! average of the texture is kept at every level. Colour (sRGB) textures are filtered in linear space
 //! and re-encoded, their RGB weighted by alpha (a transparent texel's colour does not bleed into
 //! its neighbours); data textures are averaged as they are.
 //!
