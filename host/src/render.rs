@@ -2,8 +2,9 @@
 //! BVH build, path tracing and display into one command buffer; the CPU's
 //! (`crate::cpu::render_cpu`) runs the very same kernels of `shared` through the CPU
 //! executor. Both produce a [`Picture`] and per-stage times.
+use crate::bvh::BuildOptions;
 use crate::picture::Picture;
-use shared::types::{Frame, FLAG_BVH};
+use shared::types::{Frame, FLAG_BVH, VARIANT_WIDE_BVH};
 
 /// Where kernels run.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -42,4 +43,14 @@ pub fn with_bvh(mut frame: Frame, bvh: bool) -> Frame {
         frame.flags &= !FLAG_BVH;
     }
     frame
+}
+
+/// A frame's `features` with [`VARIANT_WIDE_BVH`] set where `build` collapses the tree into
+/// the wide BVH (the tracer then walks it).
+pub fn tracer_features(features: u32, build: BuildOptions) -> u32 {
+    if build.wide {
+        features | VARIANT_WIDE_BVH
+    } else {
+        features & !VARIANT_WIDE_BVH
+    }
 }

@@ -87,7 +87,7 @@ fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<H
             order: &cpu.bvh.sorted_prims,
             n_tris: p.frame.n_tris,
             n_prims: p.frame.n_prims,
-            features: raytrace::gpu::tracer_features(frame.features, p.build(1)),
+            features: raytrace::render::tracer_features(frame.features, p.build(1)),
         },
         objects: &p.data.objects,
         prim_object: &p.data.prim_object,

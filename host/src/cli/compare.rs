@@ -1,7 +1,8 @@
 //! `raytrace compare`: one scene rendered on both backends with the same random streams, and
 //! what differs: the images (CPU | GPU | difference), the BVHs, the world-space primitives and
 //! the stage times.
-use super::render::{ms, open_gpu, render_on_cpu, Prepared, Rendered, SceneArgs};
+use super::render::{ms, open_gpu, render_on_cpu, Rendered};
+use super::scene::{Prepared, SceneArgs};
 use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
 use crate::picture;
 use crate::render;

@@ -1,6 +1,7 @@
 //! `raytrace info`: every Vulkan device and the CPU executor with a rough speed and the
 //! backend `render` picks; with `--kernels`, the driver's statistics of every kernel.
-use super::render::{choose_backend, open_gpu, render_gpu, render_on_cpu, Rendered, SceneArgs};
+use super::render::{choose_backend, open_gpu, render_gpu, render_on_cpu, Rendered};
+use super::scene::SceneArgs;
 use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernel, Kernels};
 use crate::render;
 use anyhow::{bail, Result};

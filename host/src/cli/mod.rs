@@ -8,9 +8,11 @@ mod bench;
 mod compare;
 mod info;
 mod render;
+mod scene;
 
 pub use compare::{compare, Comparison};
-pub use render::{parse_size, Bits, Prepared, Rendered, SceneArgs, Treelets};
+pub use render::Rendered;
+pub use scene::{parse_size, Bits, Prepared, SceneArgs, Treelets};
 
 use crate::gpu::GpuOptions;
 use crate::render::Backend;

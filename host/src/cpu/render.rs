@@ -64,7 +64,7 @@ pub fn render_cpu(
             order: &bvh.sorted_prims,
             n_tris: frame.n_tris,
             n_prims: frame.n_prims,
-            features: crate::gpu::tracer_features(frame.features, build),
+            features: crate::render::tracer_features(frame.features, build),
         },
         objects: &scene.objects,
         prim_object: &scene.prim_object,

@@ -11,7 +11,7 @@ use gpu_allocator::MemoryLocation;
 use shared::envmap::EnvEntry;
 use shared::types::{
     grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN, DISPLAY_BGRA,
-    TILE_SIDE, VARIANT_WIDE_BVH, WORKGROUP,
+    TILE_SIDE, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -91,16 +91,6 @@ pub fn stage_ms(timings: &[(&'static str, f64)], label: &str) -> f64 {
     timings.iter().filter(|(l, _)| *l == label).map(|(_, s)| s * 1e3).sum()
 }
 
-/// A frame's `features` with [`VARIANT_WIDE_BVH`] set where `build` collapses the tree into
-/// the wide BVH (the tracer then walks it).
-pub fn tracer_features(features: u32, build: BuildOptions) -> u32 {
-    if build.wide {
-        features | VARIANT_WIDE_BVH
-    } else {
-        features & !VARIANT_WIDE_BVH
-    }
-}
-
 /// Renders scenes on the GPU.
 pub struct GpuRenderer {
     gpu: Arc<Gpu>,
@@ -171,7 +161,7 @@ impl GpuRenderer {
     /// Specialisation constant 0 of the tracing kernels: the frame's `FEATURE_*` and
     /// `VARIANT_*` bits, and the wide traversal where the build collapses the tree.
     fn tracer_constant(&self) -> u32 {
-        tracer_features(self.frame.features, self.build)
+        crate::render::tracer_features(self.frame.features, self.build)
     }
 
     /// Uploads a scene and its frame; accumulation starts again.

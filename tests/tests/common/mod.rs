@@ -66,7 +66,7 @@ impl World {
             order: &self.order,
             n_tris: self.tris.len() as u32,
             n_prims: (self.tris.len() + self.spheres.len()) as u32,
-            features: raytrace::gpu::tracer_features(FEATURES_ALL, World::build()),
+            features: raytrace::render::tracer_features(FEATURES_ALL, World::build()),
         }
     }
 }

@@ -1,0 +1,314 @@
+//! The scene options every command that opens a scene takes (`render`, `compare`, `view`
+//! and the benchmarks), and the scene prepared from them: opened, overridden, its kernel
+//! features derived.
+use crate::bvh::{BuildOptions, Layout, MortonBits};
+use crate::features::{self, Features, Forced};
+use crate::render;
+use crate::scene::{Environment, Scene, SceneGpu};
+use anyhow::{bail, Result};
+use glam::Vec3;
+use shared::types::Frame;
+use std::path::PathBuf;
+
+/// Scene and settings of a render; unset options keep the scene's own settings.
+#[derive(clap::Parser, Clone, Debug)]
+pub struct SceneArgs {
+    /// Built-in scene (cornell, suzanne, bunny, spheres, instances) or a TOML scene file.
+    #[arg(default_value = "cornell")]
+    pub scene: String,
+    /// Samples per pixel.
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Maximum number of bounces per path.
+    #[arg(long)]
+    pub depth: Option<u32>,
+    /// Image size, WIDTHxHEIGHT.
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(u32, u32)>,
+    /// Trace by testing every primitive (the thesis's brute force) instead of the BVH.
+    #[arg(long)]
+    pub no_bvh: bool,
+    /// Switch next-event estimation off.
+    #[arg(long)]
+    pub no_nee: bool,
+    /// Next-event estimation without multiple importance sampling.
+    #[arg(long)]
+    pub no_mis: bool,
+    /// Switch Russian roulette off.
+    #[arg(long)]
+    pub no_roulette: bool,
+    /// Display with the thesis's gamma 1/2 instead of sRGB.
+    #[arg(long)]
+    pub gamma2: bool,
+    #[arg(long)]
+    pub exposure: Option<f32>,
+    /// Seed of the random streams.
+    #[arg(long)]
+    pub seed: Option<u32>,
+    /// Animation time in seconds at which objects are placed.
+    #[arg(long, default_value_t = 0.0)]
+    pub time: f32,
+    /// Morton code width of the BVH.
+    #[arg(long, value_enum, default_value = "b30")]
+    pub bits: Bits,
+    /// Which BVH the tracer walks: the binary LBVH, or the 4-wide BVH collapsed from it on
+    /// every build (children's boxes in their parent, up to two primitives a leaf). Binary is
+    /// the default: on the H100 the wide one traces no faster and builds slower (bench/NOTES.md).
+    #[arg(long, value_enum, default_value = "binary")]
+    pub bvh: Layout,
+    /// Restructure BVH treelets for surface-area cost (binary BVH only): a slower build, a
+    /// faster trace. `auto` does when a frame has at least 16 samples per pixel.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub treelets: Treelets,
+    /// Kernel features beyond what the scene needs: `all`, or +NAME / -NAME for triangles,
+    /// spheres, nee, metal, dielectric, thin-lens (comma-separated).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub features: Vec<String>,
+    /// Print which kernel features run and why.
+    #[arg(long)]
+    pub explain: bool,
+    /// Camera instead of the scene's: `POSITION:LOOK_AT[:VFOV]`, e.g. `0,1,5:0,0.5,0:40`
+    /// (three numbers each, the vertical field of view in degrees).
+    #[arg(long, value_parser = parse_camera)]
+    pub camera: Option<(Vec3, Vec3, Option<f32>)>,
+    /// An HDR environment map (equirectangular .exr or .hdr) lighting the scene instead of
+    /// its sky or its own map.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// Turn of the environment map about the vertical axis, in degrees.
+    #[arg(long)]
+    pub env_rotation: Option<f32>,
+    /// Factor on the environment map's radiance.
+    #[arg(long)]
+    pub env_intensity: Option<f32>,
+}
+
+/// Parses `--camera`: `x,y,z:x,y,z[:vfov]`.
+pub fn parse_camera(s: &str) -> Result<(Vec3, Vec3, Option<f32>), String> {
+    let parts: Vec<&str> = s.split(':').collect();
+    let point = |p: &str| -> Result<Vec3, String> {
+        let v: Vec<f32> = p
+            .split(',')
+            .map(|x| x.trim().parse::<f32>().map_err(|e| format!("{x:?}: {e}")))
+            .collect::<Result<_, _>>()?;
+        match v[..] {
+            [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(Vec3::new(x, y, z)),
+            _ => Err(format!("{p:?} is not three finite numbers x,y,z")),
+        }
+    };
+    let (position, look_at, vfov) = match parts[..] {
+        [p, l] => (point(p)?, point(l)?, None),
+        [p, l, f] => {
+            let f: f32 = f.trim().parse().map_err(|e| format!("field of view {f:?}: {e}"))?;
+            if !(f > 0.0 && f < 180.0) {
+                return Err(format!("field of view {f} is not in (0, 180) degrees"));
+            }
+            (point(p)?, point(l)?, Some(f))
+        }
+        _ => return Err("write POSITION:LOOK_AT[:VFOV], e.g. 0,1,5:0,0.5,0:40".into()),
+    };
+    if position == look_at {
+        return Err("the camera's position and look-at point are the same".into());
+    }
+    Ok((position, look_at, vfov))
+}
+
+/// Whether the BVH build restructures treelets (see `BuildOptions`).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Treelets {
+    Auto,
+    On,
+    Off,
+}
+
+impl Treelets {
+    /// Samples per pixel in one frame from which `Auto` restructures. Below it the slower
+    /// build costs more than the faster trace saves (H100, 5-leaf treelets: the bunny at
+    /// 1920x1080 breaks even near 9 samples, the Cornell box at 800x800 near 7).
+    pub const AUTO_FROM_SPP: u32 = 16;
+
+    /// The choice for frames of `spp` samples per pixel.
+    pub fn resolve(self, spp: u32) -> bool {
+        match self {
+            Treelets::Auto => spp >= Self::AUTO_FROM_SPP,
+            Treelets::On => true,
+            Treelets::Off => false,
+        }
+    }
+}
+
+#[derive(Copy, Clone, Debug, clap::ValueEnum)]
+pub enum Bits {
+    B30,
+    B63,
+}
+
+impl From<Bits> for MortonBits {
+    fn from(b: Bits) -> MortonBits {
+        match b {
+            Bits::B30 => MortonBits::B30,
+            Bits::B63 => MortonBits::B63,
+        }
+    }
+}
+
+/// Parses `WIDTHxHEIGHT` (each side 1..=16384).
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("size {s:?} is not WIDTHxHEIGHT"))?;
+    let parse = |v: &str| v.trim().parse::<u32>().map_err(|e| format!("size {s:?}: {v:?}: {e}"));
+    let (w, h) = (parse(w)?, parse(h)?);
+    if w == 0 || h == 0 || w > 16384 || h > 16384 {
+        return Err(format!("size {s:?}: each side must be 1..=16384"));
+    }
+    Ok((w, h))
+}
+
+/// A scene ready to render: its description, GPU data and frame.
+pub struct Prepared {
+    pub scene: Scene,
+    pub data: SceneGpu,
+    pub frame: Frame,
+    pub spp: u32,
+    pub bits: MortonBits,
+    pub treelets: Treelets,
+    pub layout: Layout,
+    /// The kernel features the frame runs with, and why.
+    pub features: Features,
+}
+
+impl SceneArgs {
+    /// Opens the scene and applies the command-line overrides.
+    pub fn prepare(&self) -> Result<Prepared> {
+        let mut scene = Scene::open(&self.scene)?;
+        let s = &mut scene.settings;
+        if let Some(spp) = self.spp {
+            if spp == 0 {
+                bail!("--spp must be at least 1");
+            }
+            s.spp = spp;
+        }
+        if let Some(d) = self.depth {
+            if d == 0 {
+                bail!("--depth must be at least 1");
+            }
+            s.max_depth = d;
+        }
+        if let Some((w, h)) = self.size {
+            (s.width, s.height) = (w, h);
+        }
+        s.nee &= !self.no_nee;
+        s.mis &= !self.no_mis;
+        s.russian_roulette &= !self.no_roulette;
+        s.gamma2 |= self.gamma2;
+        if let Some(e) = self.exposure {
+            if !(e.is_finite() && e > 0.0) {
+                bail!("--exposure must be a positive number, got {e}");
+            }
+            s.exposure = e;
+        }
+        if let Some(seed) = self.seed {
+            s.seed = seed;
+        }
+        if let Some((position, look_at, vfov)) = self.camera {
+            let c = &mut scene.camera;
+            // Keep "up" unless it is parallel to the new view direction.
+            let forward = (look_at - position).normalize();
+            if c.up.cross(forward).length_squared() < 1e-6 {
+                c.up = if forward.y.abs() < 0.9 { Vec3::Y } else { Vec3::Z };
+            }
+            (c.position, c.look_at, c.focus_distance) = (position, look_at, None);
+            if let Some(f) = vfov {
+                c.vfov_deg = f;
+            }
+        }
+        self.apply_environment(&mut scene)?;
+        let data = scene.gpu_data(self.time);
+        let frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
+        let features = features::derive(&data, &frame, &Forced::parse(&self.features)?)?;
+        let frame = features.apply(&frame);
+        Ok(Prepared {
+            features,
+            spp: scene.settings.spp,
+            scene,
+            data,
+            frame,
+            bits: self.bits.into(),
+            treelets: self.treelets,
+            layout: self.bvh,
+        })
+    }
+}
+
+impl SceneArgs {
+    /// `--env`, `--env-rotation`, `--env-intensity` on top of the scene's environment.
+    fn apply_environment(&self, scene: &mut Scene) -> Result<()> {
+        let current = scene.environment.as_ref();
+        let rotation = self.env_rotation.or(current.map(|e| e.rotation_deg)).unwrap_or(0.0);
+        let intensity = self.env_intensity.or(current.map(|e| e.intensity)).unwrap_or(1.0);
+        if let Some(path) = &self.env {
+            let (env, warnings) = Environment::load(path, rotation, intensity)?;
+            for w in warnings {
+                eprintln!("warning: {w}");
+            }
+            scene.environment = Some(env);
+        } else if let Some(env) = scene.environment.as_mut() {
+            if !(rotation.is_finite() && intensity.is_finite() && intensity >= 0.0) {
+                bail!("--env-rotation must be finite and --env-intensity finite and at least 0");
+            }
+            (env.rotation_deg, env.intensity) = (rotation, intensity);
+        } else if self.env_rotation.is_some() || self.env_intensity.is_some() {
+            bail!(
+                "--env-rotation and --env-intensity need an environment map (--env FILE or the scene's [environment])"
+            );
+        }
+        Ok(())
+    }
+}
+
+impl Prepared {
+    /// How to build the BVH for frames of `spp` samples per pixel.
+    pub fn build(&self, spp: u32) -> BuildOptions {
+        BuildOptions {
+            bits: self.bits,
+            treelets: self.treelets.resolve(spp),
+            wide: self.layout == Layout::Wide,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn camera_option_parses_and_bad_ones_are_named() {
+        let (p, l, f) = parse_camera("0,1,5:0,0.5,0:40").unwrap();
+        assert_eq!(
+            (p, l, f),
+            (Vec3::new(0.0, 1.0, 5.0), Vec3::new(0.0, 0.5, 0.0), Some(40.0))
+        );
+        assert_eq!(parse_camera(" 1, 2, 3 : 0,0,0").unwrap().2, None);
+        for (bad, says) in [
+            ("1,2:0,0,0", "three finite numbers"),
+            ("1,2,3", "POSITION:LOOK_AT"),
+            ("1,2,3:0,0,0:200", "(0, 180)"),
+            ("1,2,3:1,2,3", "the same"),
+            ("1,2,nan:0,0,0", "three finite numbers"),
+        ] {
+            let e = parse_camera(bad).unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+        // The scene's camera is replaced, its up kept unless parallel to the view.
+        let args =
+            <SceneArgs as clap::Parser>::parse_from(["raytrace", "cornell", "--camera", "278,900,278:278,0,278:30"]);
+        let p = args.prepare().unwrap();
+        let c = p.scene.camera;
+        assert_eq!(
+            (c.position, c.look_at, c.vfov_deg),
+            (Vec3::new(278.0, 900.0, 278.0), Vec3::new(278.0, 0.0, 278.0), 30.0)
+        );
+        assert!(c.up.cross(c.look_at - c.position).length() > 0.0);
+    }
+}
