@@ -49,6 +49,11 @@ pub struct Row {
     pub primary_grays: f64,
     pub diffuse_grays: f64,
     pub shadow_grays: f64,
+    /// Closest-hit queries alone (`cast_rays`, no shading between them): the primary rays,
+    /// and one cosine-distributed bounce from every primary hit. Beside the path tracer's
+    /// rates above they show what the traversal would reach without the megakernel's shading.
+    pub batch_primary_grays: f64,
+    pub batch_bounce_grays: f64,
     /// The real-time frame: 1 spp, depth 4, no NEE, BVH rebuilt (medians, ms).
     pub frame_build_ms: f64,
     pub frame_trace_ms: f64,
@@ -94,8 +99,15 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             let mut r = GpuRenderer::new(gpu, &kernels)?;
             let row = measure(&mut r, &p, layout, o).with_context(|| format!("scene {scene}, {layout:?} BVH"))?;
             eprintln!(
-                "{} {:?}: build {:.3} ms, primary {:.2}, diffuse {:.2}, shadow {:.2} Grays/s",
-                row.scene, row.layout, row.build_ms, row.primary_grays, row.diffuse_grays, row.shadow_grays
+                "{} {:?}: build {:.3} ms, primary {:.2}, diffuse {:.2}, shadow {:.2}, batch primary {:.2}, batch bounce {:.2} Grays/s",
+                row.scene,
+                row.layout,
+                row.build_ms,
+                row.primary_grays,
+                row.diffuse_grays,
+                row.shadow_grays,
+                row.batch_primary_grays,
+                row.batch_bounce_grays
             );
             rows.push(row);
         }
@@ -157,7 +169,10 @@ fn measure(r: &mut GpuRenderer, p: &Prepared, layout: Layout, o: &Options) -> Re
     } else {
         sah_cost(&bvh.nodes)
     };
-    let shadow = shadow_grays(r, &depth(1), &p.data.lights, o.runs)?;
+    let queries = Queries::new(r, &depth(1), &p.data.lights)?;
+    let shadow = rate(r, &queries.segments, true, o.runs)?;
+    let batch_primary = rate(r, &queries.primaries, false, o.runs)?;
+    let batch_bounce = rate(r, &queries.bounces, false, o.runs)?;
     Ok(Row {
         scene: p.scene.name.clone(),
         primitives: p.data.prim_object.len(),
@@ -167,6 +182,8 @@ fn measure(r: &mut GpuRenderer, p: &Prepared, layout: Layout, o: &Options) -> Re
         primary_grays: primary,
         diffuse_grays: diffuse,
         shadow_grays: shadow,
+        batch_primary_grays: batch_primary,
+        batch_bounce_grays: batch_bounce,
         frame_build_ms,
         frame_trace_ms,
     })
@@ -185,48 +202,86 @@ fn warm(mut f: impl FnMut() -> Result<()>) -> Result<()> {
     Ok(())
 }
 
-/// Any-hit queries, as next-event estimation casts them: a segment from each pixel's primary
-/// hit to a point on the first light (the top of the scene's bounds where none emits).
-fn shadow_grays(r: &mut GpuRenderer, frame: &Frame, lights: &[u32], runs: usize) -> Result<f64> {
-    r.set_frame(frame)?;
-    r.render(0, true)?;
-    let (tris, spheres) = r.world()?;
-    let (w, h) = (frame.width, frame.height);
-    let primaries: Vec<Ray> = (0..w * h)
-        .map(|i| {
-            let mut rng = Rng::new(i, 0, 0x5ead);
-            let features = frame.features & !FEATURE_THIN_LENS;
-            let (o, d) = shared::path::camera_ray(&frame.camera, w, h, i % w, i / w, features, &mut rng);
-            Ray {
-                origin: [o.x, o.y, o.z, 0.0],
-                dir: [d.x, d.y, d.z, f32::INFINITY],
+/// The batches of rays cast without the path tracer: every pixel's primary ray; from every
+/// primary hit, a segment to a point on the first light (the top of the scene's bounds where
+/// none emits), as next-event estimation casts them, and a cosine-distributed bounce about the
+/// geometric normal (facing the ray), as a diffuse surface scatters.
+struct Queries {
+    primaries: Vec<Ray>,
+    segments: Vec<Ray>,
+    bounces: Vec<Ray>,
+}
+
+impl Queries {
+    fn new(r: &mut GpuRenderer, frame: &Frame, lights: &[u32]) -> Result<Queries> {
+        r.set_frame(frame)?;
+        r.render(0, true)?;
+        let (tris, spheres) = r.world()?;
+        let (w, h) = (frame.width, frame.height);
+        let primaries: Vec<Ray> = (0..w * h)
+            .map(|i| {
+                let mut rng = Rng::new(i, 0, 0x5ead);
+                let features = frame.features & !FEATURE_THIN_LENS;
+                let (o, d) = shared::path::camera_ray(&frame.camera, w, h, i % w, i / w, features, &mut rng);
+                Ray {
+                    origin: [o.x, o.y, o.z, 0.0],
+                    dir: [d.x, d.y, d.z, f32::INFINITY],
+                }
+            })
+            .collect();
+        let hits = r.cast(&primaries)?;
+        let target = light_point(&tris, &spheres, lights, frame);
+        let (mut segments, mut bounces) = (Vec::new(), Vec::new());
+        for (i, (ray, hit)) in primaries.iter().zip(&hits).enumerate() {
+            if hit.prim == INVALID {
+                continue;
             }
-        })
-        .collect();
-    let hits = r.cast(&primaries)?;
-    let target = light_point(&tris, &spheres, lights, frame);
-    let segments: Vec<Ray> = primaries
-        .iter()
-        .zip(&hits)
-        .filter(|(_, h)| h.prim != INVALID)
-        .map(|(ray, h)| {
-            let p = xyz(ray.origin) + xyz(ray.dir) * h.t;
+            let (dir, p) = (xyz(ray.dir), xyz(ray.origin) + xyz(ray.dir) * hit.t);
             let d = target - p;
-            Ray {
+            segments.push(Ray {
                 origin: [p.x, p.y, p.z, 1e-4],
                 dir: [d.x, d.y, d.z, 1.0 - 1e-4],
+            });
+            let n = if hit.prim < frame.n_tris {
+                let t = &tris[hit.prim as usize];
+                (xyz(t.v1) - xyz(t.v0)).cross(xyz(t.v2) - xyz(t.v0))
+            } else {
+                p - xyz(spheres[(hit.prim - frame.n_tris) as usize].center_radius)
             }
+            .normalize_or_zero();
+            if n == Vec3::ZERO {
+                continue;
+            }
+            let n = if n.dot(dir) > 0.0 { -n } else { n };
+            let mut rng = Rng::new(i as u32, 1, 0xb0b);
+            let b = shared::sampling::cosine_hemisphere(n, rng.next_f32(), rng.next_f32());
+            // Off the surface by a relative 1e-5 of the hit's magnitude (or of 1 near the origin).
+            let o = p + n * (1e-5 * p.abs().max_element().max(1.0));
+            bounces.push(Ray {
+                origin: [o.x, o.y, o.z, 0.0],
+                dir: [b.x, b.y, b.z, f32::INFINITY],
+            });
+        }
+        Ok(Queries {
+            primaries,
+            segments,
+            bounces,
         })
-        .collect();
-    if segments.is_empty() {
+    }
+}
+
+/// Billions of `rays` per second through `cast_rays` (any-hit queries where `any`): the
+/// median of `runs` submissions of 32 back-to-back dispatches each, after a warm-up.
+fn rate(r: &mut GpuRenderer, rays: &[Ray], any: bool, runs: usize) -> Result<f64> {
+    if rays.is_empty() {
         return Ok(0.0);
     }
-    warm(|| r.cast_any(&segments).map(|_| ()))?;
+    warm(|| r.time_casts(rays, any, 32).map(|_| ()))?;
     let mut rates = Vec::new();
     for run in 0..=runs {
-        r.cast_any(&segments)?;
+        let s = r.time_casts(rays, any, 32)?;
         if run > 0 {
-            rates.push(segments.len() as f64 / r.last_cast_seconds() * 1e-9);
+            rates.push(rays.len() as f64 / s * 1e-9);
         }
     }
     Ok(median(rates))
@@ -260,17 +315,19 @@ pub fn markdown(r: &Report) -> String {
         "Primary: depth 1; diffuse: bounces to depth 4 (no next-event estimation, no Russian \
          roulette); shadow: any-hit segments from every primary hit to the first light's \
          centre. Grays/s over the trace stage's GPU time. Build: transform and BVH build of a \
-         frame. SAH: surface-area cost of the tree traced. Frame: 1 spp, depth 4, BVH rebuilt.\n"
+         frame. SAH: surface-area cost of the tree traced. Frame: 1 spp, depth 4, BVH rebuilt. \
+         Batch: closest-hit queries alone (`cast_rays`, no shading): every primary ray, and one \
+         cosine-distributed bounce from every primary hit.\n"
     );
     let _ = writeln!(
         s,
-        "| scene | primitives | BVH | build ms | SAH | primary Grays/s | diffuse Grays/s | shadow Grays/s | frame ms (build + trace) |"
+        "| scene | primitives | BVH | build ms | SAH | primary Grays/s | diffuse Grays/s | shadow Grays/s | batch primary | batch bounce | frame ms (build + trace) |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
     for row in &r.rows {
         let _ = writeln!(
             s,
-            "| {} | {} | {:?} | {:.3} | {:.1} | {:.3} | {:.3} | {:.3} | {:.3} ({:.3} + {:.3}) |",
+            "| {} | {} | {:?} | {:.3} | {:.1} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} ({:.3} + {:.3}) |",
             row.scene,
             row.primitives,
             row.layout,
@@ -279,6 +336,8 @@ pub fn markdown(r: &Report) -> String {
             row.primary_grays,
             row.diffuse_grays,
             row.shadow_grays,
+            row.batch_primary_grays,
+            row.batch_bounce_grays,
             row.frame_build_ms + row.frame_trace_ms,
             row.frame_build_ms,
             row.frame_trace_ms,
@@ -319,6 +378,8 @@ mod tests {
             primary_grays: 1.0,
             diffuse_grays: 1.0,
             shadow_grays: 1.0,
+            batch_primary_grays: 1.0,
+            batch_bounce_grays: 1.0,
             frame_build_ms: build,
             frame_trace_ms: trace,
         };

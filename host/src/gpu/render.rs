@@ -406,14 +406,34 @@ impl GpuRenderer {
         self.cast_flags(pairs, pairs.len() / 2, CAST_SPAWN)
     }
 
+    /// GPU seconds of one closest-hit (or, with `any`, any-hit) query of every ray of `rays`:
+    /// the rays uploaded once, then `repeats` dispatches back to back in one submission
+    /// (benchmarks: between single casts the GPU idles for the transfers and lowers its
+    /// clocks).
+    pub fn time_casts(&mut self, rays: &[Ray], any: bool, repeats: u32) -> Result<f64> {
+        let flags = if any { CAST_ANY } else { 0 };
+        let mut b = self.bufs.take().context("no scene loaded")?;
+        let r = self.cast_with(&mut b, rays, rays.len(), flags, repeats.max(1));
+        self.bufs = Some(b);
+        r?;
+        Ok(self.last_cast_s / repeats.max(1) as f64)
+    }
+
     fn cast_flags(&mut self, rays: &[Ray], count: usize, flags: u32) -> Result<Vec<Hit>> {
         let mut b = self.bufs.take().context("no scene loaded")?;
-        let r = self.cast_with(&mut b, rays, count, flags);
+        let r = self.cast_with(&mut b, rays, count, flags, 1);
         self.bufs = Some(b);
         r
     }
 
-    fn cast_with(&mut self, b: &mut SceneBuffers, rays: &[Ray], count: usize, flags: u32) -> Result<Vec<Hit>> {
+    fn cast_with(
+        &mut self,
+        b: &mut SceneBuffers,
+        rays: &[Ray],
+        count: usize,
+        flags: u32,
+        repeats: u32,
+    ) -> Result<Vec<Hit>> {
         if (b.rays.size as usize) < size_of_val(rays) {
             b.rays = Buffer::new(&self.gpu, "rays", size_of_val(rays) as u64, MemoryLocation::GpuOnly)?;
             b.hits = Buffer::new(
@@ -435,9 +455,11 @@ impl GpuRenderer {
         let cast = self.kernels.specialised(Kernel::CastRays, self.tracer_constant())?;
         self.cmds.begin()?;
         self.cmds.timestamp("start");
-        self.cmds
-            .dispatch_pipeline(&self.kernels, cast, &sets, bytemuck::bytes_of(&push), x, y);
-        self.cmds.barrier();
+        for _ in 0..repeats {
+            self.cmds
+                .dispatch_pipeline(&self.kernels, cast, &sets, bytemuck::bytes_of(&push), x, y);
+            self.cmds.barrier();
+        }
         self.cmds.timestamp("cast");
         self.cmds.submit_wait().context("casting rays")?;
         self.last_cast_s = stage_ms(&frame_timings(&self.cmds)?, "cast") * 1e-3;
