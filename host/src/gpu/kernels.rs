@@ -5,7 +5,7 @@ use super::{Buffer, Commands, Gpu, SHADER_SPV};
 use anyhow::{Context, Result};
 use ash::vk;
 use gpu_allocator::MemoryLocation;
-use shared::types::{BuildParams, RenderPush, RENDER_BINDINGS, VARIANT_SPLIT_PRODUCTS};
+use shared::types::{BuildParams, RenderPush, FEATURES_ALL, RENDER_BINDINGS, VARIANT_SPLIT_PRODUCTS};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
@@ -43,6 +43,11 @@ pub enum Kernel {
 }
 
 impl Kernel {
+    /// The path tracer and the ray casts: kernels specialised to the frame's features.
+    pub fn is_tracer(self) -> bool {
+        matches!(self, Kernel::PathTrace | Kernel::CastRays)
+    }
+
     pub const ALL: [Kernel; 23] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
@@ -159,8 +164,15 @@ impl Kernels {
             )
         }
         .context("creating the pipeline layout")?;
+        // The tracers run only specialised (`Self::specialised`, made on first use): their
+        // unspecialised pipelines, the largest by far, would cost lavapipe a minute to compile
+        // and never run.
         for kernel in Kernel::ALL {
-            let p = k.create_pipeline(kernel, None)?;
+            let p = if kernel.is_tracer() {
+                vk::Pipeline::null()
+            } else {
+                k.create_pipeline(kernel, None)?
+            };
             k.pipelines.push(p);
         }
         k.fused_fma = k.probe_fma().context("probing the device's fma")?;
@@ -221,7 +233,7 @@ impl Kernels {
     /// `FEATURE_*` and `VARIANT_*` bits; the fit's ordering), made on first use and kept. On a
     /// device whose `fma` rounds twice [`VARIANT_SPLIT_PRODUCTS`] is added to a tracer's.
     pub fn specialised(&self, kernel: Kernel, constant: u32) -> Result<vk::Pipeline> {
-        let constant = if self.fused_fma || !matches!(kernel, Kernel::PathTrace | Kernel::CastRays) {
+        let constant = if self.fused_fma || !kernel.is_tracer() {
             constant
         } else {
             constant | VARIANT_SPLIT_PRODUCTS
@@ -245,7 +257,12 @@ impl Kernels {
             return Ok(Vec::new());
         }
         let mut out = Vec::new();
-        for (kernel, &pipeline) in Kernel::ALL.iter().zip(&self.pipelines) {
+        for (&kernel, &pipeline) in Kernel::ALL.iter().zip(&self.pipelines) {
+            let pipeline = if kernel.is_tracer() {
+                self.specialised(kernel, FEATURES_ALL)?
+            } else {
+                pipeline
+            };
             out.push((kernel.entry(), self.pipeline_statistics(pipeline)?));
         }
         Ok(out)
@@ -289,7 +306,9 @@ impl Kernels {
             .collect())
     }
 
+    /// The unspecialised pipeline of `k` (not of a tracer: see [`Self::specialised`]).
     pub fn pipeline(&self, k: Kernel) -> vk::Pipeline {
+        debug_assert!(!k.is_tracer(), "{} runs specialised", k.entry());
         self.pipelines[Kernel::ALL.iter().position(|&x| x == k).unwrap_or(0)]
     }
 }
@@ -300,7 +319,9 @@ impl Drop for Kernels {
         // SAFETY: owners wait for GPU work before dropping the kernels.
         unsafe {
             for &p in &self.pipelines {
-                d.destroy_pipeline(p, None);
+                if p != vk::Pipeline::null() {
+                    d.destroy_pipeline(p, None);
+                }
             }
             if let Ok(cache) = self.specialised.lock() {
                 for &p in cache.values() {
