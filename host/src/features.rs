@@ -7,14 +7,14 @@
 use crate::scene::SceneGpu;
 use anyhow::{bail, Result};
 use shared::types::{
-    Frame, MaterialKind, FEATURES_ALL, FEATURE_DIELECTRIC, FEATURE_ENVMAP, FEATURE_METAL, FEATURE_NEE,
-    FEATURE_NORMAL_MAPS, FEATURE_PBR, FEATURE_PUNCTUAL, FEATURE_SHADING_NORMALS, FEATURE_SPHERES, FEATURE_TEXTURES,
-    FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_NEE, INVALID, TEX_NORMAL,
+    Frame, MaterialKind, ALPHA_BLEND, ALPHA_MASK, FEATURES_ALL, FEATURE_ALPHA, FEATURE_DIELECTRIC, FEATURE_ENVMAP,
+    FEATURE_METAL, FEATURE_NEE, FEATURE_NORMAL_MAPS, FEATURE_PBR, FEATURE_PUNCTUAL, FEATURE_SHADING_NORMALS,
+    FEATURE_SPHERES, FEATURE_TEXTURES, FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_NEE, INVALID, TEX_NORMAL,
 };
 use std::fmt::Write;
 
 /// Feature names as `--features` takes them, with their bits.
-pub const NAMES: [(&str, u32); 12] = [
+pub const NAMES: [(&str, u32); 13] = [
     ("triangles", FEATURE_TRIANGLES),
     ("spheres", FEATURE_SPHERES),
     ("nee", FEATURE_NEE),
@@ -27,6 +27,7 @@ pub const NAMES: [(&str, u32); 12] = [
     ("textures", FEATURE_TEXTURES),
     ("normal-maps", FEATURE_NORMAL_MAPS),
     ("envmap", FEATURE_ENVMAP),
+    ("alpha", FEATURE_ALPHA),
 ];
 
 /// What the user asked for beyond the scene's own needs.
@@ -254,6 +255,27 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
         match &data.env {
             Some(e) => format!("environment map {}", e.source),
             None => "no environment map (the sky gradient)".into(),
+        },
+    );
+    let alpha_mode = |mode: u32| {
+        data.objects
+            .iter()
+            .filter(|o| kind_of(o).is_some_and(|m| m.alpha_mode == mode))
+            .count()
+    };
+    let (masked, blended) = (alpha_mode(ALPHA_MASK), alpha_mode(ALPHA_BLEND));
+    decide(
+        "alpha",
+        FEATURE_ALPHA,
+        masked + blended > 0,
+        if masked + blended > 0 {
+            format!(
+                "{} alpha-masked, {} blended",
+                plural(masked, "object"),
+                plural(blended, "object")
+            )
+        } else {
+            "every surface opaque".into()
         },
     );
     let smooth = if crate::scene::attrs::has_normals(&data.attrs) {

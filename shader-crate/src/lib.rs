@@ -3,6 +3,7 @@
 //! Bindings follow the table in `shared::types`.
 #![cfg_attr(target_arch = "spirv", no_std)]
 
+use shared::alpha::Coverage;
 use shared::bounds::{self, BoundsState};
 use shared::envmap::EnvEntry;
 use shared::path::{self, World};
@@ -18,7 +19,7 @@ use shared::types::{
 use shared::wide::{self, MarkState, ScanState, WideNode};
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
-const _: () = assert!(FEATURES_ALL == 64575);
+const _: () = assert!(FEATURES_ALL == 130111);
 use shared::{display, karras, morton, refit, transform as xform};
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
 use spirv_std::glam::UVec3;
@@ -346,6 +347,14 @@ macro_rules! world {
                 order: $order,
                 n_tris: $frame.n_tris,
                 n_prims: $frame.n_prims,
+                coverage: Coverage {
+                    objects: $objects,
+                    prim_object: $prim_object,
+                    materials: $materials,
+                    attrs: $attrs,
+                    textures: $textures,
+                    texels: $texels,
+                },
                 features: $features,
             },
             objects: $objects,
@@ -383,7 +392,7 @@ pub fn path_trace(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
-    #[spirv(spec_constant(id = 0, default = 64575))] features: u32,
+    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
 ) {
     let w = world!(
         tris,
@@ -440,7 +449,7 @@ pub fn cast_rays(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
-    #[spirv(spec_constant(id = 0, default = 64575))] features: u32,
+    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
 ) {
     let w = world!(
         tris,

@@ -9,6 +9,7 @@
 #![cfg_attr(not(target_arch = "spirv"), feature(core_float_math))]
 #![cfg_attr(target_arch = "spirv", feature(asm_experimental_arch))]
 
+pub mod alpha;
 pub mod bounds;
 #[cfg(test)]
 mod chi2;

@@ -164,7 +164,7 @@ pub fn textured(
 }
 
 /// `uv` through material `m`'s texture transform.
-fn transformed_uv(m: &Material, uv: Vec2) -> Vec2 {
+pub fn transformed_uv(m: &Material, uv: Vec2) -> Vec2 {
     let r = m.uv_delta;
     uv + Vec2::new(
         r[0][0] * uv.x + r[0][1] * uv.y + r[0][2],

@@ -185,7 +185,7 @@ fn rem_euclid(i: i32, n: u32) -> u32 {
 pub fn texel(info: &TextureInfo, texels: &[u32], level: u32, x: i32, y: i32) -> Vec4 {
     let level = last_level_at_most(info, level);
     let (base, w, h) = level_base(info, level);
-    fetch(info, texels, base, w, h, x, y)
+    fetch(info, texels, base, w, h, x, y, info.flags & TEX_SRGB != 0)
 }
 
 /// `level`, or the last level of `info` if that is smaller.
@@ -198,11 +198,12 @@ fn last_level_at_most(info: &TextureInfo, level: u32) -> u32 {
     }
 }
 
-/// [`texel`] in a level already located by [`level_base`].
-fn fetch(info: &TextureInfo, texels: &[u32], base: u32, w: u32, h: u32, x: i32, y: i32) -> Vec4 {
+/// [`texel`] in a level already located by [`level_base`], RGB decoded from sRGB if `srgb`.
+#[allow(clippy::too_many_arguments)]
+fn fetch(info: &TextureInfo, texels: &[u32], base: u32, w: u32, h: u32, x: i32, y: i32, srgb: bool) -> Vec4 {
     let xi = wrap(x, w, (info.flags >> TEX_WRAP_U_SHIFT) & TEX_WRAP_MASK);
     let yi = wrap(y, h, (info.flags >> TEX_WRAP_V_SHIFT) & TEX_WRAP_MASK);
-    decode(*at(texels, base + yi * w + xi), info.flags & TEX_SRGB != 0)
+    decode(*at(texels, base + yi * w + xi), srgb)
 }
 
 fn floor(x: f32) -> f32 {
@@ -240,12 +241,24 @@ fn reduce(u: f32, mode: u32) -> f32 {
 /// last), wrap modes applied (pbrt-v4 `MIPMap::Bilerp`): at a texel's centre that texel,
 /// halfway between two centres their average. With [`TEX_NEAREST`], the texel under `uv`.
 pub fn bilinear(info: &TextureInfo, texels: &[u32], level: u32, uv: Vec2) -> Vec4 {
+    filtered(info, texels, level, uv, info.flags & TEX_SRGB != 0)
+}
+
+/// The alpha of the texture at `uv` in level 0, filtered as [`bilinear`] filters (the
+/// coverage of alpha-tested surfaces, `crate::alpha`). Reads no colour: where it is inlined,
+/// no sRGB decoding is.
+pub fn alpha(info: &TextureInfo, texels: &[u32], uv: Vec2) -> f32 {
+    filtered(info, texels, 0, uv, false).w
+}
+
+/// [`bilinear`], RGB decoded from sRGB if `srgb`.
+fn filtered(info: &TextureInfo, texels: &[u32], level: u32, uv: Vec2, srgb: bool) -> Vec4 {
     let level = last_level_at_most(info, level);
     let (base, w, h) = level_base(info, level);
     let u = reduce(uv.x, (info.flags >> TEX_WRAP_U_SHIFT) & TEX_WRAP_MASK) * w as f32;
     let v = reduce(uv.y, (info.flags >> TEX_WRAP_V_SHIFT) & TEX_WRAP_MASK) * h as f32;
     if info.flags & TEX_NEAREST != 0 {
-        return fetch(info, texels, base, w, h, floor(u) as i32, floor(v) as i32);
+        return fetch(info, texels, base, w, h, floor(u) as i32, floor(v) as i32, srgb);
     }
     let x = u - 0.5;
     let y = v - 0.5;
@@ -253,10 +266,10 @@ pub fn bilinear(info: &TextureInfo, texels: &[u32], level: u32, uv: Vec2) -> Vec
     let y0 = floor(y);
     let (dx, dy) = (x - x0, y - y0);
     let (xi, yi) = (x0 as i32, y0 as i32);
-    let t00 = fetch(info, texels, base, w, h, xi, yi);
-    let t10 = fetch(info, texels, base, w, h, xi + 1, yi);
-    let t01 = fetch(info, texels, base, w, h, xi, yi + 1);
-    let t11 = fetch(info, texels, base, w, h, xi + 1, yi + 1);
+    let t00 = fetch(info, texels, base, w, h, xi, yi, srgb);
+    let t10 = fetch(info, texels, base, w, h, xi + 1, yi, srgb);
+    let t01 = fetch(info, texels, base, w, h, xi, yi + 1, srgb);
+    let t11 = fetch(info, texels, base, w, h, xi + 1, yi + 1, srgb);
     (t00 * (1.0 - dx) + t10 * dx) * (1.0 - dy) + (t01 * (1.0 - dx) + t11 * dx) * dy
 }
 

@@ -4,12 +4,13 @@
 //! it (`crate::wide`, [`VARIANT_WIDE_BVH`]): one node read gives four children's boxes, leaves
 //! hold up to two primitives, hit children are visited nearest first. Rays with a
 //! non-finite origin or direction miss.
+use crate::alpha::{self, Coverage};
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
 use crate::sync::{at, elem_mut};
 use crate::types::{
-    xyz, Hit, Node, Sphere, Triangle, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID, VARIANT_MOLLER_TRUMBORE,
-    VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
+    xyz, Hit, Node, Sphere, Triangle, FEATURE_ALPHA, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID,
+    VARIANT_MOLLER_TRUMBORE, VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
 };
 use crate::wide::{self, WideNode, LEAF};
 use seq_macro::seq;
@@ -32,6 +33,9 @@ pub struct Scene<'a> {
     pub order: &'a [u32],
     pub n_tris: u32,
     pub n_prims: u32,
+    /// Materials and textures, for the holes of alpha-tested triangles (with
+    /// [`FEATURE_ALPHA`]; [`Coverage::NONE`] where every primitive is opaque).
+    pub coverage: Coverage<'a>,
     /// `FEATURE_*` bits: primitive kinds left out are never intersected (a specialisation
     /// constant on the GPU, so their code is gone). Must include every kind present. And
     /// `VARIANT_*` bits: the less robust tests to use instead.
@@ -52,18 +56,26 @@ impl Scene<'_> {
     }
 }
 
-/// Intersects primitive `prim`; returns `(t, b1, b2)` with `t = INFINITY` for a miss.
+/// Intersects primitive `prim`; returns `(t, b1, b2)` with `t = INFINITY` for a miss (and
+/// for a hit on a hole of an alpha-tested triangle).
 pub fn primitive(s: &Scene, r: &TriRay, prim: u32, t_max: f32) -> (f32, f32, f32) {
     if prim < s.n_tris {
         if s.features & FEATURE_TRIANGLES == 0 {
             return (f32::INFINITY, 0.0, 0.0);
         }
         let tri = at(s.tris, prim);
-        if s.features & VARIANT_MOLLER_TRUMBORE != 0 {
+        let hit = if s.features & VARIANT_MOLLER_TRUMBORE != 0 {
             intersect::triangle_moller_trumbore(r, tri, t_max)
         } else {
             intersect::triangle(r, tri, t_max)
+        };
+        if s.features & FEATURE_ALPHA != 0
+            && hit.0 < t_max
+            && !alpha::covers(&s.coverage, prim, hit.1, hit.2, r.origin, r.dir, s.features)
+        {
+            return (f32::INFINITY, 0.0, 0.0);
         }
+        hit
     } else if s.features & FEATURE_SPHERES == 0 {
         (f32::INFINITY, 0.0, 0.0)
     } else {

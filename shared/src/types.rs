@@ -347,15 +347,25 @@ pub struct Material {
     /// Texture coordinate transform (glTF `KHR_texture_transform`) minus the identity, so
     /// that zeros leave coordinates alone: `uv' = uv + (r0 . (u, v, 1), r1 . (u, v, 1))`.
     pub uv_delta: [[f32; 4]; 2],
-    /// glTF `alphaMode` MASK: where `alpha` times the base colour texture's alpha falls
-    /// below this the surface is a hole; 0: opaque.
+    /// [`ALPHA_MASK`]: where the coverage (`alpha` times the base colour texture's alpha)
+    /// falls below this the surface is a hole (glTF `alphaCutoff`).
     pub alpha_cutoff: f32,
-    /// Base colour alpha factor (glTF `baseColorFactor[3]`), used with `alpha_cutoff`.
+    /// Base colour alpha factor (glTF `baseColorFactor[3]`): the coverage without a texture.
     pub alpha: f32,
     /// Strength of the normal map (glTF `normalTexture.scale`).
     pub normal_scale: f32,
-    pub _pad: u32,
+    /// [`ALPHA_OPAQUE`], [`ALPHA_MASK`] or [`ALPHA_BLEND`] (glTF `alphaMode`); rays pass
+    /// through holes with [`FEATURE_ALPHA`] (`crate::alpha`).
+    pub alpha_mode: u32,
 }
+
+/// [`Material::alpha_mode`]: every point of the surface is hit (alpha ignored).
+pub const ALPHA_OPAQUE: u32 = 0;
+/// A point is hit where its coverage reaches [`Material::alpha_cutoff`], else a hole.
+pub const ALPHA_MASK: u32 = 1;
+/// A point is hit with probability equal to its coverage (stochastic transparency, which a
+/// path tracer's average turns into alpha blending).
+pub const ALPHA_BLEND: u32 = 2;
 
 /// [`PunctualLight::kind`]: light from a point, the same in every direction.
 pub const LIGHT_POINT: u32 = 0;
@@ -484,6 +494,8 @@ pub const FEATURE_PBR: u32 = 1 << 13;
 pub const FEATURE_ENVMAP: u32 = 1 << 14;
 /// Next-event estimation toward punctual lights (point, spot, directional).
 pub const FEATURE_PUNCTUAL: u32 = 1 << 15;
+/// Alpha-masked and blended triangles: ray queries skip the points they do not cover.
+pub const FEATURE_ALPHA: u32 = 1 << 16;
 /// Every feature: the kernel that runs any scene. Bits 6-9 are the `VARIANT_*` bits.
 pub const FEATURES_ALL: u32 = ((1 << 6) - 1)
     | FEATURE_SHADING_NORMALS
@@ -491,7 +503,8 @@ pub const FEATURES_ALL: u32 = ((1 << 6) - 1)
     | FEATURE_NORMAL_MAPS
     | FEATURE_PBR
     | FEATURE_ENVMAP
-    | FEATURE_PUNCTUAL;
+    | FEATURE_PUNCTUAL
+    | FEATURE_ALPHA;
 
 // Intersection variants, bits of the same specialisation constant: less robust tests that
 // only `raytrace bench accuracy` sets (what the robust defaults of DESIGN.md section 3

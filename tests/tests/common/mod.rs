@@ -66,6 +66,7 @@ impl World {
             order: &self.order,
             n_tris: self.tris.len() as u32,
             n_prims: (self.tris.len() + self.spheres.len()) as u32,
+            coverage: shared::alpha::Coverage::NONE,
             features: raytrace::render::tracer_features(FEATURES_ALL, World::build()),
         }
     }

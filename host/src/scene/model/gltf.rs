@@ -13,15 +13,16 @@
 //! `KHR_materials_ior` index (else 1.5), `emissiveFactor` times
 //! `KHR_materials_emissive_strength` the emission; `KHR_materials_transmission` of at least 0.5
 //! makes smooth glass; a material that only emits is `Emissive`; a primitive without a material
-//! is grey diffuse.
+//! is grey diffuse. `alphaMode` MASK (with `alphaCutoff`) and BLEND keep the base colour's
+//! alpha factor and texture for `shared::alpha`: rays pass through the holes (BLEND as
+//! stochastic transparency).
 //! The first perspective camera met in the walk is the scene's camera.
 //!
 //! Vertex normals (NORMAL) and texture coordinates (TEXCOORD_0) are read; a primitive
 //! without normals is shaded flat, as the specification asks.
 //!
-//! Warnings, each once a file: textures (and missing texture images), other
-//! primitive modes, unusable punctual lights, skins, animations, morph targets, alpha modes and
-//! extensions that are ignored. Required extensions the renderer does not understand, unreadable
+//! Warnings, each once a file: missing texture images, other primitive modes, unusable
+//! punctual lights, skins, animations, morph targets and extensions that are ignored. Required extensions the renderer does not understand, unreadable
 //! buffers, accessors that point outside their data and out-of-range indices are errors.
 use super::{default_material, to_material, unique_name, Model};
 use crate::scene::texture::Sampler;
@@ -34,27 +35,23 @@ use gltf::{Accessor, Document, Gltf};
 use shared::types::{
     Material, MaterialKind, PunctualLight, Triangle, VertexAttrs, LIGHT_DIRECTIONAL, LIGHT_POINT, LIGHT_SPOT,
 };
-use shared::types::{TEX_BASE_COLOR, TEX_EMISSIVE, TEX_METAL_ROUGH, TEX_NORMAL};
+use shared::types::{ALPHA_BLEND, ALPHA_MASK, ALPHA_OPAQUE, TEX_BASE_COLOR, TEX_EMISSIVE, TEX_METAL_ROUGH, TEX_NORMAL};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 use std::sync::Arc;
 
 /// Extensions whose data the importer uses.
-const SUPPORTED: [&str; 3] = [
+const SUPPORTED: [&str; 5] = [
     "KHR_materials_emissive_strength",
     "KHR_materials_transmission",
     "KHR_materials_ior",
-];
-
-/// Extensions a file may require that change only what the renderer ignores anyway
-/// (textures) or warns about (punctual lights).
-const REQUIRED_OK: [&str; 5] = [
     "KHR_texture_transform",
-    "KHR_texture_basisu",
-    "EXT_texture_webp",
-    "MSFT_texture_dds",
     "KHR_lights_punctual",
 ];
+
+/// Extensions a file may require whose absence costs only textures: images in these formats
+/// are not decoded, each a warning and a material without that texture.
+const REQUIRED_OK: [&str; 3] = ["KHR_texture_basisu", "EXT_texture_webp", "MSFT_texture_dds"];
 
 /// Reads the glTF or GLB file at `path` (named `file` in messages).
 pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
@@ -91,7 +88,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
         unusable_lights: 0,
         other_uv_sets: false,
     };
-    document_warnings(&document, dir, file, &mut walk.model);
+    document_warnings(&document, file, &mut walk.model);
     walk.scene(&document).map_err(error)?;
     Ok(walk.finish())
 }
@@ -160,23 +157,13 @@ fn uri_path(uri: &str, dir: &Path) -> Result<std::path::PathBuf, String> {
 }
 
 /// Warnings about what the document holds that the renderer ignores.
-fn document_warnings(document: &Document, dir: &Path, file: &str, model: &mut Model) {
+fn document_warnings(document: &Document, file: &str, model: &mut Model) {
     let warnings = &mut model.warnings;
     let ignored: Vec<&str> = document.extensions_used().filter(|e| !SUPPORTED.contains(e)).collect();
     if !ignored.is_empty() {
         warnings.push(format!(
             "{file}: glTF extensions not supported, ignored: {}",
             ignored.join(", ")
-        ));
-    }
-    let warnings = &mut model.material_warnings;
-    let _ = dir;
-    if document
-        .materials()
-        .any(|m| m.alpha_mode() != gltf::material::AlphaMode::Opaque)
-    {
-        warnings.push(format!(
-            "{file}: alpha modes (MASK, BLEND) are ignored: every material is opaque"
         ));
     }
     let warnings = &mut model.warnings;
@@ -195,7 +182,7 @@ fn document_warnings(document: &Document, dir: &Path, file: &str, model: &mut Mo
 /// The renderer's material for glTF material `m` (mapping in the module header).
 fn material_of(m: &gltf::Material) -> Material {
     let pbr = m.pbr_metallic_roughness();
-    let [r, g, b, _] = pbr.base_color_factor();
+    let [r, g, b, a] = pbr.base_color_factor();
     let strength = m.emissive_strength().unwrap_or(1.0);
     let emission = m.emissive_factor().map(|e| e * strength);
     let transmission = m.transmission().map_or(0.0, |t| t.transmission_factor());
@@ -208,8 +195,16 @@ fn material_of(m: &gltf::Material) -> Material {
         return base;
     }
     let unit = |x: f32| if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+    let (alpha_mode, alpha_cutoff) = match m.alpha_mode() {
+        gltf::material::AlphaMode::Opaque => (ALPHA_OPAQUE, 0.0),
+        gltf::material::AlphaMode::Mask => (ALPHA_MASK, m.alpha_cutoff().unwrap_or(0.5)),
+        gltf::material::AlphaMode::Blend => (ALPHA_BLEND, 0.0),
+    };
     Material {
         emission: base.emission,
+        alpha_mode,
+        alpha_cutoff,
+        alpha: unit(a),
         ..material::pbr(
             [base.albedo[0], base.albedo[1], base.albedo[2]],
             unit(pbr.metallic_factor()),

@@ -425,6 +425,11 @@ fn gltf_punctual_lights_are_placed_by_their_nodes() {
         (shared::types::LIGHT_DIRECTIONAL, &[0.0, 0.0, -1.0][..])
     );
     assert!(
+        !has_warning(&model.warnings, &["not supported", "KHR_lights_punctual"]),
+        "the extension read is called unsupported: {:?}",
+        model.warnings
+    );
+    assert!(
         has_warning(&model.warnings, &["1 punctual lights", "ignored"]),
         "{:?}",
         model.warnings
