@@ -189,12 +189,32 @@ fn sky(w: &World, d: Vec3) -> Vec3 {
     xyz(f.sky_bottom) * (1.0 - a) + xyz(f.sky_top) * a
 }
 
+/// A light sample of next-event estimation: its contribution if nothing blocks the shadow
+/// ray `from + t dir`, `t` in `(0, t_max)`.
+struct LightSample {
+    from: Vec3,
+    dir: Vec3,
+    t_max: f32,
+    value: Vec3,
+}
+
+impl LightSample {
+    const NONE: LightSample = LightSample {
+        from: Vec3::ZERO,
+        dir: Vec3::ZERO,
+        t_max: 0.0,
+        value: Vec3::ZERO,
+    };
+}
+
 /// Next-event estimation for a path arriving along `d` at point `p` (unit geometric normal
 /// `n` and shading normal `sn` on the side the path is on, `scale` its primitive's for
 /// [`offset_origin`]) of a non-delta material `m`: the environment map with probability
 /// `frame.env_prob`, else one light chosen uniformly among the emissive primitives and
-/// punctual lights, for an emitter one point on it uniformly by area; one shadow ray.
-/// Returns the weighted contribution.
+/// punctual lights, for an emitter one point on it uniformly by area; one shadow ray, cast
+/// in one place whatever the light (each call site of `World::any` inlines a traversal: a
+/// second one cost the bunny frame 13%, bench/NOTES session 17). Returns the weighted
+/// contribution.
 #[allow(clippy::too_many_arguments)]
 fn direct_light(
     w: &World,
@@ -211,22 +231,44 @@ fn direct_light(
     let features = w.scene.features;
     let env_prob = w.env_prob();
     let u = rng.next_f32();
-    if features & FEATURE_ENVMAP != 0 && (u < env_prob || count == 0) {
-        return env_light(w, m, d, p, n, sn, scale, mis, rng);
-    }
-    // The rest of the unit interval picks among the local lights.
-    let local = (u - env_prob) / (1.0 - env_prob);
-    let pick = ((local * count as f32) as u32).min(count - 1);
-    // The feature test first: a kernel without punctual lights then has no code (no second
-    // inlined shadow-ray traversal) for them.
-    if features & FEATURE_PUNCTUAL != 0 && pick >= w.frame.n_lights {
-        let l = sync::at(w.punctual, pick - w.frame.n_lights);
-        let (wi, e) = punctual_light(w, l, p, n, scale);
-        if max3(e) <= 0.0 {
-            return Vec3::ZERO;
+    // The feature tests first: a kernel without a light kind then has no code for it.
+    let s = if features & FEATURE_ENVMAP != 0 && (u < env_prob || count == 0) {
+        env_light(w, m, d, p, n, sn, scale, mis, rng)
+    } else {
+        // The rest of the unit interval picks among the local lights.
+        let local = (u - env_prob) / (1.0 - env_prob);
+        let pick = ((local * count as f32) as u32).min(count - 1);
+        if features & FEATURE_PUNCTUAL != 0 && pick >= w.frame.n_lights {
+            let l = sync::at(w.punctual, pick - w.frame.n_lights);
+            let (wi, mut s) = punctual_light(l, p, n, scale);
+            s.value = material::eval(m, d, wi, n, sn, features).0 * s.value * (count as f32 / (1.0 - env_prob));
+            s
+        } else {
+            emitter_light(w, m, d, p, n, sn, scale, mis, pick, rng)
         }
-        return material::eval(m, d, wi, n, sn, features).0 * e * (count as f32 / (1.0 - env_prob));
+    };
+    if max3(s.value) <= 0.0 || w.any(s.from, s.dir, s.t_max) {
+        return Vec3::ZERO;
     }
+    s.value
+}
+
+/// Next-event estimation toward emissive primitive `lights[pick]` (see [`direct_light`]): a
+/// point uniformly by area, weighted against BSDF sampling by MIS.
+#[allow(clippy::too_many_arguments)]
+fn emitter_light(
+    w: &World,
+    m: &Material,
+    d: Vec3,
+    p: Vec3,
+    n: Vec3,
+    sn: Vec3,
+    scale: f32,
+    mis: bool,
+    pick: u32,
+    rng: &mut Rng,
+) -> LightSample {
+    let features = w.scene.features;
     let light = w.lights[pick as usize];
     let (u1, u2) = (rng.next_f32(), rng.next_f32());
     let (q, nl, light_scale) = w.sample_point(light, u1, u2);
@@ -235,19 +277,12 @@ fn direct_light(
     let wi = to / dist;
     let cos_l = World::light_cos(nl, wi);
     if cos_l <= 0.0 || dist.is_nan() || dist <= 0.0 {
-        return Vec3::ZERO;
+        return LightSample::NONE;
     }
     // The light must lie above both the shading and the geometric surface (eval says zero).
     let (f_cos, pdf_bsdf) = material::eval(m, d, wi, n, sn, features);
     if max3(f_cos) <= 0.0 {
-        return Vec3::ZERO;
-    }
-    // Both ends offset off their surfaces; the shadow ray runs over t in (0, 1).
-    let from = offset_origin(p, n, scale);
-    let to_side = if nl.dot(wi) < 0.0 { nl } else { -nl };
-    let target = offset_origin(q, to_side, light_scale);
-    if w.any(from, target - from, 1.0) {
-        return Vec3::ZERO;
+        return LightSample::NONE;
     }
     let pdf_light = w.light_pdf(light, dist, cos_l);
     let weight = if mis {
@@ -262,7 +297,16 @@ fn direct_light(
     } else {
         xyz(w.material(light).emission)
     };
-    f_cos * le * (weight / pdf_light)
+    // Both ends offset off their surfaces; the shadow ray runs over t in (0, 1).
+    let from = offset_origin(p, n, scale);
+    let to_side = if nl.dot(wi) < 0.0 { nl } else { -nl };
+    let target = offset_origin(q, to_side, light_scale);
+    LightSample {
+        from,
+        dir: target - from,
+        t_max: 1.0,
+        value: f_cos * le * (weight / pdf_light),
+    }
 }
 
 /// Next-event estimation toward the environment map (see [`direct_light`]): a direction by
@@ -278,19 +322,19 @@ fn env_light(
     scale: f32,
     mis: bool,
     rng: &mut Rng,
-) -> Vec3 {
+) -> LightSample {
     if !w.has_env() {
-        return Vec3::ZERO;
+        return LightSample::NONE;
     }
     let s = w
         .env()
         .sample(rng.next_f32(), rng.next_f32(), rng.next_f32(), rng.next_f32());
     if s.pdf <= 0.0 || s.pdf.is_nan() {
-        return Vec3::ZERO;
+        return LightSample::NONE;
     }
     let (f_cos, pdf_bsdf) = material::eval(m, d, s.dir, n, sn, w.scene.features);
-    if max3(f_cos) <= 0.0 || w.any(offset_origin(p, n, scale), s.dir, f32::INFINITY) {
-        return Vec3::ZERO;
+    if max3(f_cos) <= 0.0 {
+        return LightSample::NONE;
     }
     let pdf_light = w.env_prob() * s.pdf;
     let weight = if mis {
@@ -298,15 +342,21 @@ fn env_light(
     } else {
         1.0
     };
-    f_cos * s.radiance * (weight / pdf_light)
+    LightSample {
+        from: offset_origin(p, n, scale),
+        dir: s.dir,
+        t_max: f32::INFINITY,
+        value: f_cos * s.radiance * (weight / pdf_light),
+    }
 }
 
-/// Direction toward punctual light `l` from point `p` (geometric normal `n` on the path's
-/// side, `scale` its primitive's) and the irradiance it brings there on a surface facing it:
-/// zero where it is shadowed, behind the surface or outside a spot's cone. A spot fades from
-/// `cos_inner` to `cos_outer` as glTF's `KHR_lights_punctual` recommends (the square of a
-/// linear ramp in the cosine).
-fn punctual_light(w: &World, l: &PunctualLight, p: Vec3, n: Vec3, scale: f32) -> (Vec3, Vec3) {
+/// The unit direction toward punctual light `l` from point `p` (geometric normal `n` on the
+/// path's side, `scale` its primitive's), and the shadow ray toward it with, as its value,
+/// the irradiance it brings there on a surface facing it: zero behind the surface or outside
+/// a spot's cone. A spot fades
+/// from `cos_inner` to `cos_outer` as glTF's `KHR_lights_punctual` recommends (the square of
+/// a linear ramp in the cosine).
+fn punctual_light(l: &PunctualLight, p: Vec3, n: Vec3, scale: f32) -> (Vec3, LightSample) {
     let from = offset_origin(p, n, scale);
     let (wi, to, t_max, mut e) = if l.kind == LIGHT_DIRECTIONAL {
         let wi = -xyz(l.direction);
@@ -321,10 +371,16 @@ fn punctual_light(w: &World, l: &PunctualLight, p: Vec3, n: Vec3, scale: f32) ->
         let ramp = ((-wi.dot(xyz(l.direction)) - cos_outer) / (cos_inner - cos_outer).max(1e-3)).clamp(0.0, 1.0);
         e *= ramp * ramp;
     }
-    if wi.dot(n) <= 0.0 || !finite3(e) || max3(e) <= 0.0 || w.any(from, to, t_max) {
-        return (wi, Vec3::ZERO);
+    if wi.dot(n) <= 0.0 || !finite3(e) || max3(e) <= 0.0 {
+        return (wi, LightSample::NONE);
     }
-    (wi, e)
+    let s = LightSample {
+        from,
+        dir: to,
+        t_max,
+        value: e,
+    };
+    (wi, s)
 }
 
 /// The switches of the bounce loop, read once per invocation.
