@@ -9,7 +9,7 @@ use raytrace::picture::diff_stats;
 use raytrace::scene::{Scene, SceneGpu};
 use shared::alpha::Coverage;
 use shared::traverse;
-use shared::types::{BuildParams, Frame, Ray, Sphere, Triangle, FEATURE_ALPHA, INVALID};
+use shared::types::{Frame, Ray, FEATURE_ALPHA, INVALID};
 use std::path::{Path, PathBuf};
 
 /// Writes a glTF of two unit quads facing +z at z = 0: `masked` (x, y in [-1, 1]) with a
@@ -113,27 +113,7 @@ fn grid(lo: (f32, f32), hi: (f32, f32), n: usize) -> Vec<Ray> {
 
 /// Closest-hit and any-hit answers (hit or not) of `rays` on the CPU, through the BVH.
 fn cpu_queries(data: &SceneGpu, frame: &Frame, rays: &[Ray]) -> (Vec<bool>, Vec<bool>) {
-    let (n_tris, n_spheres) = (data.model_tris.len(), data.model_spheres.len());
-    let p = BuildParams {
-        n_tris: n_tris as u32,
-        n: (n_tris + n_spheres) as u32,
-        shift: 0,
-        passes: 0,
-    };
-    let mut tris = vec![Triangle::default(); n_tris];
-    let mut spheres = vec![Sphere::default(); n_spheres];
-    for i in 0..p.n {
-        shared::transform::transform(
-            i,
-            &p,
-            &data.objects,
-            &data.prim_object,
-            &data.model_tris,
-            &data.model_spheres,
-            &mut tris,
-            &mut spheres,
-        );
-    }
+    let (tris, spheres) = raytrace::cpu::world_primitives(data);
     let (bvh, _) = raytrace::cpu::build(&tris, &spheres, BuildOptions::lbvh(MortonBits::B30));
     let s = traverse::Scene {
         tris: &tris,

@@ -5,4 +5,4 @@ mod lbvh;
 mod render;
 
 pub use lbvh::build;
-pub use render::{render_cpu, CpuRender};
+pub use render::{render_cpu, world_primitives, CpuRender};

@@ -19,17 +19,9 @@ pub struct CpuRender {
     pub spheres: Vec<Sphere>,
 }
 
-/// Renders `samples` samples per pixel of `scene` with `frame`; `progress` is called with
-/// the number of rows finished.
-pub fn render_cpu(
-    scene: &SceneGpu,
-    frame: &Frame,
-    samples: u32,
-    build: BuildOptions,
-    progress: &(dyn Fn(u32) + Sync),
-) -> CpuRender {
-    let mut timings = Vec::new();
-    let t = Instant::now();
+/// The scene's primitives in world space: the transform kernel run for each (what the GPU's
+/// transform stage writes).
+pub fn world_primitives(scene: &SceneGpu) -> (Vec<Triangle>, Vec<Sphere>) {
     let (n_tris, n_spheres) = (scene.model_tris.len(), scene.model_spheres.len());
     let p = BuildParams {
         n_tris: n_tris as u32,
@@ -51,6 +43,21 @@ pub fn render_cpu(
             &mut spheres,
         );
     }
+    (tris, spheres)
+}
+
+/// Renders `samples` samples per pixel of `scene` with `frame`; `progress` is called with
+/// the number of rows finished.
+pub fn render_cpu(
+    scene: &SceneGpu,
+    frame: &Frame,
+    samples: u32,
+    build: BuildOptions,
+    progress: &(dyn Fn(u32) + Sync),
+) -> CpuRender {
+    let mut timings = Vec::new();
+    let t = Instant::now();
+    let (tris, spheres) = world_primitives(scene);
     timings.push(("transform", t.elapsed().as_secs_f64()));
     let (bvh, build_times) = crate::cpu::build(&tris, &spheres, build);
     timings.extend(build_times);
