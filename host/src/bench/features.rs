@@ -2,7 +2,7 @@
 //! the kernel specialised to what the scene needs (`crate::features`), same frame, same
 //! random streams; the two images are compared to show the specialisation changes nothing
 //! but time.
-use crate::bench::percentile;
+use crate::bench::{percentile, warm};
 use crate::cli::{Prepared, SceneArgs};
 use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
 use crate::picture::{diff_stats, max_display_diff, Picture};
@@ -47,10 +47,15 @@ fn prepare(scene: &str, size: (u32, u32), spp: u32, all: bool) -> Result<Prepare
     <SceneArgs as clap::Parser>::parse_from(args).prepare()
 }
 
-/// Median trace milliseconds of `runs` frames of `p.spp` samples, and the last picture.
+/// Median trace milliseconds of `runs` frames of `p.spp` samples after a warm-up
+/// ([`warm`]), and the last picture.
 fn time(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, Picture)> {
     r.set_build(p.build(p.spp));
     r.load(&p.data, &p.frame)?;
+    warm(|| {
+        r.set_frame(&p.frame)?;
+        r.render(p.spp, true).map(|_| ())
+    })?;
     let mut ms = Vec::new();
     for i in 0..runs + 1 {
         r.set_frame(&p.frame)?;
@@ -116,7 +121,7 @@ pub fn markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Kernels specialised to the scene\n\n- date: {}\n- device: {}\n- command: `{}`\n- {}x{}, {} spp per frame, BVH rebuilt, median of {} frames after one warm-up\n",
+        "# Kernels specialised to the scene\n\n- date: {}\n- device: {}\n- command: `{}`\n- {}x{}, {} spp per frame, BVH rebuilt, median of {} frames after half a second of warm-up\n",
         r.date, r.device, r.command, r.size.0, r.size.1, r.spp, r.runs
     );
     let _ = writeln!(

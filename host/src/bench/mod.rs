@@ -17,6 +17,21 @@ pub mod table2;
 pub mod trace;
 
 /// The `q` quantile (0..=1, nearest rank) of ascending `sorted` values; NaN when empty.
+/// Runs `f` at least 10 times and for at least half a second after the first (which may
+/// create pipelines): the GPU's clocks up. They drop within a fraction of a second of idling
+/// (a pipeline's creation is enough), and short submissions each followed by a wait do not
+/// raise them again: `bench features` measured specialised kernels 1.5-4x slow without this.
+pub fn warm(mut f: impl FnMut() -> Result<()>) -> Result<()> {
+    f()?;
+    let start = std::time::Instant::now();
+    let mut runs = 0;
+    while runs < 10 || start.elapsed() < std::time::Duration::from_millis(500) {
+        f()?;
+        runs += 1;
+    }
+    Ok(())
+}
+
 pub fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;

@@ -4,8 +4,8 @@
 //! and the real-time frame (1 spp, depth 4, BVH rebuilt) split into build and trace. Writes
 //! Markdown, JSON and a stacked-bar plot of the frame per scene and layout.
 use crate::bench::accuracy::{sah_cost, sah_cost_wide};
-use crate::bench::percentile;
 use crate::bench::plot::{stacked_bars, Bar};
+use crate::bench::{percentile, warm};
 use crate::bvh::{BuildOptions, Layout};
 use crate::cli::{Prepared, SceneArgs};
 use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
@@ -187,19 +187,6 @@ fn measure(r: &mut GpuRenderer, p: &Prepared, layout: Layout, o: &Options) -> Re
         frame_build_ms,
         frame_trace_ms,
     })
-}
-
-/// Runs `f` at least 10 times and for at least half a second after the first (which may
-/// create pipelines): the GPU's clocks up, see [`measure`].
-fn warm(mut f: impl FnMut() -> Result<()>) -> Result<()> {
-    f()?;
-    let start = std::time::Instant::now();
-    let mut runs = 0;
-    while runs < 10 || start.elapsed() < std::time::Duration::from_millis(500) {
-        f()?;
-        runs += 1;
-    }
-    Ok(())
 }
 
 /// The batches of rays cast without the path tracer: every pixel's primary ray; from every
