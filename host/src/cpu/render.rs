@@ -4,7 +4,6 @@ use crate::bvh::{BuildOptions, BuildResult};
 use crate::picture::Picture;
 use crate::scene::SceneGpu;
 use rayon::prelude::*;
-use shared::alpha::Coverage;
 use shared::path::{self, World};
 use shared::traverse::Scene;
 use shared::types::{BuildParams, Frame, RenderPush, Sphere, Triangle};
@@ -72,14 +71,7 @@ pub fn render_cpu(
             order: &bvh.sorted_prims,
             n_tris: frame.n_tris,
             n_prims: frame.n_prims,
-            coverage: Coverage {
-                objects: &scene.objects,
-                prim_object: &scene.prim_object,
-                materials: &scene.materials,
-                attrs: &scene.attrs,
-                textures: &scene.textures.infos,
-                texels: &scene.textures.texels,
-            },
+            coverage: scene.coverage(),
             features: crate::render::tracer_features(frame.features, build),
         },
         objects: &scene.objects,

@@ -36,6 +36,20 @@ pub struct SceneGpu {
     pub textures: Arc<TextureSet>,
 }
 
+impl SceneGpu {
+    /// What alpha-tested triangles read (`traverse::Scene::coverage`): these buffers.
+    pub fn coverage(&self) -> shared::alpha::Coverage<'_> {
+        shared::alpha::Coverage {
+            objects: &self.objects,
+            prim_object: &self.prim_object,
+            materials: &self.materials,
+            attrs: &self.attrs,
+            textures: &self.textures.infos,
+            texels: &self.textures.texels,
+        }
+    }
+}
+
 /// Probability with which next-event estimation samples the environment map when the scene
 /// also has other lights (1 without them).
 pub const ENV_LIGHT_PROB: f32 = 0.5;
