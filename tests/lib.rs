@@ -1,6 +1,12 @@
-//! Helpers of the integration tests: opening the GPU (skip or fail without one), checking
-//! the validation layer, and writing both sides of a mismatch to a file.
+//! Helpers of the integration tests: opening the GPU (skip or fail without one), comparing a
+//! CPU and a GPU picture, checking the validation layer, and writing both sides of a mismatch
+//! to a file.
+use raytrace::bvh::{BuildOptions, MortonBits};
+use raytrace::cpu::render_cpu;
 use raytrace::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
+use raytrace::picture::diff_stats;
+use raytrace::scene::SceneGpu;
+use shared::types::Frame;
 use std::fmt::Debug;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -29,6 +35,23 @@ pub fn renderer(test: &str) -> Option<(Arc<Gpu>, GpuRenderer)> {
     let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
     let r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
     Some((gpu, r))
+}
+
+/// Renders `spp` samples of `frame` on the CPU executor and on `r` (both with 30-bit LBVH
+/// builds) and asserts the pictures agree within `tolerance` relative RMSE.
+pub fn assert_cpu_and_gpu_agree(r: &mut GpuRenderer, data: &SceneGpu, frame: &Frame, spp: u32, tolerance: f64) {
+    let build = BuildOptions::lbvh(MortonBits::B30);
+    let cpu = render_cpu(data, frame, spp, build, &|_| {}).picture;
+    r.set_build(build);
+    r.load(data, frame).expect("load");
+    r.render(spp, true).expect("render");
+    let g = r.picture().expect("picture");
+    let d = diff_stats(&cpu, &g).unwrap();
+    assert!(
+        d.relative_rmse < tolerance,
+        "relative RMSE {} (tolerance {tolerance})",
+        d.relative_rmse
+    );
 }
 
 /// Fails if the validation layer reported any error.

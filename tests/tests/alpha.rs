@@ -2,12 +2,9 @@
 //! a MASK texture (closest-hit and any-hit queries, so pictures and shadows agree), a BLEND
 //! surface of coverage 0.3 stops 30% of the rays, and CPU and GPU give the same answers.
 use glam::Vec3;
-use integration_tests::{assert_no_validation_errors, renderer};
+use integration_tests::{assert_cpu_and_gpu_agree, assert_no_validation_errors, renderer};
 use raytrace::bvh::{BuildOptions, MortonBits};
-use raytrace::cpu::render_cpu;
-use raytrace::picture::diff_stats;
 use raytrace::scene::{Scene, SceneGpu};
-use shared::alpha::Coverage;
 use shared::traverse;
 use shared::types::{Frame, Ray, FEATURE_ALPHA, INVALID};
 use std::path::{Path, PathBuf};
@@ -123,14 +120,7 @@ fn cpu_queries(data: &SceneGpu, frame: &Frame, rays: &[Ray]) -> (Vec<bool>, Vec<
         order: &bvh.sorted_prims,
         n_tris: frame.n_tris,
         n_prims: frame.n_prims,
-        coverage: Coverage {
-            objects: &data.objects,
-            prim_object: &data.prim_object,
-            materials: &data.materials,
-            attrs: &data.attrs,
-            textures: &data.textures.infos,
-            texels: &data.textures.texels,
-        },
+        coverage: data.coverage(),
         features: frame.features,
     };
     let o = |r: &Ray| Vec3::new(r.origin[0], r.origin[1], r.origin[2]);
@@ -197,11 +187,6 @@ fn cpu_and_gpu_agree_on_holes_in_queries_and_pictures() {
     // A picture of the quads, lit by the sky through the holes.
     frame.width = 48;
     frame.height = 48;
-    let cpu = render_cpu(&data, &frame, 16, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture;
-    r.load(&data, &frame).expect("load");
-    r.render(16, true).expect("render");
-    let g = r.picture().expect("picture");
-    let d = diff_stats(&cpu, &g).unwrap();
-    assert!(d.relative_rmse < 0.02, "relative RMSE {}", d.relative_rmse);
+    assert_cpu_and_gpu_agree(&mut r, &data, &frame, 16, 0.02);
     assert_no_validation_errors(&gpu);
 }

@@ -3,7 +3,7 @@
 //! map beats BSDF sampling under a small sun at equal rays, GGX under the map matches a furnace
 //! bound, and CPU and GPU agree.
 use glam::Vec3;
-use integration_tests::{assert_no_validation_errors, renderer};
+use integration_tests::{assert_cpu_and_gpu_agree, assert_no_validation_errors, renderer};
 use raytrace::bvh::{BuildOptions, MortonBits};
 use raytrace::cpu::render_cpu;
 use raytrace::picture::{diff_stats, Picture};
@@ -156,12 +156,6 @@ fn cpu_and_gpu_agree_under_an_environment_map() {
     let scene = ball_under(sun_map(), material::pbr([0.9, 0.6, 0.3], 0.3, 0.4, 1.5), true);
     let data = scene.gpu_data(0.0);
     let frame = scene.frame(&data);
-    let cpu = render_cpu(&data, &frame, 16, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture;
-    r.set_build(BuildOptions::lbvh(MortonBits::B30));
-    r.load(&data, &frame).expect("load");
-    r.render(16, true).expect("render");
-    let g = r.picture().expect("picture");
-    let d = diff_stats(&cpu, &g).unwrap();
-    assert!(d.relative_rmse < 0.02, "relative RMSE {}", d.relative_rmse);
+    assert_cpu_and_gpu_agree(&mut r, &data, &frame, 16, 0.02);
     assert_no_validation_errors(&gpu);
 }

@@ -2,11 +2,11 @@
 //! the sphere it approximates, the shading normal never lets a path below the geometric
 //! surface, and CPU and GPU agree on a model with smooth normals.
 use glam::Vec3;
-use integration_tests::{assert_no_validation_errors, renderer};
+use integration_tests::{assert_cpu_and_gpu_agree, assert_no_validation_errors, renderer};
 use raytrace::bvh::{BuildOptions, MortonBits};
 use raytrace::cpu::render_cpu;
 use raytrace::inputs::hard_cases::icosphere;
-use raytrace::picture::{diff_stats, Picture};
+use raytrace::picture::Picture;
 use raytrace::scene::attrs::{self, from_vertices};
 use raytrace::scene::{material, CameraSpec, Mesh, Scene, SceneObject, Settings, Shape, Transform};
 use shared::types::{VertexAttrs, FEATURE_SHADING_NORMALS};
@@ -261,13 +261,7 @@ fn cpu_and_gpu_agree_with_vertex_normals_and_punctual_lights() {
     }];
     let data = scene.gpu_data(0.0);
     let frame = scene.frame(&data);
-    let cpu = render_cpu(&data, &frame, 16, BuildOptions::lbvh(MortonBits::B30), &|_| {}).picture;
-    r.set_build(BuildOptions::lbvh(MortonBits::B30));
-    r.load(&data, &frame).expect("load");
-    r.render(16, true).expect("render");
-    let g = r.picture().expect("picture");
-    let d = diff_stats(&cpu, &g).unwrap();
-    assert!(d.relative_rmse < 0.02, "relative RMSE {}", d.relative_rmse);
+    assert_cpu_and_gpu_agree(&mut r, &data, &frame, 16, 0.02);
     assert_no_validation_errors(&gpu);
 }
 
