@@ -7,18 +7,21 @@
 use crate::alpha::{self, Coverage};
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
-use crate::sync::{at, elem_mut};
+use crate::sync::{at, elem, elem_mut};
 use crate::types::{
     xyz, Hit, Node, Sphere, Triangle, FEATURE_ALPHA, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID,
     VARIANT_MOLLER_TRUMBORE, VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
 };
 use crate::wide::{self, WideNode, LEAF};
+use core::mem::MaybeUninit;
 use seq_macro::seq;
 use spirv_std::glam::Vec3;
 
 /// Entries of the traversal stack. A Karras tree over `n` primitives with 30- or 63-bit
 /// codes is at most `bits + ceil(log2 n)` deep; deeper subtrees are skipped (never reached
-/// by the inputs the builder accepts).
+/// by the inputs the builder accepts). The stacks are left uninitialised (`MaybeUninit`, an
+/// entry read only after its push): zeroing 96 entries per query took 17% of the H100's
+/// primary-ray throughput (bench/NOTES.md, session 19).
 pub const STACK: usize = 96;
 
 /// The primitives of a scene and its BVH (`nodes` empty for brute force).
@@ -167,7 +170,7 @@ fn walk_wide<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) ->
     }
     let r = TriRay::new(origin, dir);
     let mut limit = t_max;
-    let mut stack = [0u32; STACK];
+    let mut stack = [MaybeUninit::<u32>::uninit(); STACK];
     let mut sp = 0usize;
     // Wide node 0, the root.
     let mut item = 0u32;
@@ -222,7 +225,8 @@ fn walk_wide<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) ->
                 return best;
             }
             sp -= 1;
-            item = *elem_mut(&mut stack, sp as u32);
+            // SAFETY: entry `sp` was written by its push.
+            item = unsafe { elem(&stack, sp as u32).assume_init() };
         }
     }
 }
@@ -242,9 +246,9 @@ fn pick(k: u32, a: (f32, u32), b: (f32, u32), c: (f32, u32), d: (f32, u32)) -> (
 }
 
 /// Pushes node `c` if it was hit (`t` finite) and the stack has room.
-fn push(stack: &mut [u32; STACK], sp: &mut usize, t: f32, c: u32) {
+fn push(stack: &mut [MaybeUninit<u32>; STACK], sp: &mut usize, t: f32, c: u32) {
     if t < f32::INFINITY && *sp < STACK {
-        *elem_mut(stack, *sp as u32) = c;
+        elem_mut(stack, *sp as u32).write(c);
         *sp += 1;
     }
 }
@@ -296,7 +300,7 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
         return best;
     }
     let first_leaf = n - 1;
-    let mut stack = [0u32; STACK];
+    let mut stack = [MaybeUninit::<u32>::uninit(); STACK];
     let mut sp = 0usize;
     let mut node = 0u32;
     loop {
@@ -312,13 +316,14 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
         let (near, far) = if tb < ta { (b, a) } else { (a, b) };
         if near != INVALID {
             if far != INVALID && sp < STACK {
-                *elem_mut(&mut stack, sp as u32) = far;
+                elem_mut(&mut stack, sp as u32).write(far);
                 sp += 1;
             }
             node = near;
         } else if sp > 0 {
             sp -= 1;
-            node = *elem_mut(&mut stack, sp as u32);
+            // SAFETY: entry `sp` was written by its push.
+            node = unsafe { elem(&stack, sp as u32).assume_init() };
         } else {
             return best;
         }
