@@ -11,7 +11,8 @@
 //!   ch. 6, and by at least a few ulps of the primitive's own scale, so they never re-hit the
 //!   surface they start on.
 use crate::math::{
-    difference_of_products, difference_of_products_exact, exact_product, fma, max3, sqrt, two_sum, SLAB_WIDEN,
+    difference_of_products, difference_of_products_exact, exact_product, fma, max3, nmax, nmin, sqrt, two_sum,
+    SLAB_WIDEN,
 };
 use crate::types::{xyz, Sphere, Triangle};
 use spirv_std::glam::Vec3;
@@ -201,15 +202,20 @@ fn norm2_minus_r2(f: Vec3, fe: Vec3, r: f32, split: bool) -> f32 {
 }
 
 /// Entry distance of a ray into the closed box `[lo, hi]` within `[0, t_max]`, or
-/// `INFINITY`. A ray running parallel to an axis inside that axis's slab, or on one of its
-/// planes (a NaN slab distance, `0 * inf`), is not narrowed by it, for either sign of zero.
+/// `INFINITY`. Each axis's entry plane is chosen by the direction's sign, not by comparing
+/// the two distances: then a ray running parallel to an axis inside that axis's slab, or on
+/// one of its planes (a NaN slab distance, `0 * inf`), is not narrowed by it, for either sign
+/// of zero. (Ordering by distance turned an origin on a plane with a `-0.0` direction
+/// component into a miss.)
 pub fn slab(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -> f32 {
     let t0 = (lo - origin) * inv_dir;
     let t1 = (hi - origin) * inv_dir;
-    let (near, far) = slab_axis(0.0, t_max, t0.x, t1.x, inv_dir.x);
-    let (near, far) = slab_axis(near, far, t0.y, t1.y, inv_dir.y);
-    let (near, far) = slab_axis(near, far, t0.z, t1.z, inv_dir.z);
-    if near <= far {
+    let pick = |a: f32, b: f32, inv: f32| if inv < 0.0 { (b, a) } else { (a, b) };
+    let (nx, fx) = pick(t0.x, t1.x, inv_dir.x);
+    let (ny, fy) = pick(t0.y, t1.y, inv_dir.y);
+    let (nz, fz) = pick(t0.z, t1.z, inv_dir.z);
+    let near = slab_near([nx, ny, nz]);
+    if near <= slab_far([fx, fy, fz], t_max) {
         near
     } else {
         f32::INFINITY
@@ -233,15 +239,17 @@ pub fn slab_plain(origin: Vec3, inv_dir: Vec3, lo: Vec3, hi: Vec3, t_max: f32) -
     }
 }
 
-/// Narrows `[near, far]` by one axis's slab distances `a` (plane `lo`) and `b` (plane `hi`).
-/// The entry plane is chosen by the direction's sign, not by comparing `a` and `b`: then a
-/// NaN distance is always the one that leaves its end of the interval unchanged, and the
-/// other is `-inf` as entry or `+inf` as exit. (Ordering by `a > b` turned an origin on a
-/// plane with a `-0.0` direction component into a miss.)
-fn slab_axis(near: f32, far: f32, a: f32, b: f32, inv: f32) -> (f32, f32) {
-    let (lo, hi) = if inv < 0.0 { (b, a) } else { (a, b) };
-    let hi = hi * SLAB_WIDEN;
-    (if lo > near { lo } else { near }, if hi < far { hi } else { far })
+/// The latest of `0` and the entry distances; a NaN one is passed over (`nmax`).
+fn slab_near(entry: [f32; 3]) -> f32 {
+    nmax(nmax(nmax(0.0, entry[0]), entry[1]), entry[2])
+}
+
+/// The earliest of `t_max` and the exit distances widened by [`SLAB_WIDEN`] (covering the
+/// rounding of `(bound - origin) * inv_dir`: Ize 2013; pbrt-v4 `Bounds3::IntersectP`); a NaN
+/// one is passed over. One product: rounding is monotonic, so widening the least exit
+/// equals taking the least widened exit, bit for bit.
+fn slab_far(exit: [f32; 3], t_max: f32) -> f32 {
+    nmin(nmin(nmin(exit[0], exit[1]), exit[2]) * SLAB_WIDEN, t_max)
 }
 
 /// Geometric normal (unnormalised: twice the area) of a triangle.

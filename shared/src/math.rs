@@ -115,6 +115,53 @@ pub fn difference_of_products_exact(a: f32, b: f32, c: f32, d: f32, split: bool)
     (ab - cd) + (ab_err - cd_err)
 }
 
+/// The larger of `a` and `b`, or the one that is not NaN (IEEE 754 `maxNum`, as
+/// `f32::max`): GLSL.std.450 `NMax`, one instruction on GPUs, where rust-gpu compiles
+/// `f32::max` to compares and branches. Which zero `nmax(0.0, -0.0)` gives is left open, as
+/// by `f32::max`.
+pub fn nmax(a: f32, b: f32) -> f32 {
+    #[cfg(target_arch = "spirv")]
+    {
+        gl_binary::<80>(a, b)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        a.max(b)
+    }
+}
+
+/// The smaller of `a` and `b`, or the one that is not NaN (`minNum`, `f32::min`; see
+/// [`nmax`]).
+pub fn nmin(a: f32, b: f32) -> f32 {
+    #[cfg(target_arch = "spirv")]
+    {
+        gl_binary::<79>(a, b)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        a.min(b)
+    }
+}
+
+/// GLSL.std.450 instruction `OP` of two floats.
+#[cfg(target_arch = "spirv")]
+fn gl_binary<const OP: u32>(a: f32, b: f32) -> f32 {
+    let mut r = 0.0f32;
+    // SAFETY: the instruction reads two floats and writes one.
+    unsafe {
+        core::arch::asm! {
+            "%glsl = OpExtInstImport \"GLSL.std.450\"",
+            "%r = OpExtInst typeof*{r} %glsl {op} {a} {b}",
+            "OpStore {r} %r",
+            op = const OP,
+            a = in(reg) a,
+            b = in(reg) b,
+            r = in(reg) &mut r,
+        }
+    }
+    r
+}
+
 /// Largest component.
 pub fn max3(v: Vec3) -> f32 {
     v.x.max(v.y).max(v.z)
