@@ -8,8 +8,9 @@ use crate::scene::SceneGpu;
 use anyhow::{bail, Result};
 use shared::types::{
     Frame, MaterialKind, ALPHA_BLEND, ALPHA_MASK, FEATURES_ALL, FEATURE_ALPHA, FEATURE_DIELECTRIC, FEATURE_ENVMAP,
-    FEATURE_METAL, FEATURE_NEE, FEATURE_NORMAL_MAPS, FEATURE_PBR, FEATURE_PUNCTUAL, FEATURE_SHADING_NORMALS,
-    FEATURE_SPHERES, FEATURE_TEXTURES, FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_NEE, INVALID, TEX_NORMAL,
+    FEATURE_GUIDES, FEATURE_METAL, FEATURE_NEE, FEATURE_NORMAL_MAPS, FEATURE_PBR, FEATURE_PUNCTUAL,
+    FEATURE_SHADING_NORMALS, FEATURE_SPHERES, FEATURE_TEXTURES, FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_DENOISE,
+    FLAG_NEE, INVALID, TEX_NORMAL,
 };
 use std::fmt::Write;
 
@@ -304,6 +305,21 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
     };
     contains(FEATURE_TRIANGLES, n_tris, "triangles")?;
     contains(FEATURE_SPHERES, n_spheres, "spheres")?;
+    // Not a scene's feature but the frame's: not forced by `--features`, and not part of
+    // the all-features kernel.
+    let denoise = frame.flags & FLAG_DENOISE != 0;
+    if denoise {
+        bits |= FEATURE_GUIDES;
+    }
+    decisions.push(Decision {
+        feature: "guides".into(),
+        state: (if denoise { "on" } else { "off" }).into(),
+        why: if denoise {
+            "the denoiser reads the first hits' albedo, normal, distance, object and motion".into()
+        } else {
+            "no denoiser (--denoise)".into()
+        },
+    });
 
     // A path continues only off surfaces that scatter; without any, the first hit ends it.
     let scatters = data.objects.iter().any(|o| {

@@ -45,6 +45,23 @@ pub struct Picture {
 }
 
 impl Picture {
+    /// This picture with its radiance and display codes replaced by the denoiser's (as the
+    /// sums of as many samples; ray counts kept).
+    pub fn denoised(self, d: &crate::cpu::Denoised) -> Picture {
+        let n = self.samples as f32;
+        let accum = self
+            .accum
+            .iter()
+            .zip(&d.output)
+            .map(|(a, o)| [o[0] * n, o[1] * n, o[2] * n, a[3]])
+            .collect();
+        Picture {
+            accum,
+            display: d.display.clone(),
+            ..self
+        }
+    }
+
     /// Linear radiance per pixel: the sums divided by the sample count (zero for no samples).
     pub fn linear(&self) -> Vec<[f32; 3]> {
         let inv = if self.samples == 0 {

@@ -5,6 +5,7 @@
 
 use shared::alpha::Coverage;
 use shared::bounds::{self, BoundsState};
+use shared::denoise::{self, DenoisePush, Guide, History};
 use shared::envmap::EnvEntry;
 use shared::path::{self, World};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
@@ -392,6 +393,7 @@ pub fn path_trace(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 16)] guides: &mut [Guide],
     #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
 ) {
     let w = world!(
@@ -412,7 +414,76 @@ pub fn path_trace(
         texels,
         features
     );
-    path::render_pixel(id.x, id.y, p, &w, accum);
+    path::render_pixel(id.x, id.y, p, &w, accum, guides);
+}
+
+// The denoiser (`shared::denoise`): its own buffers in set 0 (a set of the build's layout:
+// guides, history, filter, output), the frame and display image of set 1.
+
+#[spirv(compute(threads(8, 8)))]
+pub fn denoise_temporal(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &DenoisePush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[Guide],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [History],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+) {
+    if id.x < frame.width {
+        denoise::temporal(id.y * frame.width + id.x, p, frame, guides, history);
+    }
+}
+
+#[spirv(compute(threads(8, 8)))]
+pub fn denoise_variance(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &DenoisePush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &[History],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+) {
+    if id.x < frame.width {
+        denoise::variance(id.y * frame.width + id.x, p, frame, history, filter);
+    }
+}
+
+#[spirv(compute(threads(8, 8)))]
+pub fn denoise_atrous(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &DenoisePush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[Guide],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [History],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+) {
+    if id.x < frame.width {
+        denoise::atrous(id.y * frame.width + id.x, p, frame, guides, history, filter);
+    }
+}
+
+#[spirv(compute(threads(8, 8)))]
+#[allow(clippy::too_many_arguments)]
+pub fn denoise_finish(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &DenoisePush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[Guide],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &[History],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] output: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32],
+) {
+    if id.x < frame.width {
+        denoise::finish(
+            id.y * frame.width + id.x,
+            p,
+            frame,
+            guides,
+            history,
+            filter,
+            output,
+            image,
+        );
+    }
 }
 
 #[spirv(compute(threads(256)))]

@@ -3,6 +3,7 @@
 //! a << 24`), or BGRA8 for swapchain images that want it.
 use crate::math::{powf, sqrt};
 use crate::types::{Frame, RenderPush, DISPLAY_BGRA, FLAG_GAMMA2};
+use spirv_std::glam::Vec3;
 
 /// The sRGB transfer function (IEC 61966-2-1) of a linear value in `[0, 1]`.
 pub fn srgb_encode(x: f32) -> f32 {
@@ -29,10 +30,15 @@ pub fn display(i: u32, p: &RenderPush, f: &Frame, accum: &[[f32; 4]], image: &mu
     }
     let a = accum[i as usize];
     let scale = 1.0 / p.samples.max(1) as f32;
+    image[i as usize] = pack(Vec3::new(a[0], a[1], a[2]) * scale, f, p.flags & DISPLAY_BGRA != 0);
+}
+
+/// The display code of linear radiance `c`: RGBA8, or BGRA8 with `bgra`.
+pub fn pack(c: Vec3, f: &Frame, bgra: bool) -> u32 {
     let gamma2 = f.flags & FLAG_GAMMA2 != 0;
-    let r = encode(a[0] * scale, f.exposure, gamma2);
-    let g = encode(a[1] * scale, f.exposure, gamma2);
-    let b = encode(a[2] * scale, f.exposure, gamma2);
-    let (lo, hi) = if p.flags & DISPLAY_BGRA != 0 { (b, r) } else { (r, b) };
-    image[i as usize] = lo | (g << 8) | (hi << 16) | (255 << 24);
+    let r = encode(c.x, f.exposure, gamma2);
+    let g = encode(c.y, f.exposure, gamma2);
+    let b = encode(c.z, f.exposure, gamma2);
+    let (lo, hi) = if bgra { (b, r) } else { (r, b) };
+    lo | (g << 8) | (hi << 16) | (255 << 24)
 }

@@ -13,6 +13,7 @@ pub mod alpha;
 pub mod bounds;
 #[cfg(test)]
 mod chi2;
+pub mod denoise;
 pub mod display;
 pub mod envmap;
 pub mod intersect;

@@ -37,6 +37,11 @@ pub fn powf(x: f32, y: f32) -> f32 {
     spirv_std::num_traits::Float::powf(x, y)
 }
 
+/// `e^x`.
+pub fn exp(x: f32) -> f32 {
+    spirv_std::num_traits::Float::exp(x)
+}
+
 /// The angle of `(x, y)` from the x axis, in `(-pi, pi]`.
 pub fn atan2(y: f32, x: f32) -> f32 {
     spirv_std::num_traits::Float::atan2(y, x)

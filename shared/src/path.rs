@@ -4,6 +4,7 @@
 //! estimation toward emissive triangles and spheres weighted against BSDF sampling by
 //! multiple importance sampling (Veach 1997, power heuristic), and toward punctual lights.
 //! One invocation per pixel adds its samples' radiance into the accumulation image.
+use crate::denoise::{self, Guide};
 use crate::envmap::{Env, EnvEntry};
 use crate::intersect::{self, offset_origin};
 use crate::material;
@@ -16,8 +17,8 @@ use crate::texture::TextureInfo;
 use crate::traverse::{self, Scene};
 use crate::types::{
     xyz, Camera, Frame, Hit, Material, MaterialKind, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY,
-    CAST_SPAWN, FEATURE_ENVMAP, FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE,
-    FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
+    CAST_SPAWN, FEATURE_ENVMAP, FEATURE_GUIDES, FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS,
+    FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -417,6 +418,9 @@ struct Path {
     prev_diffuse: bool,
     depth: u32,
     rays: u32,
+    /// Radiance the first segment brought: the first hit's emission, or the sky (the
+    /// denoiser filters only the rest).
+    emitted: Vec3,
     /// The ray cone's width where the ray starts and the angle it opens by (texture level of
     /// detail, `crate::texture`).
     cone_width: f32,
@@ -431,6 +435,7 @@ impl Path {
             origin,
             dir,
             l: Vec3::ZERO,
+            emitted: Vec3::ZERO,
             beta: Vec3::ONE,
             prev_pdf: 0.0,
             prev_diffuse: false,
@@ -441,8 +446,10 @@ impl Path {
 }
 
 /// One segment of path `q` (which has `q.depth < max_depth`): trace it, add what it sees,
-/// scatter. Returns whether the path goes on.
-fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
+/// scatter. Returns whether the path goes on. With `capture` (the first segment of a
+/// pixel's first sample, with [`FEATURE_GUIDES`]) the first hit's geometry goes to `guide`.
+fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, guide: &mut Guide) -> bool {
+    // (`capture` is read only where the first segment hits something.)
     let f = w.frame;
     let (o, d) = (q.origin, q.dir);
     let hit = w.closest(o, d, f32::INFINITY);
@@ -459,6 +466,10 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
             0.0
         };
         q.l += q.beta * sky(w, d) * weight;
+        if q.depth == 0 {
+            // The guide stays `Guide::NONE`: the denoiser passes the pixel through.
+            q.emitted = q.l;
+        }
         return false;
     }
     let mut sp = shading::surface_point(&w.scene, w.objects, w.prim_object, w.attrs, o, d, &hit);
@@ -485,6 +496,20 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
             0.0
         };
         q.l += q.beta * le * weight;
+    }
+    if q.depth == 0 {
+        q.emitted = q.l;
+        if capture {
+            let object = *sync::at(w.prim_object, hit.prim);
+            let (px, py, pd) = denoise::motion(f, w.objects, object, p);
+            guide.albedo = [m.albedo[0], m.albedo[1], m.albedo[2]];
+            guide.object = object;
+            guide.normal = denoise::oct_encode(facing(d, ng, sp.ns).1);
+            guide.depth = hit.t;
+            guide.prev_x = px;
+            guide.prev_y = py;
+            guide.prev_depth = pd;
+        }
     }
     let s = material::scatter(&m, d, ng, sp.ns, w.scene.features, rng);
     // Next-event estimation lights every non-delta surface, whether or not the direction
@@ -523,15 +548,27 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng) -> bool {
     q.depth < f.max_depth
 }
 
-/// Adds `p.samples` samples of pixel `(x, y)` to `accum`: see [`pixel_samples`].
-pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32; 4]]) {
+/// Adds `p.samples` samples of pixel `(x, y)` to `accum`: see [`pixel_samples`]. With
+/// [`FEATURE_GUIDES`] also the pixel's guide: written by the frame's first dispatch
+/// (`p.count == 0`, the samples the frame traced before), its sums added to by the rest.
+pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [Guide]) {
     let f = w.frame;
     if x >= f.width || y >= f.height {
         return;
     }
-    let s = pixel_samples(x, y, p, w);
-    let a = &mut accum[(y * f.width + x) as usize];
+    let pixel = y * f.width + x;
+    let (s, g) = pixel_samples_guided(x, y, p, w);
+    let a = sync::at_mut(accum, pixel);
     *a = [a[0] + s[0], a[1] + s[1], a[2] + s[2], a[3] + s[3]];
+    if w.scene.features & FEATURE_GUIDES != 0 {
+        let slot = sync::at_mut(guides, pixel);
+        if p.count == 0 {
+            *slot = g;
+        } else {
+            slot.color = (Vec3::from(slot.color) + Vec3::from(g.color)).into();
+            slot.emission = (Vec3::from(slot.emission) + Vec3::from(g.emission)).into();
+        }
+    }
 }
 
 /// Samples `p.sample_base..p.sample_base + p.samples` of pixel `(x, y)`: the sum of their
@@ -544,7 +581,17 @@ pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32
 /// subgroup's longest path ends. Each sample keeps its own random stream and samples are
 /// summed in order, so the result is the same as tracing them one after another.
 pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
+    pixel_samples_guided(x, y, p, w).0
+}
+
+/// [`pixel_samples`], and with [`FEATURE_GUIDES`] the pixel's guide for the denoiser: the
+/// samples' radiance split into the first hits' emission and the rest, and the first
+/// sample's first hit (`crate::denoise`). Without the feature the guide is `Guide::NONE`.
+pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32; 4], Guide) {
     let f = w.frame;
+    let guides = w.scene.features & FEATURE_GUIDES != 0;
+    let mut guide = Guide::NONE;
+    let (mut color, mut emission) = (Vec3::ZERO, Vec3::ZERO);
     let mode = Mode::of(w);
     let pixel = y * f.width + x;
     let mut sum = Vec3::ZERO;
@@ -566,15 +613,22 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
                 continue;
             }
         }
-        live = bounce(w, mode, &mut q, &mut rng);
+        let capture = guides && started == 1 && q.depth == 0;
+        live = bounce(w, mode, &mut q, &mut rng, capture, &mut guide);
         if !live {
             if finite3(q.l) {
                 sum += q.l;
+                if guides {
+                    color += q.l - q.emitted;
+                    emission += q.emitted;
+                }
             }
             rays += q.rays;
         }
     }
-    [sum.x, sum.y, sum.z, rays as f32]
+    guide.color = color.into();
+    guide.emission = emission.into();
+    ([sum.x, sum.y, sum.z, rays as f32], guide)
 }
 
 /// Closest hit of ray `i` of `rays` (origin `w`: unused, direction `w`: largest distance).

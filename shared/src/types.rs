@@ -261,10 +261,11 @@ pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
 // | 13      | `[EnvEntry]` the environment map's texels and alias table  |
 // | 14      | `[TextureInfo]` every texture's place and size in binding 15 |
 // | 15      | texels of every texture and mip level, RGBA8 in a `u32`    |
+// | 16      | `[Guide]` the denoiser's guides (`crate::denoise`)         |
 // ---------------------------------------------------------------------------------------------
 
 /// Storage buffers of descriptor set 1.
-pub const RENDER_BINDINGS: u32 = 16;
+pub const RENDER_BINDINGS: u32 = 17;
 /// Render kernels run on 8x8 pixel tiles.
 pub const TILE_SIDE: u32 = 8;
 
@@ -415,12 +416,17 @@ pub const FLAG_BVH: u32 = 4;
 pub const FLAG_GAMMA2: u32 = 8;
 /// Weight next-event estimation and BSDF sampling by multiple importance sampling.
 pub const FLAG_MIS: u32 = 16;
+/// The frame is denoised (`crate::denoise`): the host derives `FEATURE_GUIDES` from it.
+pub const FLAG_DENOISE: u32 = 32;
 
 /// Camera and settings of a render.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Frame {
     pub camera: Camera,
+    /// The camera of the previous frame (the denoiser's motion vectors; `camera` where
+    /// there is none).
+    pub prev_camera: Camera,
     /// Radiance of rays that leave the scene: `sky_top` straight up, `sky_bottom` down.
     pub sky_top: [f32; 4],
     pub sky_bottom: [f32; 4],
@@ -449,7 +455,10 @@ pub struct Frame {
     /// Angle a camera ray's cone opens per pixel (radians): texture level of detail by ray
     /// cones (`crate::texture`).
     pub pixel_spread: f32,
-    pub _pad: [u32; 2],
+    /// Where the objects' previous-frame transforms start in the objects binding: object
+    /// `o` was `objects[prev_objects + o]` (0: nothing moved).
+    pub prev_objects: u32,
+    pub _pad: u32,
 }
 
 /// Push constants of the render kernels.
@@ -496,6 +505,9 @@ pub const FEATURE_ENVMAP: u32 = 1 << 14;
 pub const FEATURE_PUNCTUAL: u32 = 1 << 15;
 /// Alpha-masked and blended triangles: ray queries skip the points they do not cover.
 pub const FEATURE_ALPHA: u32 = 1 << 16;
+/// The path tracer leaves the denoiser's guides (`crate::denoise::Guide`, binding 16). Not
+/// in [`FEATURES_ALL`]: only a denoised frame asks for it.
+pub const FEATURE_GUIDES: u32 = 1 << 17;
 /// Every feature: the kernel that runs any scene. Bits 6-9 are the `VARIANT_*` bits.
 pub const FEATURES_ALL: u32 = ((1 << 6) - 1)
     | FEATURE_SHADING_NORMALS
@@ -567,7 +579,7 @@ const _: () = assert!(size_of::<VertexAttrs>() == 64);
 const _: () = assert!(size_of::<PunctualLight>() == 64);
 const _: () = assert!(size_of::<Material>() == 112);
 const _: () = assert!(size_of::<Camera>() == 96);
-const _: () = assert!(size_of::<Frame>() == 208);
+const _: () = assert!(size_of::<Frame>() == 304);
 const _: () = assert!(size_of::<RenderPush>() == 16);
 const _: () = assert!(size_of::<Ray>() == 32);
 const _: () = assert!(size_of::<Hit>() == 16);

@@ -1,12 +1,13 @@
 //! `raytrace render`: rendering a prepared scene on either backend with progress, the
 //! backend `auto` picks, the summary line.
 use super::scene::{Prepared, SceneArgs};
-use crate::cpu::{render_cpu, CpuRender};
-use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
+use crate::cpu::{render_cpu, CpuDenoiser, CpuRender};
+use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Kernels};
 use crate::picture::Picture;
 use crate::render::{self, Backend};
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
+use shared::types::FLAG_DENOISE;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
@@ -42,6 +43,11 @@ pub struct Rendered {
 pub fn render_gpu(r: &mut GpuRenderer, p: &Prepared, quiet: bool) -> Result<Rendered> {
     r.set_build(p.build(p.spp));
     r.load(&p.data, &p.frame)?;
+    r.set_denoise(if p.frame.flags & FLAG_DENOISE != 0 {
+        Denoise::Accumulated
+    } else {
+        Denoise::Off
+    })?;
     let start = Instant::now();
     let mut timings = r.render(1.min(p.spp), true)?;
     let mut chunk = 1;
@@ -83,8 +89,13 @@ pub fn render_on_cpu(p: &Prepared, quiet: bool) -> (Rendered, CpuRender) {
     if let Some(b) = bar {
         b.finish_and_clear();
     }
+    let mut picture = out.picture.clone();
+    if !out.guides.is_empty() {
+        let d = CpuDenoiser::default().run(&p.frame, &out.guides, p.spp, false, false);
+        picture = picture.denoised(&d);
+    }
     let rendered = Rendered {
-        picture: out.picture.clone(),
+        picture,
         timings: render::stage_totals(&out.timings),
         device: format!("CPU executor ({} threads)", rayon::current_num_threads()),
     };

@@ -7,7 +7,7 @@ use crate::render;
 use crate::scene::{Environment, Scene, SceneGpu};
 use anyhow::{bail, Result};
 use glam::Vec3;
-use shared::types::Frame;
+use shared::types::{Frame, FLAG_DENOISE};
 use std::path::PathBuf;
 
 /// Scene and settings of a render; unset options keep the scene's own settings.
@@ -67,6 +67,10 @@ pub struct SceneArgs {
     /// Print which kernel features run and why.
     #[arg(long)]
     pub explain: bool,
+    /// Denoise (spatiotemporal variance-guided filtering): a render's accumulated samples
+    /// once, the viewer's every frame while the image moves.
+    #[arg(long)]
+    pub denoise: bool,
     /// Camera instead of the scene's: `POSITION:LOOK_AT[:VFOV]`, e.g. `0,1,5:0,0.5,0:40`
     /// (three numbers each, the vertical field of view in degrees).
     #[arg(long, value_parser = parse_camera)]
@@ -225,7 +229,10 @@ impl SceneArgs {
         }
         self.apply_environment(&mut scene)?;
         let data = scene.gpu_data(self.time);
-        let frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
+        let mut frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
+        if self.denoise {
+            frame.flags |= FLAG_DENOISE;
+        }
         let features = features::derive(&data, &frame, &Forced::parse(&self.features)?)?;
         let frame = features.apply(&frame);
         Ok(Prepared {

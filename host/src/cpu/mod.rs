@@ -1,8 +1,10 @@
 //! The CPU executor: the very kernels of `shared` that the GPU runs, run on the CPU, where
 //! the tests check them against the GPU and where `--backend auto` renders without a GPU.
 //! `lbvh` builds the BVH ([`build`]), `render` renders a frame ([`render_cpu`]).
+mod denoise;
 mod lbvh;
 mod render;
 
+pub use denoise::{CpuDenoiser, Denoised};
 pub use lbvh::build;
-pub use render::{render_cpu, world_primitives, CpuRender};
+pub use render::{render_cpu, render_cpu_moving, world_primitives, CpuRender};

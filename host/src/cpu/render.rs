@@ -4,9 +4,10 @@ use crate::bvh::{BuildOptions, BuildResult};
 use crate::picture::Picture;
 use crate::scene::SceneGpu;
 use rayon::prelude::*;
+use shared::denoise::Guide;
 use shared::path::{self, World};
 use shared::traverse::Scene;
-use shared::types::{BuildParams, Frame, RenderPush, Sphere, Triangle};
+use shared::types::{BuildParams, Frame, Object, RenderPush, Sphere, Triangle, FEATURE_GUIDES};
 use std::time::Instant;
 
 /// A CPU render: the picture, stage times in seconds, and the BVH it traced through.
@@ -16,6 +17,8 @@ pub struct CpuRender {
     pub bvh: BuildResult,
     pub tris: Vec<Triangle>,
     pub spheres: Vec<Sphere>,
+    /// The denoiser's guides, where the frame's features ask for them (`FEATURE_GUIDES`).
+    pub guides: Vec<Guide>,
 }
 
 /// The scene's primitives in world space: the transform kernel run for each (what the GPU's
@@ -54,6 +57,21 @@ pub fn render_cpu(
     build: BuildOptions,
     progress: &(dyn Fn(u32) + Sync),
 ) -> CpuRender {
+    render_cpu_moving(scene, &scene.objects, frame, samples, build, progress)
+}
+
+/// [`render_cpu`] of a frame whose objects were at `previous` in the frame before (where
+/// `frame.prev_objects` says so: the denoiser's motion vectors).
+pub fn render_cpu_moving(
+    scene: &SceneGpu,
+    previous: &[Object],
+    frame: &Frame,
+    samples: u32,
+    build: BuildOptions,
+    progress: &(dyn Fn(u32) + Sync),
+) -> CpuRender {
+    // The objects binding: the current objects, then the previous ones.
+    let objects = [scene.objects.as_slice(), previous].concat();
     let mut timings = Vec::new();
     let t = Instant::now();
     let (tris, spheres) = world_primitives(scene);
@@ -74,7 +92,7 @@ pub fn render_cpu(
             coverage: scene.coverage(),
             features: crate::render::tracer_features(frame.features, build),
         },
-        objects: &scene.objects,
+        objects: &objects,
         prim_object: &scene.prim_object,
         materials: &scene.materials,
         lights: &scene.lights,
@@ -92,14 +110,20 @@ pub fn render_cpu(
     };
     let (w, h) = (frame.width, frame.height);
     let done = std::sync::atomic::AtomicU32::new(0);
+    let guided = world.scene.features & FEATURE_GUIDES != 0;
     let mut accum = vec![[0.0f32; 4]; (w * h) as usize];
-    accum.par_chunks_mut(w as usize).enumerate().for_each(|(y, row)| {
-        for (x, a) in row.iter_mut().enumerate() {
-            *a = path::pixel_samples(x as u32, y as u32, &push, &world);
+    let mut guides = vec![Guide::NONE; (w * h) as usize];
+    let rows = accum.par_chunks_mut(w as usize).zip(guides.par_chunks_mut(w as usize));
+    rows.enumerate().for_each(|(y, (row, guide_row))| {
+        for (x, (a, g)) in row.iter_mut().zip(guide_row).enumerate() {
+            (*a, *g) = path::pixel_samples_guided(x as u32, y as u32, &push, &world);
         }
         progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
     });
     timings.push(("trace", t.elapsed().as_secs_f64()));
+    if !guided {
+        guides = Vec::new();
+    }
 
     let t = Instant::now();
     let mut display = vec![0u32; (w * h) as usize];
@@ -119,5 +143,6 @@ pub fn render_cpu(
         bvh,
         tris,
         spheres,
+        guides,
     }
 }

@@ -40,6 +40,10 @@ pub enum Kernel {
     DisplayImage,
     CastRays,
     FmaProbe,
+    DenoiseTemporal,
+    DenoiseVariance,
+    DenoiseAtrous,
+    DenoiseFinish,
 }
 
 impl Kernel {
@@ -48,7 +52,7 @@ impl Kernel {
         matches!(self, Kernel::PathTrace | Kernel::CastRays)
     }
 
-    pub const ALL: [Kernel; 23] = [
+    pub const ALL: [Kernel; 27] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -72,6 +76,10 @@ impl Kernel {
         Kernel::DisplayImage,
         Kernel::CastRays,
         Kernel::FmaProbe,
+        Kernel::DenoiseTemporal,
+        Kernel::DenoiseVariance,
+        Kernel::DenoiseAtrous,
+        Kernel::DenoiseFinish,
     ];
 
     /// The entry point's name in the SPIR-V module.
@@ -100,6 +108,10 @@ impl Kernel {
             Kernel::DisplayImage => "display_image",
             Kernel::CastRays => "cast_rays",
             Kernel::FmaProbe => "fma_probe",
+            Kernel::DenoiseTemporal => "denoise_temporal",
+            Kernel::DenoiseVariance => "denoise_variance",
+            Kernel::DenoiseAtrous => "denoise_atrous",
+            Kernel::DenoiseFinish => "denoise_finish",
         }
     }
 }

@@ -6,6 +6,7 @@
 mod buffer;
 mod commands;
 mod context;
+mod denoise;
 mod kernels;
 mod lbvh;
 mod render;
@@ -16,7 +17,7 @@ pub use commands::{Commands, MAX_TIMESTAMPS};
 pub use context::{DeviceInfo, Gpu, GpuOptions};
 pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
 pub use lbvh::GpuLbvh;
-pub use render::{frame_timings, stage_ms, GpuRenderer};
+pub use render::{frame_timings, stage_ms, Denoise, GpuRenderer};
 pub use swapchain::Swapchain;
 
 /// The SPIR-V module of `shader-crate`, compiled by `host/build.rs`.

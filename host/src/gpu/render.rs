@@ -2,6 +2,7 @@
 //! rebuild the BVH (the LBVH of `GpuLbvh`), trace samples into the float accumulation
 //! image, and run the display pass; a timestamp after each stage.
 use crate::bvh::{BuildOptions, BuildResult, MortonBits};
+use crate::gpu::denoise::{guide_bytes, GpuDenoiser};
 use crate::gpu::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels};
 use crate::picture::{swap_red_blue, Picture};
 use crate::scene::SceneGpu;
@@ -10,8 +11,8 @@ use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
 use shared::envmap::EnvEntry;
 use shared::types::{
-    grid, BuildParams, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN, DISPLAY_BGRA,
-    TILE_SIDE, WORKGROUP,
+    grid, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN,
+    DISPLAY_BGRA, FEATURE_GUIDES, TILE_SIDE, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -22,7 +23,8 @@ const SAMPLES_PER_DISPATCH: u32 = 32;
 
 /// Device buffers of the scene and the images (descriptor set 1).
 struct SceneBuffers {
-    /// Host-visible: rewritten when objects move.
+    /// Host-visible: rewritten when objects move. Twice the objects: the current ones,
+    /// then (while denoising) those of the previous frame (`Frame::prev_objects`).
     objects: Buffer,
     model_tris: Buffer,
     model_spheres: Buffer,
@@ -40,6 +42,8 @@ struct SceneBuffers {
     env: Buffer,
     textures: Buffer,
     texels: Buffer,
+    /// The denoiser's guides (one guide while not denoising).
+    guides: Buffer,
     /// Set 1 naming the buffers above; made again whenever one of them is replaced.
     set: Option<BindingSets>,
     n_objects: usize,
@@ -65,6 +69,7 @@ impl SceneBuffers {
             &self.env,
             &self.textures,
             &self.texels,
+            &self.guides,
         ];
         self.set = Some(BindingSets::new(gpu, kernels, 1, &[&buffers])?);
         Ok(())
@@ -91,6 +96,17 @@ pub fn stage_ms(timings: &[(&'static str, f64)], label: &str) -> f64 {
     timings.iter().filter(|(l, _)| *l == label).map(|(_, s)| s * 1e3).sum()
 }
 
+/// Whether and how [`GpuRenderer`] denoises.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub enum Denoise {
+    #[default]
+    Off,
+    /// Every frame from its own samples, with the history of the frames before (real time).
+    EveryFrame,
+    /// Every frame from all samples since the last change, without history (a still render).
+    Accumulated,
+}
+
 /// Renders scenes on the GPU.
 pub struct GpuRenderer {
     gpu: Arc<Gpu>,
@@ -106,6 +122,13 @@ pub struct GpuRenderer {
     display_flags: u32,
     /// GPU seconds of the last ray cast's dispatch.
     last_cast_s: f64,
+    /// The objects as last set.
+    objects: Vec<Object>,
+    /// The denoiser, while denoising, and how.
+    denoiser: Option<GpuDenoiser>,
+    denoise: Denoise,
+    /// The camera and objects of the last frame recorded (the denoiser's motion).
+    shown: Option<(Camera, Vec<Object>)>,
 }
 
 impl GpuRenderer {
@@ -121,7 +144,47 @@ impl GpuRenderer {
             build: BuildOptions::lbvh(MortonBits::B30),
             display_flags: 0,
             last_cast_s: 0.0,
+            objects: Vec::new(),
+            denoiser: None,
+            denoise: Denoise::Off,
+            shown: None,
         })
+    }
+
+    /// How frames are denoised from now on (`shared::denoise`).
+    pub fn set_denoise(&mut self, mode: Denoise) -> Result<()> {
+        if mode == self.denoise {
+            return Ok(());
+        }
+        self.denoise = mode;
+        // The guides' meaning changed: the next frame starts afresh.
+        self.samples = 0;
+        if mode == Denoise::Off {
+            self.denoiser = None;
+            return Ok(());
+        }
+        self.make_denoiser()
+    }
+
+    /// How frames are denoised.
+    pub fn denoise(&self) -> Denoise {
+        self.denoise
+    }
+
+    /// A denoiser for the frame's size, and guides for it to read.
+    fn make_denoiser(&mut self) -> Result<()> {
+        self.denoiser = None;
+        self.shown = None;
+        let b = self.bufs.as_mut().context("no scene loaded")?;
+        let (w, h) = (self.frame.width, self.frame.height);
+        let bytes = guide_bytes((w * h) as u64);
+        if b.guides.size < bytes {
+            b.set = None;
+            b.guides = Buffer::new(&self.gpu, "denoiser guides", bytes, MemoryLocation::GpuOnly)?;
+            b.bind(&self.gpu, &self.kernels)?;
+        }
+        self.denoiser = Some(GpuDenoiser::new(&self.gpu, &self.kernels, &b.guides, w, h)?);
+        Ok(())
     }
 
     pub fn gpu(&self) -> &Arc<Gpu> {
@@ -161,7 +224,13 @@ impl GpuRenderer {
     /// Specialisation constant 0 of the tracing kernels: the frame's `FEATURE_*` and
     /// `VARIANT_*` bits, and the wide traversal where the build collapses the tree.
     fn tracer_constant(&self) -> u32 {
-        crate::render::tracer_features(self.frame.features, self.build)
+        crate::render::tracer_features(self.frame.features, self.build) & !FEATURE_GUIDES
+    }
+
+    /// [`Self::tracer_constant`] of the path tracer: with the guides while denoising (and
+    /// only then: they are written where the denoiser has made room for them).
+    fn path_trace_constant(&self) -> u32 {
+        self.tracer_constant() | if self.denoiser.is_some() { FEATURE_GUIDES } else { 0 }
     }
 
     /// Uploads a scene and its frame; accumulation starts again.
@@ -171,8 +240,8 @@ impl GpuRenderer {
         let dev = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::GpuOnly);
         let host = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::CpuToGpu);
         let pixels = (frame.width * frame.height) as usize;
-        let mut objects = host("objects", size_of_val(scene.objects.as_slice()))?;
-        objects.write(&scene.objects)?;
+        let mut objects = host("objects", 2 * size_of_val(scene.objects.as_slice()))?;
+        objects.write(&[scene.objects.as_slice(), scene.objects.as_slice()].concat())?;
         let model_tris = dev("model triangles", size_of_val(scene.model_tris.as_slice()))?;
         let model_spheres = dev("model spheres", size_of_val(scene.model_spheres.as_slice()))?;
         let prim_object = dev("object of each primitive", size_of_val(scene.prim_object.as_slice()))?;
@@ -189,6 +258,7 @@ impl GpuRenderer {
         let env = dev("environment map", size_of_val(env_entries))?;
         let textures = dev("textures", size_of_val(scene.textures.infos.as_slice()))?;
         let texels = dev("texels", size_of_val(scene.textures.texels.as_slice()))?;
+        let guides = dev("denoiser guides", guide_bytes(0) as usize)?;
         self.upload(&model_tris, &scene.model_tris)?;
         self.upload(&model_spheres, &scene.model_spheres)?;
         self.upload(&prim_object, &scene.prim_object)?;
@@ -216,14 +286,20 @@ impl GpuRenderer {
             env,
             textures,
             texels,
+            guides,
             set: None,
             n_objects: scene.objects.len(),
         });
+        self.objects = scene.objects.clone();
         if let Some(b) = self.bufs.as_mut() {
             b.bind(gpu, &self.kernels)?;
         }
         self.lbvh.reserve(scene.model_tris.len(), scene.model_spheres.len())?;
-        self.set_frame(frame)
+        self.set_frame(frame)?;
+        if self.denoiser.is_some() {
+            self.make_denoiser()?;
+        }
+        Ok(())
     }
 
     /// Copies `data` into the device-local `dst` through a staging buffer.
@@ -255,6 +331,13 @@ impl GpuRenderer {
         b.frame.write(std::slice::from_ref(frame))?;
         self.frame = *frame;
         self.samples = 0;
+        if self
+            .denoiser
+            .as_ref()
+            .is_some_and(|d| !d.fits(frame.width, frame.height))
+        {
+            self.make_denoiser()?;
+        }
         Ok(())
     }
 
@@ -265,6 +348,7 @@ impl GpuRenderer {
             bail!("{} objects given, {} loaded", objects.len(), b.n_objects);
         }
         b.objects.write(objects)?;
+        self.objects = objects.to_vec();
         self.samples = 0;
         Ok(())
     }
@@ -287,6 +371,18 @@ impl GpuRenderer {
     /// timestamp `begin`, then transform and build, `trace`, `display`. The samples count
     /// as accumulated from here on.
     pub fn record(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<()> {
+        let still = self.samples > 0;
+        if self.denoise == Denoise::EveryFrame {
+            self.write_motion()?;
+        }
+        // Guides sum this frame's samples, or every sample since the last change.
+        let guides_from = match self.denoise {
+            Denoise::Accumulated => self.samples,
+            _ => 0,
+        };
+        let trace = self
+            .kernels
+            .specialised(Kernel::PathTrace, self.path_trace_constant())?;
         let b = self.bufs.as_ref().context("no scene loaded")?;
         let k = &self.kernels;
         let f = self.frame;
@@ -310,13 +406,13 @@ impl GpuRenderer {
             self.lbvh.record(cmds, self.build, false, false)?;
         }
         let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));
-        let trace = k.specialised(Kernel::PathTrace, self.tracer_constant())?;
         let mut done = 0;
         while done < samples {
             let n = (samples - done).min(SAMPLES_PER_DISPATCH);
             let push = RenderPush {
                 sample_base: self.samples + done,
                 samples: n,
+                count: guides_from + done,
                 ..Default::default()
             };
             cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(&push), gx, gy);
@@ -324,16 +420,45 @@ impl GpuRenderer {
             done += n;
         }
         cmds.timestamp("trace");
-        let push = RenderPush {
-            samples: self.samples + samples,
-            flags: self.display_flags,
-            ..Default::default()
-        };
-        let (x, y) = grid((f.width * f.height).div_ceil(WORKGROUP));
-        cmds.dispatch_sets(k, &sets, Kernel::DisplayImage, bytemuck::bytes_of(&push), x, y);
-        cmds.barrier();
-        cmds.timestamp("display");
+        if let Some(d) = self.denoiser.as_mut() {
+            let bgra = self.display_flags & DISPLAY_BGRA != 0;
+            if self.denoise == Denoise::Accumulated {
+                d.record(cmds, k, sets[1], self.samples + samples, false, false, bgra);
+            } else {
+                d.record(cmds, k, sets[1], samples, true, still, bgra);
+            }
+            cmds.timestamp("denoise");
+        } else {
+            let push = RenderPush {
+                samples: self.samples + samples,
+                flags: self.display_flags,
+                ..Default::default()
+            };
+            let (x, y) = grid((f.width * f.height).div_ceil(WORKGROUP));
+            cmds.dispatch_sets(k, &sets, Kernel::DisplayImage, bytemuck::bytes_of(&push), x, y);
+            cmds.barrier();
+            cmds.timestamp("display");
+        }
         self.samples += samples;
+        Ok(())
+    }
+
+    /// Writes the previous frame's camera and object transforms where the path tracer's
+    /// motion vectors read them (`Frame::prev_camera`, the second half of the objects), and
+    /// remembers this frame's for the next.
+    fn write_motion(&mut self) -> Result<()> {
+        let b = self.bufs.as_mut().context("no scene loaded")?;
+        let (camera, objects) = self
+            .shown
+            .take()
+            .unwrap_or_else(|| (self.frame.camera, self.objects.clone()));
+        let mut f = self.frame;
+        f.prev_camera = camera;
+        f.prev_objects = self.objects.len() as u32;
+        b.frame.write(std::slice::from_ref(&f))?;
+        b.objects
+            .write(&[self.objects.as_slice(), objects.as_slice()].concat())?;
+        self.shown = Some((self.frame.camera, self.objects.clone()));
         Ok(())
     }
 
@@ -360,13 +485,32 @@ impl GpuRenderer {
             // Back to RGBA: a picture is the same whatever window it was shown in.
             display.iter_mut().for_each(|p| *p = swap_red_blue(*p));
         }
+        let mut accum: Vec<[f32; 4]> = self.cmds.read_back(&b.accum, pixels)?;
+        if let Some(d) = &self.denoiser {
+            // The denoised frame, as the sums of `samples` samples (ray counts kept).
+            let out: Vec<[f32; 4]> = self.cmds.read_back(&d.output, pixels)?;
+            let n = self.samples as f32;
+            for (a, o) in accum.iter_mut().zip(out) {
+                *a = [o[0] * n, o[1] * n, o[2] * n, a[3]];
+            }
+        }
         Ok(Picture {
             width: self.frame.width,
             height: self.frame.height,
-            accum: self.cmds.read_back(&b.accum, pixels)?,
+            accum,
             samples: self.samples,
             display,
         })
+    }
+
+    /// The path tracer's guides of the last frame (while denoising).
+    pub fn guides(&mut self) -> Result<Vec<shared::denoise::Guide>> {
+        if self.denoiser.is_none() {
+            bail!("guides are written only while denoising");
+        }
+        let pixels = (self.frame.width * self.frame.height) as usize;
+        let b = self.bufs.as_ref().context("no scene loaded")?;
+        self.cmds.read_back(&b.guides, pixels)
     }
 
     /// The BVH of the last build, every stage's output.

@@ -195,15 +195,17 @@ impl Scene {
         let flag = |on: bool, f: u32| if on { f } else { 0 };
         let env = self.environment.as_ref();
         let rotation = env.map_or(0.0, |e| e.rotation_deg).to_radians().sin_cos();
+        let camera = Camera {
+            origin: v4(c.position),
+            lower_left: v4(lower_left),
+            horizontal: v4(horizontal),
+            vertical: v4(vertical),
+            u: [u.x, u.y, u.z, c.aperture / 2.0],
+            v: v4(v),
+        };
         Frame {
-            camera: Camera {
-                origin: v4(c.position),
-                lower_left: v4(lower_left),
-                horizontal: v4(horizontal),
-                vertical: v4(vertical),
-                u: [u.x, u.y, u.z, c.aperture / 2.0],
-                v: v4(v),
-            },
+            camera,
+            prev_camera: camera,
             sky_top: v4(s.sky_top),
             sky_bottom: v4(s.sky_bottom),
             width: s.width,
@@ -232,7 +234,8 @@ impl Scene {
             },
             // A pixel's angular size at the image centre.
             pixel_spread: (viewport_h / s.height as f32).atan(),
-            _pad: [0; 2],
+            prev_objects: 0,
+            _pad: 0,
         }
     }
 }

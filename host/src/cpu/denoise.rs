@@ -1,0 +1,73 @@
+//! The denoiser's passes (`shared::denoise`) run by the CPU executor: each pass for every
+//! pixel before the next, as the GPU's dispatches and barriers order them.
+use shared::denoise::{self, DenoisePush, Guide, History, DENOISE_NO_HISTORY, DENOISE_PARITY, DENOISE_STILL, LEVELS};
+use shared::types::Frame;
+
+/// The denoiser's state between frames (the CPU twin of the GPU renderer's).
+#[derive(Default)]
+pub struct CpuDenoiser {
+    history: Vec<History>,
+    filter: Vec<[f32; 4]>,
+    parity: bool,
+    has_history: bool,
+}
+
+/// A denoised frame: linear radiance (`w` 1) and its display codes.
+pub struct Denoised {
+    pub output: Vec<[f32; 4]>,
+    pub display: Vec<u32>,
+}
+
+impl CpuDenoiser {
+    /// Denoises `guides` of `samples` samples per pixel of `frame`; with `history` the
+    /// previous call's frame is reprojected (`still`: nothing moved since).
+    pub fn run(&mut self, frame: &Frame, guides: &[Guide], samples: u32, history: bool, still: bool) -> Denoised {
+        let n = (frame.width * frame.height) as usize;
+        if self.history.len() != 2 * n {
+            self.history = vec![History::default(); 2 * n];
+            self.filter = vec![[0.0; 4]; 2 * n];
+            self.has_history = false;
+        }
+        let flag = |on: bool, f: u32| if on { f } else { 0 };
+        let has = history && self.has_history;
+        let mut p = DenoisePush {
+            samples,
+            level: 0,
+            flags: flag(self.parity, DENOISE_PARITY)
+                | flag(!has, DENOISE_NO_HISTORY)
+                | flag(still && has, DENOISE_STILL),
+            _pad: 0,
+        };
+        for i in 0..n as u32 {
+            denoise::temporal(i, &p, frame, guides, &mut self.history);
+        }
+        for i in 0..n as u32 {
+            denoise::variance(i, &p, frame, &self.history, &mut self.filter);
+        }
+        for level in 0..LEVELS {
+            p.level = level;
+            for i in 0..n as u32 {
+                denoise::atrous(i, &p, frame, guides, &mut self.history, &mut self.filter);
+            }
+        }
+        let mut out = Denoised {
+            output: vec![[0.0; 4]; n],
+            display: vec![0; n],
+        };
+        for i in 0..n as u32 {
+            denoise::finish(
+                i,
+                &p,
+                frame,
+                guides,
+                &self.history,
+                &self.filter,
+                &mut out.output,
+                &mut out.display,
+            );
+        }
+        self.parity = !self.parity;
+        self.has_history = true;
+        out
+    }
+}

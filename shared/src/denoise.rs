@@ -1,0 +1,554 @@
+//! The real-time denoiser: spatiotemporal variance-guided filtering (Schied et al., HPG 2017,
+//! "Spatiotemporal Variance-Guided Filtering: Real-Time Reconstruction for Path-Traced
+//! Global Illumination").
+//!
+//! The path tracer (with `FEATURE_GUIDES`) leaves a [`Guide`] per pixel: the frame's radiance
+//! split into what the first hit emits and what it reflects, and that hit's albedo, shading
+//! normal, distance, object and place in the previous frame (motion). Four per-pixel passes
+//! follow, each a step over every pixel before the next:
+//!
+//! 1. [`temporal`]: the reflected radiance divided by the albedo (demodulation: texture
+//!    detail is not blurred) is blended into the history reprojected from the previous frame
+//!    (bilinear, taps whose object, distance and normal disagree rejected), with the first
+//!    two moments of its luminance. The blend weight is `max(1 / n, ALPHA)` for a history of
+//!    `n` frames, or `1 / n` while nothing moves (`DENOISE_STILL`: the history is then the
+//!    plain mean of every frame, as the accumulation image is).
+//! 2. [`variance`]: the luminance variance of the temporal estimate, `(m2 - m1^2) w2` where
+//!    `w2` is the sum of the squared blend weights (the variance of a weighted mean of
+//!    independent frames); from a 7x7 neighbourhood where the history is shorter than 4
+//!    frames.
+//! 3. [`atrous`], five times: the edge-avoiding a-trous wavelet filter (Dammertz et al.
+//!    2010) with the B3-spline 5x5 kernel at steps 1, 2, 4, 8, 16, each tap weighted by its
+//!    object (another object never blends in), normal (`max(0, n.n')^128`), distance to
+//!    the centre's tangent plane (relative to the tap's footprint) and luminance (relative
+//!    to the centre's prefiltered standard deviation); variances carried as `sum w^2 var /
+//!    (sum w)^2`. The first level's output becomes the history (SVGF's feedback) while the
+//!    image moves.
+//! 4. [`finish`]: remodulation by the albedo, the first hit's emission added back, and the
+//!    display encoding.
+//!
+//! Pixels whose first sample left the scene are passed through unfiltered. Non-finite
+//! radiance never enters the history or the filter (it counts as black).
+use crate::display;
+use crate::math::{exp, finite3, floor, sqrt};
+use crate::sync::{at, at_mut};
+use crate::types::{xyz, Camera, Frame, Object, INVALID};
+use bytemuck::{Pod, Zeroable};
+use spirv_std::glam::Vec3;
+
+/// What the path tracer leaves per pixel for the denoiser (64 bytes). Sums run over the
+/// frame's samples; the geometry is the first sample's first hit.
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Guide {
+    /// Radiance reflected toward the camera (everything but the first hit's emission).
+    pub color: [f32; 3],
+    /// Where the first hit was in the previous frame, in its pixel coordinates (pixel
+    /// `(i, j)` covers `[i, i + 1) x [j, j + 1)`).
+    pub prev_x: f32,
+    /// Radiance the first hit emits (or the sky, for a sample that left the scene).
+    pub emission: [f32; 3],
+    pub prev_y: f32,
+    /// Reflectance at the first hit (the demodulation albedo).
+    pub albedo: [f32; 3],
+    /// Object of the first hit, [`INVALID`] where the first sample left the scene.
+    pub object: u32,
+    /// Unit shading normal toward the camera, octahedral ([`oct_encode`]).
+    pub normal: u32,
+    /// Distance from the camera to the first hit.
+    pub depth: f32,
+    /// Distance from the previous frame's camera to the first hit where it was then.
+    pub prev_depth: f32,
+    pub _pad: u32,
+}
+
+impl Guide {
+    /// A pixel the denoiser passes through (its first sample left the scene).
+    pub const NONE: Guide = Guide {
+        color: [0.0; 3],
+        prev_x: 0.0,
+        emission: [0.0; 3],
+        prev_y: 0.0,
+        albedo: [1.0; 3],
+        object: INVALID,
+        normal: 0,
+        depth: f32::INFINITY,
+        prev_depth: f32::INFINITY,
+        _pad: 0,
+    };
+}
+
+/// The denoiser's state of a pixel, kept from one frame to the next (64 bytes).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct History {
+    /// Demodulated radiance (the estimate the filter starts from).
+    pub illum: [f32; 3],
+    /// Frames the history spans (its blend weight is at least `1 / len`).
+    pub len: f32,
+    pub emission: [f32; 3],
+    /// Sum of the squared weights of the frames in the history: its variance is the
+    /// per-frame variance times this.
+    pub w2: f32,
+    /// First and second moments of the per-frame luminance.
+    pub m1: f32,
+    pub m2: f32,
+    pub depth: f32,
+    pub normal: u32,
+    pub object: u32,
+    pub _pad: [u32; 3],
+}
+
+/// Push constants of the denoiser's passes (16 bytes, the size of every kernel's).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct DenoisePush {
+    /// Samples per pixel the frame traced (the guides' sums divide by it).
+    pub samples: u32,
+    /// The a-trous level (step `2^level`).
+    pub level: u32,
+    /// `DENOISE_*` flags.
+    pub flags: u32,
+    pub _pad: u32,
+}
+
+/// This frame's history is the second half of the history buffer (the previous frame's the
+/// first); without it, the other way round.
+pub const DENOISE_PARITY: u32 = 1;
+/// No previous frame to reproject (the first frame, a new scene or image size).
+pub const DENOISE_NO_HISTORY: u32 = 2;
+/// Nothing moved since the previous frame: the history becomes the plain mean.
+pub const DENOISE_STILL: u32 = 4;
+/// Pack the display image as BGRA (as `DISPLAY_BGRA`).
+pub const DENOISE_BGRA: u32 = 8;
+
+/// Levels of the a-trous filter (steps 1 to 16 pixels: a 125-pixel footprint).
+pub const LEVELS: u32 = 5;
+/// The least weight of the newest frame while the image moves (SVGF's alpha).
+pub const ALPHA: f32 = 0.2;
+/// History lengths stop growing here (a still image's mean then weighs frames alike).
+pub const MAX_LEN: f32 = 4096.0;
+/// Luminance edge-stopping: differences are divided by this many standard deviations of
+/// the temporal estimate (SVGF's 4 on the per-frame deviation at `alpha = 0.2`, whose
+/// estimate's deviation is a third of it).
+pub const SIGMA_LUMINANCE: f32 = 12.0;
+/// Exponent of the normal weight `max(0, n.n')^128` (SVGF's sigma_n).
+const NORMAL_POWER_SQUARINGS: u32 = 7;
+/// Reprojection: the largest relative difference of distances and the least cosine of
+/// normals of a history tap that still counts as the same surface.
+const MAX_DEPTH_CHANGE: f32 = 0.05;
+const MIN_NORMAL_COS: f32 = 0.9;
+/// Albedo channels below this are not divided out (black surfaces reflect nothing to
+/// filter; dividing would only amplify noise).
+const MIN_ALBEDO: f32 = 1e-3;
+
+/// Rec. 709 luminance.
+pub fn luminance(c: Vec3) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+/// The albedo the radiance is divided by and multiplied back with.
+pub fn demodulation(albedo: [f32; 3]) -> Vec3 {
+    let a = |x: f32| if x >= MIN_ALBEDO { x } else { 1.0 };
+    Vec3::new(a(albedo[0]), a(albedo[1]), a(albedo[2]))
+}
+
+/// A unit vector as two 16-bit signed fixed-point octahedral coordinates (Meyer et al.
+/// 2010, "On floating-point normal vectors"): `x` in the low half, `y` in the high.
+pub fn oct_encode(n: Vec3) -> u32 {
+    let l1 = n.x.abs() + n.y.abs() + n.z.abs();
+    if l1 <= 0.0 || l1.is_nan() {
+        return 0;
+    }
+    let (mut x, mut y) = (n.x / l1, n.y / l1);
+    if n.z < 0.0 {
+        let (ax, ay) = (x.abs(), y.abs());
+        x = (1.0 - ay) * if x >= 0.0 { 1.0 } else { -1.0 };
+        y = (1.0 - ax) * if y >= 0.0 { 1.0 } else { -1.0 };
+    }
+    let q = |v: f32| ((v.clamp(-1.0, 1.0) * 32767.0 + 32768.5) as u32).min(65535);
+    q(x) | (q(y) << 16)
+}
+
+/// The unit vector of [`oct_encode`].
+pub fn oct_decode(e: u32) -> Vec3 {
+    let d = |v: u32| (v as f32 - 32768.0) / 32767.0;
+    let (x, y) = (d(e & 0xffff), d(e >> 16));
+    let z = 1.0 - x.abs() - y.abs();
+    let t = (-z).max(0.0);
+    let x = x + if x >= 0.0 { -t } else { t };
+    let y = y + if y >= 0.0 { -t } else { t };
+    let n = Vec3::new(x, y, z);
+    let l = n.length();
+    if l > 0.0 {
+        n / l
+    } else {
+        Vec3::Z
+    }
+}
+
+/// Where the pinhole of camera `c` sees point `p` on a `width x height` image: continuous
+/// pixel coordinates (the inverse of `path::camera_ray` at the lens centre) and the
+/// distance; `(-1, -1)` for a point behind the camera.
+pub fn project(c: &Camera, width: u32, height: u32, p: Vec3) -> (f32, f32, f32) {
+    let o = xyz(c.origin);
+    let (h, v) = (xyz(c.horizontal), xyz(c.vertical));
+    let n = h.cross(v);
+    let d = p - o;
+    let w = xyz(c.lower_left) - o;
+    let (nd, nw) = (n.dot(d), n.dot(w));
+    // The image plane lies on the far side of the camera, `n.w` of it; a point must too.
+    if nd == 0.0 || (nd > 0.0) != (nw > 0.0) {
+        return (-1.0, -1.0, d.length());
+    }
+    let q = d * (nw / nd) - w;
+    let s = q.dot(h) / h.length_squared();
+    let t = q.dot(v) / v.length_squared();
+    (s * width as f32, (1.0 - t) * height as f32, d.length())
+}
+
+/// Where world point `p` on object `object` was in the previous frame: moved back by the
+/// object's motion (its inverse transform, then the previous one: `objects[f.prev_objects
+/// + object]`) and seen by the previous camera ([`project`]).
+pub fn motion(f: &Frame, objects: &[Object], object: u32, p: Vec3) -> (f32, f32, f32) {
+    let now = at(objects, object);
+    let then = at(objects, f.prev_objects + object);
+    let (r, c) = (&now.rows, &now.normal_rows);
+    // The inverse of the 3x3 part is the transposed cofactor matrix over the determinant.
+    let det = xyz(r[0]).dot(xyz(c[0]));
+    let x = p - Vec3::new(r[0][3], r[1][3], r[2][3]);
+    let local = (xyz(c[0]) * x.x + xyz(c[1]) * x.y + xyz(c[2]) * x.z) / det;
+    let row = |k: usize| xyz(then.rows[k]).dot(local) + then.rows[k][3];
+    let before = Vec3::new(row(0), row(1), row(2));
+    let before = if finite3(before) { before } else { p };
+    project(&f.prev_camera, f.width, f.height, before)
+}
+
+/// The unit direction of camera `c`'s pinhole ray through the centre of pixel `(x, y)`.
+pub fn pixel_direction(c: &Camera, width: u32, height: u32, x: u32, y: u32) -> Vec3 {
+    let s = (x as f32 + 0.5) / width as f32;
+    let t = 1.0 - (y as f32 + 0.5) / height as f32;
+    let target = xyz(c.lower_left) + xyz(c.horizontal) * s + xyz(c.vertical) * t;
+    (target - xyz(c.origin)).normalize()
+}
+
+/// Halves of the history buffer: (this frame's first index, the previous frame's).
+fn halves(n: u32, flags: u32) -> (u32, u32) {
+    if flags & DENOISE_PARITY != 0 {
+        (n, 0)
+    } else {
+        (0, n)
+    }
+}
+
+/// `c` where it is finite, else black.
+fn sanitize(c: Vec3) -> Vec3 {
+    if finite3(c) {
+        c
+    } else {
+        Vec3::ZERO
+    }
+}
+
+/// Pass 1 at pixel `i`: the history of this frame from guide `i` and the previous frame's
+/// history.
+pub fn temporal(i: u32, p: &DenoisePush, f: &Frame, guides: &[Guide], history: &mut [History]) {
+    let n = f.width * f.height;
+    if i >= n {
+        return;
+    }
+    let (cur, prev) = halves(n, p.flags);
+    let g = *at(guides, i);
+    let inv = 1.0 / p.samples.max(1) as f32;
+    let albedo = demodulation(g.albedo);
+    let illum = sanitize(Vec3::from(g.color) * inv) / albedo;
+    let emission = sanitize(Vec3::from(g.emission) * inv);
+    let l = luminance(illum);
+    let mut h = History {
+        illum: illum.into(),
+        len: 1.0,
+        emission: emission.into(),
+        w2: 1.0,
+        m1: l,
+        m2: l * l,
+        depth: g.depth,
+        normal: g.normal,
+        object: g.object,
+        _pad: [0; 3],
+    };
+    if g.object != INVALID && p.flags & DENOISE_NO_HISTORY == 0 {
+        let (px, py) = (g.prev_x - 0.5, g.prev_y - 0.5);
+        let (x0, y0) = (floor(px), floor(py));
+        let (fx, fy) = (px - x0, py - y0);
+        let normal = oct_decode(g.normal);
+        let mut sum = History::default();
+        let mut wsum = 0.0;
+        let mut k = 0;
+        while k < 4 {
+            let (dx, dy) = (k & 1, k >> 1);
+            let (x, y) = (x0 + dx as f32, y0 + dy as f32);
+            let w = if dx == 0 { 1.0 - fx } else { fx } * if dy == 0 { 1.0 - fy } else { fy };
+            k += 1;
+            if !(x >= 0.0 && y >= 0.0 && x < f.width as f32 && y < f.height as f32) || w <= 0.0 {
+                continue;
+            }
+            let t = *at(history, prev + y as u32 * f.width + x as u32);
+            let same = t.object == g.object
+                && (t.depth - g.prev_depth).abs() <= MAX_DEPTH_CHANGE * g.prev_depth
+                && oct_decode(t.normal).dot(normal) >= MIN_NORMAL_COS;
+            if !same {
+                continue;
+            }
+            sum.illum = (Vec3::from(sum.illum) + Vec3::from(t.illum) * w).into();
+            sum.emission = (Vec3::from(sum.emission) + Vec3::from(t.emission) * w).into();
+            sum.len += t.len * w;
+            sum.w2 += t.w2 * w;
+            sum.m1 += t.m1 * w;
+            sum.m2 += t.m2 * w;
+            wsum += w;
+        }
+        if wsum > 0.01 {
+            let r = 1.0 / wsum;
+            let len = (sum.len * r + 1.0).min(MAX_LEN);
+            let a = if p.flags & DENOISE_STILL != 0 {
+                1.0 / len
+            } else {
+                (1.0 / len).max(ALPHA)
+            };
+            let mix = |old: f32, new: f32| old * r * (1.0 - a) + new * a;
+            h.illum = [
+                mix(sum.illum[0], illum.x),
+                mix(sum.illum[1], illum.y),
+                mix(sum.illum[2], illum.z),
+            ];
+            h.emission = [
+                mix(sum.emission[0], emission.x),
+                mix(sum.emission[1], emission.y),
+                mix(sum.emission[2], emission.z),
+            ];
+            h.m1 = mix(sum.m1, l);
+            h.m2 = mix(sum.m2, l * l);
+            h.w2 = (1.0 - a) * (1.0 - a) * sum.w2 * r + a * a;
+            h.len = len;
+        }
+    }
+    *at_mut(history, cur + i) = h;
+}
+
+/// Pass 2 at pixel `i`: the filter's input (demodulated radiance, variance of its
+/// luminance) in the first half of `filter`.
+pub fn variance(i: u32, p: &DenoisePush, f: &Frame, history: &[History], filter: &mut [[f32; 4]]) {
+    let n = f.width * f.height;
+    if i >= n {
+        return;
+    }
+    let (cur, _) = halves(n, p.flags);
+    let h = *at(history, cur + i);
+    let mut var = (h.m2 - h.m1 * h.m1).max(0.0) * h.w2;
+    if h.object != INVALID && h.len < 4.0 {
+        // Too few frames for temporal moments: the luminance moments of the 7x7
+        // neighbourhood on the same surface, their variance raised while the history is short
+        // (SVGF).
+        let (x, y) = ((i % f.width) as i32, (i / f.width) as i32);
+        let normal = oct_decode(h.normal);
+        let (mut m1, mut m2, mut wsum) = (0.0, 0.0, 0.0);
+        let mut k = 0;
+        while k < 49 {
+            let (qx, qy) = (x + k % 7 - 3, y + k / 7 - 3);
+            k += 1;
+            if qx < 0 || qy < 0 || qx >= f.width as i32 || qy >= f.height as i32 {
+                continue;
+            }
+            let t = *at(history, cur + qy as u32 * f.width + qx as u32);
+            if t.object != h.object {
+                continue;
+            }
+            let w = normal_weight(normal, oct_decode(t.normal))
+                * exp(-(t.depth - h.depth).abs() / (MAX_DEPTH_CHANGE * h.depth + 1e-20));
+            let l = luminance(Vec3::from(t.illum));
+            m1 += w * l;
+            m2 += w * l * l;
+            wsum += w;
+        }
+        if wsum > 0.0 {
+            let (m1, m2) = (m1 / wsum, m2 / wsum);
+            var = (m2 - m1 * m1).max(0.0) * (4.0 / h.len);
+        }
+    }
+    let c = sanitize(Vec3::from(h.illum));
+    *at_mut(filter, i) = [c.x, c.y, c.z, if var.is_finite() { var } else { 0.0 }];
+}
+
+/// `max(0, a.b)^128`.
+fn normal_weight(a: Vec3, b: Vec3) -> f32 {
+    let mut w = a.dot(b).max(0.0);
+    let mut k = 0;
+    while k < NORMAL_POWER_SQUARINGS {
+        w *= w;
+        k += 1;
+    }
+    w
+}
+
+/// Pass 3 at pixel `i`, level `p.level`: filters the half `level % 2` of `filter` into the
+/// other; at level 0 while the image moves the result also becomes this frame's history.
+pub fn atrous(i: u32, p: &DenoisePush, f: &Frame, guides: &[Guide], history: &mut [History], filter: &mut [[f32; 4]]) {
+    let n = f.width * f.height;
+    if i >= n {
+        return;
+    }
+    let (src, dst) = if p.level % 2 == 0 { (0, n) } else { (n, 0) };
+    let c = *at(filter, src + i);
+    let g = *at(guides, i);
+    if g.object == INVALID {
+        *at_mut(filter, dst + i) = c;
+        return;
+    }
+    let (w, hgt) = (f.width as i32, f.height as i32);
+    let (x, y) = ((i % f.width) as i32, (i / f.width) as i32);
+    // The centre's variance prefiltered by a 3x3 Gaussian (SVGF).
+    let mut gvar = 0.0;
+    let mut k = 0;
+    while k < 9 {
+        let (dx, dy) = (k % 3 - 1, k / 3 - 1);
+        k += 1;
+        let (qx, qy) = ((x + dx).clamp(0, w - 1), (y + dy).clamp(0, hgt - 1));
+        let kw = if dx == 0 { 0.5 } else { 0.25 } * if dy == 0 { 0.5 } else { 0.25 };
+        gvar += kw * at(filter, src + (qy * w + qx) as u32)[3];
+    }
+    let normal = oct_decode(g.normal);
+    let cam = &f.camera;
+    let pos = xyz(cam.origin) + pixel_direction(cam, f.width, f.height, x as u32, y as u32) * g.depth;
+    let lum = luminance(xyz(c));
+    let lum_scale = 1.0 / (SIGMA_LUMINANCE * sqrt(gvar.max(0.0)) + 1e-10);
+    let step = 1i32 << p.level;
+    // A tap's footprint: the world size of a pixel at the centre's distance, times its
+    // offset in pixels.
+    let pixel_size = g.depth * f.pixel_spread;
+    let mut sum = Vec3::ZERO;
+    let (mut sum_var, mut wsum) = (0.0, 0.0);
+    let mut k = 0;
+    while k < 25 {
+        let (dx, dy) = (k % 5 - 2, k / 5 - 2);
+        k += 1;
+        let (qx, qy) = (x + dx * step, y + dy * step);
+        if qx < 0 || qy < 0 || qx >= w || qy >= hgt {
+            continue;
+        }
+        let q = (qy * w + qx) as u32;
+        let t = *at(guides, q);
+        if t.object != g.object {
+            continue;
+        }
+        let tc = *at(filter, src + q);
+        let h = b3(dx) * b3(dy);
+        let wt = if dx == 0 && dy == 0 {
+            h
+        } else {
+            let tpos = xyz(cam.origin) + pixel_direction(cam, f.width, f.height, qx as u32, qy as u32) * t.depth;
+            let plane = normal.dot(tpos - pos).abs();
+            let offset = sqrt((dx * dx + dy * dy) as f32) * step as f32;
+            let geometry = exp(-plane / (pixel_size * offset + 1e-20));
+            let lw = exp(-(luminance(xyz(tc)) - lum).abs() * lum_scale);
+            h * normal_weight(normal, oct_decode(t.normal)) * geometry * lw
+        };
+        if !(wt > 0.0) || !finite3(xyz(tc)) {
+            continue;
+        }
+        sum += xyz(tc) * wt;
+        sum_var += wt * wt * tc[3];
+        wsum += wt;
+    }
+    let out = sum / wsum;
+    *at_mut(filter, dst + i) = [out.x, out.y, out.z, sum_var / (wsum * wsum)];
+    if p.level == 0 && p.flags & DENOISE_STILL == 0 {
+        let (cur, _) = halves(n, p.flags);
+        at_mut(history, cur + i).illum = out.into();
+    }
+}
+
+/// The B3-spline kernel's weight at offset `d` in `-2..=2`: 1/16, 1/4, 3/8, 1/4, 1/16.
+fn b3(d: i32) -> f32 {
+    match d.abs() {
+        0 => 0.375,
+        1 => 0.25,
+        _ => 0.0625,
+    }
+}
+
+/// Pass 4 at pixel `i`: the denoised radiance into `output` (`w` 1) and its display code
+/// into `image`.
+#[allow(clippy::too_many_arguments)]
+pub fn finish(
+    i: u32,
+    p: &DenoisePush,
+    f: &Frame,
+    guides: &[Guide],
+    history: &[History],
+    filter: &[[f32; 4]],
+    output: &mut [[f32; 4]],
+    image: &mut [u32],
+) {
+    let n = f.width * f.height;
+    if i >= n {
+        return;
+    }
+    let g = *at(guides, i);
+    let c = if g.object == INVALID {
+        sanitize((Vec3::from(g.color) + Vec3::from(g.emission)) / p.samples.max(1) as f32)
+    } else {
+        let (cur, _) = halves(n, p.flags);
+        // LEVELS is odd: the last level wrote the second half.
+        let filtered = xyz(*at(filter, (LEVELS % 2) * n + i));
+        sanitize(filtered * demodulation(g.albedo) + Vec3::from(at(history, cur + i).emission))
+    };
+    *at_mut(output, i) = [c.x, c.y, c.z, 1.0];
+    *at_mut(image, i) = display::pack(c, f, p.flags & DENOISE_BGRA != 0);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn octahedral_normals_round_trip() {
+        // The angle between a vector and its decoding.
+        let angle = |n: Vec3| {
+            let m = oct_decode(oct_encode(n));
+            n.cross(m).length().atan2(n.dot(m))
+        };
+        let mut worst: f32 = 0.0;
+        for i in 0..2000 {
+            let (a, b) = (i as f32 * 0.618_034, i as f32 * 0.414_213_5);
+            let z = 1.0 - 2.0 * ((a % 1.0 + 1.0) % 1.0);
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let phi = b * core::f32::consts::TAU;
+            worst = worst.max(angle(Vec3::new(r * phi.cos(), r * phi.sin(), z)));
+        }
+        for n in [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z] {
+            assert!(angle(n) < 1e-6, "{n}");
+        }
+        // 16 bits a coordinate: within 1e-4 radians.
+        assert!(worst < 1e-4, "worst angle {worst}");
+    }
+
+    #[test]
+    fn projection_inverts_the_camera_ray() {
+        let camera = Camera {
+            origin: [1.0, 2.0, 3.0, 0.0],
+            lower_left: [-1.5, 0.5, 1.0, 0.0],
+            horizontal: [4.0, 0.0, 0.0, 0.0],
+            vertical: [0.0, 3.0, 0.0, 0.0],
+            u: [1.0, 0.0, 0.0, 0.0],
+            v: [0.0, 1.0, 0.0, 0.0],
+        };
+        for (x, y) in [(0, 0), (7, 3), (63, 47), (31, 20)] {
+            let d = pixel_direction(&camera, 64, 48, x, y);
+            let (px, py, dist) = project(&camera, 64, 48, xyz(camera.origin) + d * 5.0);
+            assert!((px - (x as f32 + 0.5)).abs() < 1e-3 && (py - (y as f32 + 0.5)).abs() < 1e-3);
+            assert!((dist - 5.0).abs() < 1e-4);
+        }
+        let behind = xyz(camera.origin) - pixel_direction(&camera, 64, 48, 10, 10);
+        assert_eq!(project(&camera, 64, 48, behind).0, -1.0);
+    }
+}
