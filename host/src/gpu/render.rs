@@ -16,6 +16,11 @@ use shared::types::{
 };
 use std::sync::Arc;
 
+/// Samples per pixel of a still image from which the real-time denoiser stops: the
+/// accumulation's error is then below the denoised image's (`bench accuracy`'s denoiser
+/// section).
+pub const DENOISE_UNTIL: u32 = 64;
+
 /// Samples per pixel one path-tracing dispatch adds at most. Lanes run their samples back to
 /// back (`path::pixel_samples`), so longer runs leave less idle tail per dispatch: 32
 /// instead of 8 took 2-3% off 800x800 x 32 spp frames on the H100.
@@ -127,6 +132,11 @@ pub struct GpuRenderer {
     /// The denoiser, while denoising, and how.
     denoiser: Option<GpuDenoiser>,
     denoise: Denoise,
+    /// [`Denoise::EveryFrame`] shows the accumulation instead once a still image has this
+    /// many samples per pixel.
+    denoise_until: u32,
+    /// Whether the last frame recorded was denoised.
+    denoised_last: bool,
     /// The camera and objects of the last frame recorded (the denoiser's motion).
     shown: Option<(Camera, Vec<Object>)>,
 }
@@ -147,6 +157,8 @@ impl GpuRenderer {
             objects: Vec::new(),
             denoiser: None,
             denoise: Denoise::Off,
+            denoise_until: DENOISE_UNTIL,
+            denoised_last: false,
             shown: None,
         })
     }
@@ -157,8 +169,10 @@ impl GpuRenderer {
             return Ok(());
         }
         self.denoise = mode;
-        // The guides' meaning changed: the next frame starts afresh.
-        self.samples = 0;
+        if mode == Denoise::Accumulated {
+            // Its guides sum every sample since the last change: start afresh.
+            self.samples = 0;
+        }
         if mode == Denoise::Off {
             self.denoiser = None;
             return Ok(());
@@ -169,6 +183,21 @@ impl GpuRenderer {
     /// How frames are denoised.
     pub fn denoise(&self) -> Denoise {
         self.denoise
+    }
+
+    /// Samples per pixel of a still image from which [`Denoise::EveryFrame`] shows the
+    /// accumulation unfiltered (`u32::MAX`: never).
+    pub fn set_denoise_until(&mut self, samples: u32) {
+        self.denoise_until = samples;
+    }
+
+    /// Whether the next frame of `samples` samples will be denoised.
+    pub fn denoises_next(&self, samples: u32) -> bool {
+        match self.denoise {
+            Denoise::Off => false,
+            Denoise::Accumulated => true,
+            Denoise::EveryFrame => self.samples + samples <= self.denoise_until || self.samples == 0,
+        }
     }
 
     /// A denoiser for the frame's size, and guides for it to read.
@@ -372,7 +401,9 @@ impl GpuRenderer {
     /// as accumulated from here on.
     pub fn record(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<()> {
         let still = self.samples > 0;
-        if self.denoise == Denoise::EveryFrame {
+        let denoise = self.denoises_next(samples);
+        self.denoised_last = denoise;
+        if self.denoise == Denoise::EveryFrame && denoise {
             self.write_motion()?;
         }
         // Guides sum this frame's samples, or every sample since the last change.
@@ -420,7 +451,7 @@ impl GpuRenderer {
             done += n;
         }
         cmds.timestamp("trace");
-        if let Some(d) = self.denoiser.as_mut() {
+        if let Some(d) = self.denoiser.as_mut().filter(|_| denoise) {
             let bgra = self.display_flags & DISPLAY_BGRA != 0;
             if self.denoise == Denoise::Accumulated {
                 d.record(cmds, k, sets[1], self.samples + samples, false, false, bgra);
@@ -486,7 +517,7 @@ impl GpuRenderer {
             display.iter_mut().for_each(|p| *p = swap_red_blue(*p));
         }
         let mut accum: Vec<[f32; 4]> = self.cmds.read_back(&b.accum, pixels)?;
-        if let Some(d) = &self.denoiser {
+        if let Some(d) = self.denoiser.as_ref().filter(|_| self.denoised_last) {
             // The denoised frame, as the sums of `samples` samples (ray counts kept).
             let out: Vec<[f32; 4]> = self.cmds.read_back(&d.output, pixels)?;
             let n = self.samples as f32;
