@@ -81,7 +81,8 @@ fn presented_frames_equal_a_headless_render_of_the_same_samples() {
     let dir = temp(test);
     let shot = dir.join("shot.png");
     let shot_s = shot.to_str().unwrap();
-    // 8 frames of 2 samples each: 16 samples per pixel, accumulated while nothing moves.
+    // 8 frames of 2 samples each: 16 samples per pixel, accumulated while nothing moves, shown
+    // without the denoiser.
     let args = [
         "--validation",
         "view",
@@ -92,6 +93,7 @@ fn presented_frames_equal_a_headless_render_of_the_same_samples() {
         "2",
         "--frames",
         "8",
+        "--no-denoise",
         "--screenshot",
         shot_s,
     ];
@@ -99,14 +101,28 @@ fn presented_frames_equal_a_headless_render_of_the_same_samples() {
         return;
     };
     check(test, &o);
+    assert_equals_render(&shot, &dir, 16);
+}
+
+/// Asserts that the screenshot `shot` equals `raytrace render cornell` at 64x48 and `spp`
+/// samples per pixel (rendered into `dir`) up to one code value of rounding, and is not black.
+fn assert_equals_render(shot: &Path, dir: &Path, spp: u32) {
     let reference = dir.join("reference.png");
     let r = Command::new(BIN)
-        .args(["render", "cornell", "--size", "64x48", "--spp", "16", "--out"])
+        .args([
+            "render",
+            "cornell",
+            "--size",
+            "64x48",
+            "--spp",
+            &spp.to_string(),
+            "--out",
+        ])
         .arg(&reference)
         .output()
         .expect("running raytrace render");
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    let (a, b) = (png(&shot), png(&reference));
+    let (a, b) = (png(shot), png(&reference));
     assert_eq!(a.dimensions(), b.dimensions(), "screenshot size");
     // Same kernels, same sample indices, same accumulation order: the presented bytes equal
     // the headless render's up to one code value of rounding.
@@ -190,4 +206,94 @@ fn objects_are_added_picked_moved_and_removed_in_the_window() {
         assert!(stdout.contains(want), "{test}: expected {want:?} in\n{stdout}");
     }
     assert_eq!(png(&shot).dimensions(), (64, 64));
+}
+
+#[test]
+fn a_still_denoised_viewer_converges_to_the_headless_render() {
+    let test = "a_still_denoised_viewer_converges_to_the_headless_render";
+    let dir = temp(test);
+    let shot = dir.join("shot.png");
+    // The denoiser is on by default. 5 frames of 16 samples: the first four (16 to 64
+    // samples per pixel) are denoised, the fifth (80) shows the accumulation itself, which
+    // the denoiser has left as the path tracer made it.
+    let args = [
+        "--validation",
+        "view",
+        "cornell",
+        "--size",
+        "64x48",
+        "--spf",
+        "16",
+        "--frames",
+        "5",
+        "--screenshot",
+        shot.to_str().unwrap(),
+    ];
+    let Some(o) = run_windowed(test, &args) else {
+        return;
+    };
+    check(test, &o);
+    assert_equals_render(&shot, &dir, 80);
+}
+
+#[test]
+fn a_denoised_viewer_past_its_spp_cap_shows_the_accumulation() {
+    let test = "a_denoised_viewer_past_its_spp_cap_shows_the_accumulation";
+    let dir = temp(test);
+    let shot = dir.join("shot.png");
+    // --spp 16 in one frame of 16 samples: that frame is denoised; the two after trace
+    // nothing and show the accumulation (the denoiser never filters a frame's guides twice).
+    let args = [
+        "--validation",
+        "view",
+        "cornell",
+        "--size",
+        "64x48",
+        "--spf",
+        "16",
+        "--spp",
+        "16",
+        "--frames",
+        "3",
+        "--screenshot",
+        shot.to_str().unwrap(),
+    ];
+    let Some(o) = run_windowed(test, &args) else {
+        return;
+    };
+    check(test, &o);
+    assert_equals_render(&shot, &dir, 16);
+}
+
+#[test]
+fn the_denoiser_follows_a_moving_camera_and_its_switch() {
+    let test = "the_denoiser_follows_a_moving_camera_and_its_switch";
+    let dir = temp(test);
+    let shot = dir.join("shot.png");
+    // Denoised while the camera flies (reprojecting the history), switched off and on again,
+    // then denoised while an added object moves.
+    let args = [
+        "--validation",
+        "view",
+        "cornell",
+        "--size",
+        "64x48",
+        "--frames",
+        "12",
+        "--script",
+        "1:fly=0;0;0.3,2:fly=0.2;0;0,3:denoise=off,4:fly=0;0.1;0,5:denoise=on,6:add-sphere,8:move=0;0.2;0",
+        "--screenshot",
+        shot.to_str().unwrap(),
+    ];
+    let Some(o) = run_windowed(test, &args) else {
+        return;
+    };
+    let stdout = check(test, &o);
+    for want in ["denoiser off", "denoiser on", "new object added sphere 1 (selected)"] {
+        assert!(stdout.contains(want), "{test}: expected {want:?} in\n{stdout}");
+    }
+    let p = png(&shot);
+    assert_eq!(p.dimensions(), (64, 48));
+    let mean = p.as_raw().iter().map(|&v| v as f64).sum::<f64>() / p.as_raw().len() as f64;
+    assert!(mean > 5.0, "the denoised frame is black (mean {mean})");
 }

@@ -426,10 +426,11 @@ pub fn denoise_temporal(
     #[spirv(push_constant)] p: &DenoisePush,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[Guide],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [History],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
 ) {
     if id.x < frame.width {
-        denoise::temporal(id.y * frame.width + id.x, p, frame, guides, history);
+        denoise::temporal(id.y * frame.width + id.x, p, frame, guides, history, filter);
     }
 }
 
@@ -438,7 +439,7 @@ pub fn denoise_variance(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &DenoisePush,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &[History],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
 ) {
     if id.x < frame.width {
@@ -450,13 +451,12 @@ pub fn denoise_variance(
 pub fn denoise_atrous(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &DenoisePush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[Guide],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [History],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
 ) {
     if id.x < frame.width {
-        denoise::atrous(id.y * frame.width + id.x, p, frame, guides, history, filter);
+        denoise::atrous(id.y * frame.width + id.x, p, frame, history, filter);
     }
 }
 
@@ -467,7 +467,7 @@ pub fn denoise_finish(
     #[spirv(push_constant)] p: &DenoisePush,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[Guide],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &[History],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &[[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] output: &mut [[f32; 4]],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
     #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32],

@@ -30,7 +30,7 @@
 //! Pixels whose first sample left the scene are passed through unfiltered. Non-finite
 //! radiance never enters the history or the filter (it counts as black).
 use crate::display;
-use crate::math::{exp, finite3, floor, sqrt};
+use crate::math::{exp, finite3, floor, pack_half2, sqrt, unpack_half2};
 use crate::sync::{at, at_mut};
 use crate::types::{xyz, Camera, Frame, Object, INVALID};
 use bytemuck::{Pod, Zeroable};
@@ -122,8 +122,11 @@ pub const DENOISE_STILL: u32 = 4;
 /// Pack the display image as BGRA (as `DISPLAY_BGRA`).
 pub const DENOISE_BGRA: u32 = 8;
 
-/// Levels of the a-trous filter (steps 1 to 16 pixels: a 125-pixel footprint).
+/// Levels of the a-trous filter (steps 1 to 16 pixels).
 pub const LEVELS: u32 = 5;
+/// Taps of the a-trous kernel either side of the centre: 1, a 3x3 kernel (a 63-pixel
+/// footprint over the five levels), or 2, SVGF's 5x5 (125 pixels).
+pub const RADIUS: u32 = 1;
 /// The least weight of the newest frame while the image moves (SVGF's alpha).
 pub const ALPHA: f32 = 0.2;
 /// History lengths stop growing here (a still image's mean then weighs frames alike).
@@ -250,9 +253,96 @@ fn sanitize(c: Vec3) -> Vec3 {
     }
 }
 
+/// What the 7x7 variance estimate reads of a pixel, 16 bytes in the third part of the
+/// filter buffer (not its 64-byte history): normal (octahedral), object, distance, and the
+/// luminance of the temporal estimate.
+fn surface_of(h: &History) -> [u32; 4] {
+    [
+        h.normal,
+        h.object,
+        h.depth.to_bits(),
+        luminance(Vec3::from(h.illum)).to_bits(),
+    ]
+}
+
+/// Entries of the filter buffer for `n` pixels: the two halves the a-trous levels filter
+/// back and forth (a [`Tap`] a pixel), and the pixels' surfaces.
+pub const fn filter_entries(n: u32) -> u32 {
+    3 * n
+}
+
+/// A pixel as the a-trous filter reads it, in 16 bytes (two 32-byte reads a tap took the
+/// filter 74% of the denoiser's time): the demodulated radiance and the standard deviation
+/// of its luminance as half floats, the normal to 8 bits an octahedral coordinate, the
+/// object to 16 bits ([`NO_OBJECT`]: passed through), and the distance.
+#[derive(Copy, Clone)]
+struct Tap {
+    illum: Vec3,
+    var: f32,
+    normal: u32,
+    object: u32,
+    depth: f32,
+}
+
+/// [`Tap::object`] of a pixel without a surface.
+const NO_OBJECT: u32 = 0xffff;
+/// The largest finite half float: radiance and deviations are clamped to it.
+const HALF_MAX: f32 = 65504.0;
+
+impl Tap {
+    fn pack(&self) -> [u32; 4] {
+        let h = |v: f32| v.clamp(0.0, HALF_MAX);
+        let sd = sqrt(self.var.max(0.0));
+        [
+            pack_half2(h(self.illum.x), h(self.illum.y)),
+            pack_half2(h(self.illum.z), h(sd)),
+            self.normal | (self.object << 16),
+            self.depth.to_bits(),
+        ]
+    }
+
+    fn unpack(e: [u32; 4]) -> Tap {
+        let (r, g) = unpack_half2(e[0]);
+        let (b, sd) = unpack_half2(e[1]);
+        Tap {
+            illum: Vec3::new(r, g, b),
+            var: sd * sd,
+            normal: e[2] & 0xffff,
+            object: e[2] >> 16,
+            depth: f32::from_bits(e[3]),
+        }
+    }
+}
+
+/// A 16-bit octahedral normal ([`oct_encode`]) to 8 bits a coordinate.
+fn normal8(e: u32) -> u32 {
+    ((e & 0xffff) >> 8) | ((e >> 24) << 8)
+}
+
+/// The unit vector of [`normal8`] (each coordinate at the middle of its 8-bit step).
+fn normal8_decode(e: u32) -> Vec3 {
+    oct_decode(((e & 0xff) << 8) | 0x80 | ((e >> 8) << 24) | (0x80 << 16))
+}
+
+/// An object index to the 16 bits of [`Tap::object`] (objects 65535 apart share one).
+fn object16(o: u32) -> u32 {
+    if o == INVALID {
+        NO_OBJECT
+    } else {
+        o % NO_OBJECT
+    }
+}
+
 /// Pass 1 at pixel `i`: the history of this frame from guide `i` and the previous frame's
-/// history.
-pub fn temporal(i: u32, p: &DenoisePush, f: &Frame, guides: &[Guide], history: &mut [History]) {
+/// history, and the pixel's surface for the spatial passes.
+pub fn temporal(
+    i: u32,
+    p: &DenoisePush,
+    f: &Frame,
+    guides: &[Guide],
+    history: &mut [History],
+    filter: &mut [[u32; 4]],
+) {
     let n = f.width * f.height;
     if i >= n {
         return;
@@ -332,12 +422,13 @@ pub fn temporal(i: u32, p: &DenoisePush, f: &Frame, guides: &[Guide], history: &
             h.len = len;
         }
     }
+    *at_mut(filter, 2 * n + i) = surface_of(&h);
     *at_mut(history, cur + i) = h;
 }
 
 /// Pass 2 at pixel `i`: the filter's input (demodulated radiance, variance of its
 /// luminance) in the first half of `filter`.
-pub fn variance(i: u32, p: &DenoisePush, f: &Frame, history: &[History], filter: &mut [[f32; 4]]) {
+pub fn variance(i: u32, p: &DenoisePush, f: &Frame, history: &[History], filter: &mut [[u32; 4]]) {
     let n = f.width * f.height;
     if i >= n {
         return;
@@ -359,13 +450,13 @@ pub fn variance(i: u32, p: &DenoisePush, f: &Frame, history: &[History], filter:
             if qx < 0 || qy < 0 || qx >= f.width as i32 || qy >= f.height as i32 {
                 continue;
             }
-            let t = *at(history, cur + qy as u32 * f.width + qx as u32);
-            if t.object != h.object {
+            let t = *at(filter, 2 * n + qy as u32 * f.width + qx as u32);
+            if t[1] != h.object {
                 continue;
             }
-            let w = normal_weight(normal, oct_decode(t.normal))
-                * exp(-(t.depth - h.depth).abs() / (MAX_DEPTH_CHANGE * h.depth + 1e-20));
-            let l = luminance(Vec3::from(t.illum));
+            let w = normal_weight(normal, oct_decode(t[0]))
+                * exp(-(f32::from_bits(t[2]) - h.depth).abs() / (MAX_DEPTH_CHANGE * h.depth + 1e-20));
+            let l = f32::from_bits(t[3]);
             m1 += w * l;
             m2 += w * l * l;
             wsum += w;
@@ -375,8 +466,14 @@ pub fn variance(i: u32, p: &DenoisePush, f: &Frame, history: &[History], filter:
             var = (m2 - m1 * m1).max(0.0) * (4.0 / h.len);
         }
     }
-    let c = sanitize(Vec3::from(h.illum));
-    *at_mut(filter, i) = [c.x, c.y, c.z, if var.is_finite() { var } else { 0.0 }];
+    let tap = Tap {
+        illum: sanitize(Vec3::from(h.illum)),
+        var: if var.is_finite() { var } else { 0.0 },
+        normal: normal8(h.normal),
+        object: object16(h.object),
+        depth: h.depth,
+    };
+    *at_mut(filter, i) = tap.pack();
 }
 
 /// `max(0, a.b)^128`.
@@ -392,86 +489,110 @@ fn normal_weight(a: Vec3, b: Vec3) -> f32 {
 
 /// Pass 3 at pixel `i`, level `p.level`: filters the half `level % 2` of `filter` into the
 /// other; at level 0 while the image moves the result also becomes this frame's history.
-pub fn atrous(i: u32, p: &DenoisePush, f: &Frame, guides: &[Guide], history: &mut [History], filter: &mut [[f32; 4]]) {
+pub fn atrous(i: u32, p: &DenoisePush, f: &Frame, history: &mut [History], filter: &mut [[u32; 4]]) {
     let n = f.width * f.height;
     if i >= n {
         return;
     }
     let (src, dst) = if p.level % 2 == 0 { (0, n) } else { (n, 0) };
-    let c = *at(filter, src + i);
-    let g = *at(guides, i);
-    if g.object == INVALID {
-        *at_mut(filter, dst + i) = c;
+    let centre = *at(filter, src + i);
+    let c = Tap::unpack(centre);
+    if c.object == NO_OBJECT {
+        *at_mut(filter, dst + i) = centre;
         return;
     }
     let (w, hgt) = (f.width as i32, f.height as i32);
     let (x, y) = ((i % f.width) as i32, (i / f.width) as i32);
-    // The centre's variance prefiltered by a 3x3 Gaussian (SVGF).
-    let mut gvar = 0.0;
-    let mut k = 0;
-    while k < 9 {
-        let (dx, dy) = (k % 3 - 1, k / 3 - 1);
-        k += 1;
-        let (qx, qy) = ((x + dx).clamp(0, w - 1), (y + dy).clamp(0, hgt - 1));
-        let kw = if dx == 0 { 0.5 } else { 0.25 } * if dy == 0 { 0.5 } else { 0.25 };
-        gvar += kw * at(filter, src + (qy * w + qx) as u32)[3];
+    // The centre's variance prefiltered by a 3x3 Gaussian (SVGF) on the first level; the
+    // later levels' variances are already the earlier levels' weighted means.
+    let mut gvar = c.var;
+    if p.level == 0 {
+        gvar = 0.0;
+        let mut k = 0;
+        while k < 9 {
+            let (dx, dy) = (k % 3 - 1, k / 3 - 1);
+            k += 1;
+            let (qx, qy) = ((x + dx).clamp(0, w - 1), (y + dy).clamp(0, hgt - 1));
+            let kw = if dx == 0 { 0.5 } else { 0.25 } * if dy == 0 { 0.5 } else { 0.25 };
+            gvar += kw * Tap::unpack(*at(filter, src + (qy * w + qx) as u32)).var;
+        }
     }
-    let normal = oct_decode(g.normal);
+    let normal = normal8_decode(c.normal);
+    // The tangent plane's distance along the rays of the next pixels right and down: a tap's
+    // distance is compared with the plane's, predicted linearly (SVGF's depth gradient),
+    // so that no tap needs its own ray.
     let cam = &f.camera;
-    let pos = xyz(cam.origin) + pixel_direction(cam, f.width, f.height, x as u32, y as u32) * g.depth;
-    let lum = luminance(xyz(c));
+    let dir = pixel_direction(cam, f.width, f.height, x as u32, y as u32);
+    let plane_d = normal.dot(dir * c.depth);
+    let along = |qx: i32, qy: i32| {
+        let q = pixel_direction(cam, f.width, f.height, qx.max(0) as u32, qy.max(0) as u32);
+        plane_d / normal.dot(q) - c.depth
+    };
+    let (gx, gy) = (along(x + 1, y), along(x, y + 1));
+    let lum = luminance(c.illum);
     let lum_scale = 1.0 / (SIGMA_LUMINANCE * sqrt(gvar.max(0.0)) + 1e-10);
     let step = 1i32 << p.level;
-    // A tap's footprint: the world size of a pixel at the centre's distance, times its
-    // offset in pixels.
-    let pixel_size = g.depth * f.pixel_spread;
+    // A distance off the plane counts in units of a tap's footprint: the world size of a
+    // pixel at the centre's distance, times the tap's offset in pixels.
+    let geometry_scale = normal.dot(dir).abs() / (c.depth * f.pixel_spread * step as f32 + 1e-20);
     let mut sum = Vec3::ZERO;
     let (mut sum_var, mut wsum) = (0.0, 0.0);
-    let mut k = 0;
-    while k < 25 {
-        let (dx, dy) = (k % 5 - 2, k / 5 - 2);
-        k += 1;
-        let (qx, qy) = (x + dx * step, y + dy * step);
-        if qx < 0 || qy < 0 || qx >= w || qy >= hgt {
-            continue;
+    let r = RADIUS as i32;
+    let mut dy = -r;
+    while dy <= r {
+        let qy = y + dy * step;
+        let hy = kernel(dy);
+        let mut dx = -r;
+        while dx <= r {
+            let qx = x + dx * step;
+            let ddx = dx;
+            dx += 1;
+            if qx < 0 || qy < 0 || qx >= w || qy >= hgt {
+                continue;
+            }
+            let t = Tap::unpack(*at(filter, src + (qy * w + qx) as u32));
+            if t.object != c.object {
+                continue;
+            }
+            let h = hy * kernel(ddx);
+            let wt = if ddx == 0 && dy == 0 {
+                h
+            } else {
+                let predicted = c.depth + (gx * ddx as f32 + gy * dy as f32) * step as f32;
+                let offset = sqrt((ddx * ddx + dy * dy) as f32);
+                // The geometry and luminance weights in one exponential.
+                let e = (t.depth - predicted).abs() * geometry_scale / offset
+                    + (luminance(t.illum) - lum).abs() * lum_scale;
+                h * normal_weight(normal, normal8_decode(t.normal)) * exp(-e)
+            };
+            if wt > 0.0 {
+                sum += t.illum * wt;
+                sum_var += wt * wt * t.var;
+                wsum += wt;
+            }
         }
-        let q = (qy * w + qx) as u32;
-        let t = *at(guides, q);
-        if t.object != g.object {
-            continue;
-        }
-        let tc = *at(filter, src + q);
-        let h = b3(dx) * b3(dy);
-        let wt = if dx == 0 && dy == 0 {
-            h
-        } else {
-            let tpos = xyz(cam.origin) + pixel_direction(cam, f.width, f.height, qx as u32, qy as u32) * t.depth;
-            let plane = normal.dot(tpos - pos).abs();
-            let offset = sqrt((dx * dx + dy * dy) as f32) * step as f32;
-            let geometry = exp(-plane / (pixel_size * offset + 1e-20));
-            let lw = exp(-(luminance(xyz(tc)) - lum).abs() * lum_scale);
-            h * normal_weight(normal, oct_decode(t.normal)) * geometry * lw
-        };
-        if !(wt > 0.0) || !finite3(xyz(tc)) {
-            continue;
-        }
-        sum += xyz(tc) * wt;
-        sum_var += wt * wt * tc[3];
-        wsum += wt;
+        dy += 1;
     }
-    let out = sum / wsum;
-    *at_mut(filter, dst + i) = [out.x, out.y, out.z, sum_var / (wsum * wsum)];
+    let out = Tap {
+        illum: sum / wsum,
+        var: sum_var / (wsum * wsum),
+        ..c
+    };
+    *at_mut(filter, dst + i) = out.pack();
     if p.level == 0 && p.flags & DENOISE_STILL == 0 {
         let (cur, _) = halves(n, p.flags);
-        at_mut(history, cur + i).illum = out.into();
+        at_mut(history, cur + i).illum = out.illum.into();
     }
 }
 
-/// The B3-spline kernel's weight at offset `d` in `-2..=2`: 1/16, 1/4, 3/8, 1/4, 1/16.
-fn b3(d: i32) -> f32 {
-    match d.abs() {
-        0 => 0.375,
-        1 => 0.25,
+/// The a-trous kernel's weight at offset `d` in `-RADIUS..=RADIUS`: the B3 spline's 1/16,
+/// 1/4, 3/8, 1/4, 1/16 (SVGF's 5x5), or the linear spline's 1/4, 1/2, 1/4 (3x3).
+fn kernel(d: i32) -> f32 {
+    match (RADIUS, d.abs()) {
+        (1, 0) => 0.5,
+        (1, _) => 0.25,
+        (_, 0) => 0.375,
+        (_, 1) => 0.25,
         _ => 0.0625,
     }
 }
@@ -485,7 +606,7 @@ pub fn finish(
     f: &Frame,
     guides: &[Guide],
     history: &[History],
-    filter: &[[f32; 4]],
+    filter: &[[u32; 4]],
     output: &mut [[f32; 4]],
     image: &mut [u32],
 ) {
@@ -499,7 +620,7 @@ pub fn finish(
     } else {
         let (cur, _) = halves(n, p.flags);
         // LEVELS is odd: the last level wrote the second half.
-        let filtered = xyz(*at(filter, (LEVELS % 2) * n + i));
+        let filtered = Tap::unpack(*at(filter, (LEVELS % 2) * n + i)).illum;
         sanitize(filtered * demodulation(g.albedo) + Vec3::from(at(history, cur + i).emission))
     };
     *at_mut(output, i) = [c.x, c.y, c.z, 1.0];

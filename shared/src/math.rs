@@ -42,6 +42,34 @@ pub fn exp(x: f32) -> f32 {
     spirv_std::num_traits::Float::exp(x)
 }
 
+/// `a` and `b` as half-precision floats, `a` in the low 16 bits (GLSL `packHalf2x16`).
+pub fn pack_half2(a: f32, b: f32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    {
+        spirv_std::float::vec2_to_f16x2(spirv_std::glam::Vec2::new(a, b))
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        half::f16::from_f32(a).to_bits() as u32 | ((half::f16::from_f32(b).to_bits() as u32) << 16)
+    }
+}
+
+/// The two floats of [`pack_half2`].
+pub fn unpack_half2(x: u32) -> (f32, f32) {
+    #[cfg(target_arch = "spirv")]
+    {
+        let v = spirv_std::float::f16x2_to_vec2(x);
+        (v.x, v.y)
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        (
+            half::f16::from_bits(x as u16).to_f32(),
+            half::f16::from_bits((x >> 16) as u16).to_f32(),
+        )
+    }
+}
+
 /// The angle of `(x, y)` from the x axis, in `(-pi, pi]`.
 pub fn atan2(y: f32, x: f32) -> f32 {
     spirv_std::num_traits::Float::atan2(y, x)

@@ -447,9 +447,8 @@ impl Path {
 
 /// One segment of path `q` (which has `q.depth < max_depth`): trace it, add what it sees,
 /// scatter. Returns whether the path goes on. With `capture` (the first segment of a
-/// pixel's first sample, with [`FEATURE_GUIDES`]) the first hit's geometry goes to `guide`.
-fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, guide: &mut Guide) -> bool {
-    // (`capture` is read only where the first segment hits something.)
+/// pixel's first sample, with [`FEATURE_GUIDES`]) its hit goes to `first`.
+fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, first: &mut Hit) -> bool {
     let f = w.frame;
     let (o, d) = (q.origin, q.dir);
     let hit = w.closest(o, d, f32::INFINITY);
@@ -467,7 +466,6 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, gui
         };
         q.l += q.beta * sky(w, d) * weight;
         if q.depth == 0 {
-            // The guide stays `Guide::NONE`: the denoiser passes the pixel through.
             q.emitted = q.l;
         }
         return false;
@@ -500,15 +498,7 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, gui
     if q.depth == 0 {
         q.emitted = q.l;
         if capture {
-            let object = *sync::at(w.prim_object, hit.prim);
-            let (px, py, pd) = denoise::motion(f, w.objects, object, p);
-            guide.albedo = [m.albedo[0], m.albedo[1], m.albedo[2]];
-            guide.object = object;
-            guide.normal = denoise::oct_encode(facing(d, ng, sp.ns).1);
-            guide.depth = hit.t;
-            guide.prev_x = px;
-            guide.prev_y = py;
-            guide.prev_depth = pd;
+            *first = hit;
         }
     }
     let s = material::scatter(&m, d, ng, sp.ns, w.scene.features, rng);
@@ -590,7 +580,8 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
 pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32; 4], Guide) {
     let f = w.frame;
     let guides = w.scene.features & FEATURE_GUIDES != 0;
-    let mut guide = Guide::NONE;
+    // Only the first sample's first hit is kept in the loop; its guide is made after it.
+    let mut first = Hit::MISS;
     let (mut color, mut emission) = (Vec3::ZERO, Vec3::ZERO);
     let mode = Mode::of(w);
     let pixel = y * f.width + x;
@@ -614,7 +605,7 @@ pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32;
             }
         }
         let capture = guides && started == 1 && q.depth == 0;
-        live = bounce(w, mode, &mut q, &mut rng, capture, &mut guide);
+        live = bounce(w, mode, &mut q, &mut rng, capture, &mut first);
         if !live {
             if finite3(q.l) {
                 sum += q.l;
@@ -626,9 +617,51 @@ pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32;
             rays += q.rays;
         }
     }
+    // Only the frame's first dispatch writes the geometry (`render_pixel`).
+    let mut guide = if guides && f.max_depth > 0 && p.count == 0 {
+        first_hit_guide(x, y, p, w, &first)
+    } else {
+        Guide::NONE
+    };
     guide.color = color.into();
     guide.emission = emission.into();
     ([sum.x, sum.y, sum.z, rays as f32], guide)
+}
+
+/// The denoiser's guide of the first hit `h` of pixel `(x, y)`'s first sample (its camera
+/// ray drawn again from the sample's stream): albedo, normal, distance, object and where
+/// the point was in the previous frame; [`Guide::NONE`] where the ray left the scene.
+fn first_hit_guide(x: u32, y: u32, p: &RenderPush, w: &World, h: &Hit) -> Guide {
+    let f = w.frame;
+    if h.prim == INVALID {
+        return Guide::NONE;
+    }
+    let mut rng = Rng::new(y * f.width + x, p.sample_base, f.seed);
+    let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
+    let mut sp = shading::surface_point(&w.scene, w.objects, w.prim_object, w.attrs, o, d, h);
+    let m = shading::textured(
+        &w.material(h.prim),
+        &mut sp,
+        d,
+        f.pixel_spread * h.t,
+        w.textures,
+        w.texels,
+        w.scene.features,
+    );
+    let object = *sync::at(w.prim_object, h.prim);
+    let (px, py, pd) = denoise::motion(f, w.objects, object, sp.p);
+    Guide {
+        color: [0.0; 3],
+        prev_x: px,
+        emission: [0.0; 3],
+        prev_y: py,
+        albedo: [m.albedo[0], m.albedo[1], m.albedo[2]],
+        object,
+        normal: denoise::oct_encode(facing(d, sp.ng, sp.ns).1),
+        depth: h.t,
+        prev_depth: pd,
+        _pad: 0,
+    }
 }
 
 /// Closest hit of ray `i` of `rays` (origin `w`: unused, direction `w`: largest distance).

@@ -70,8 +70,9 @@ fn a_constant_image_stays_constant() {
     for k in 0..3 {
         let out = d.run(&frame, &guides, 1, true, k > 0);
         for o in &out.output {
+            // To the filter's half-float rounding (2^-11).
             for (c, want) in o.iter().zip([0.3, 0.5, 0.7]) {
-                assert!((c - want).abs() <= 1e-5 * want, "frame {k}: {o:?}");
+                assert!((c - want).abs() <= 5e-4 * want, "frame {k}: {o:?}");
             }
         }
     }
@@ -223,7 +224,11 @@ fn motion_inverts_the_object_transform_exactly() {
     let (_, _, mut frame) = cornell();
     frame.prev_objects = 1;
     let objects = [now, then];
-    for q in [Vec3::new(0.1, 0.2, 0.3), Vec3::new(-0.4, 0.0, 0.25), Vec3::new(0.3, -0.2, -0.1)] {
+    for q in [
+        Vec3::new(0.1, 0.2, 0.3),
+        Vec3::new(-0.4, 0.0, 0.25),
+        Vec3::new(0.3, -0.2, -0.1),
+    ] {
         let p = m_now * q + Vec3::new(1.0, 0.5, -3.0);
         let expected = m_then * q + Vec3::new(0.8, 0.4, -3.2);
         let got = denoise::motion(&frame, &objects, 0, p);
@@ -275,7 +280,11 @@ fn a_moved_object_leaves_no_ghost() {
     // The same noise (same seeds), the same scene for the last 12 frames: what remains of the
     // box's old place is the history's lag, 0.8^12 = 7% of the difference at the jump at
     // most, and much less where the history was rejected.
-    assert!(diff < 0.03 * mean(&b.output), "mean difference {diff} of {}", mean(&b.output));
+    assert!(
+        diff < 0.03 * mean(&b.output),
+        "mean difference {diff} of {}",
+        mean(&b.output)
+    );
 }
 
 #[test]
@@ -296,7 +305,11 @@ fn gpu_guides_and_denoised_images_equal_the_cpu() {
     r.set_denoise(Denoise::Accumulated).expect("denoise");
     r.render(4, true).expect("render");
     let d = diff_stats(&cpu_picture, &r.picture().expect("picture")).expect("diff");
-    assert!(d.relative_rmse < 0.03, "denoised render: relative RMSE {}", d.relative_rmse);
+    assert!(
+        d.relative_rmse < 0.03,
+        "denoised render: relative RMSE {}",
+        d.relative_rmse
+    );
 
     // Real time: a frame, the box moved, the next frame; the guides' motion equals the CPU's.
     r.set_denoise(Denoise::EveryFrame).expect("denoise");
@@ -328,6 +341,9 @@ fn gpu_guides_and_denoised_images_equal_the_cpu() {
         );
         assert!((g.depth - c.depth).abs() <= 1e-4 * c.depth);
     }
-    assert!(same > (SIZE * SIZE * 9 / 10) as usize, "{same} pixels hit the same object");
+    assert!(
+        same > (SIZE * SIZE * 9 / 10) as usize,
+        "{same} pixels hit the same object"
+    );
     assert_no_validation_errors(&gpu);
 }

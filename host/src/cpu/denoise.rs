@@ -7,7 +7,7 @@ use shared::types::Frame;
 #[derive(Default)]
 pub struct CpuDenoiser {
     history: Vec<History>,
-    filter: Vec<[f32; 4]>,
+    filter: Vec<[u32; 4]>,
     parity: bool,
     has_history: bool,
 }
@@ -25,7 +25,7 @@ impl CpuDenoiser {
         let n = (frame.width * frame.height) as usize;
         if self.history.len() != 2 * n {
             self.history = vec![History::default(); 2 * n];
-            self.filter = vec![[0.0; 4]; 2 * n];
+            self.filter = vec![[0; 4]; denoise::filter_entries(n as u32) as usize];
             self.has_history = false;
         }
         let flag = |on: bool, f: u32| if on { f } else { 0 };
@@ -39,7 +39,7 @@ impl CpuDenoiser {
             _pad: 0,
         };
         for i in 0..n as u32 {
-            denoise::temporal(i, &p, frame, guides, &mut self.history);
+            denoise::temporal(i, &p, frame, guides, &mut self.history, &mut self.filter);
         }
         for i in 0..n as u32 {
             denoise::variance(i, &p, frame, &self.history, &mut self.filter);
@@ -47,7 +47,7 @@ impl CpuDenoiser {
         for level in 0..LEVELS {
             p.level = level;
             for i in 0..n as u32 {
-                denoise::atrous(i, &p, frame, guides, &mut self.history, &mut self.filter);
+                denoise::atrous(i, &p, frame, &mut self.history, &mut self.filter);
             }
         }
         let mut out = Denoised {

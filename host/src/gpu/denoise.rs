@@ -7,7 +7,8 @@ use anyhow::Result;
 use ash::vk;
 use gpu_allocator::MemoryLocation;
 use shared::denoise::{
-    DenoisePush, Guide, History, DENOISE_BGRA, DENOISE_NO_HISTORY, DENOISE_PARITY, DENOISE_STILL, LEVELS,
+    filter_entries, DenoisePush, Guide, History, DENOISE_BGRA, DENOISE_NO_HISTORY, DENOISE_PARITY, DENOISE_STILL,
+    LEVELS,
 };
 use shared::types::TILE_SIDE;
 use std::sync::Arc;
@@ -17,7 +18,8 @@ pub struct GpuDenoiser {
     /// This frame's and the previous frame's [`History`] (halves swapped every frame); only
     /// `set` names it.
     _history: Buffer,
-    /// The a-trous filter's two halves, `[f32; 4]` a pixel; only `set` names it.
+    /// The a-trous filter's two halves and the pixels' surfaces, `[f32; 4]` a pixel; only
+    /// `set` names it.
     _filter: Buffer,
     /// Denoised linear radiance, `[f32; 4]` a pixel.
     pub output: Buffer,
@@ -36,7 +38,7 @@ impl GpuDenoiser {
         let pixels = (width * height) as u64;
         let dev = |name: &str, bytes: u64| Buffer::new(gpu, name, bytes.max(16), MemoryLocation::GpuOnly);
         let history = dev("denoiser history", 2 * pixels * size_of::<History>() as u64)?;
-        let filter = dev("denoiser filter", 2 * pixels * 16)?;
+        let filter = dev("denoiser filter", filter_entries(pixels as u32) as u64 * 16)?;
         let output = dev("denoised image", pixels * 16)?;
         let mut buffers = [&output; BINDINGS];
         buffers[0] = guides;

@@ -401,7 +401,9 @@ impl GpuRenderer {
     /// as accumulated from here on.
     pub fn record(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<()> {
         let still = self.samples > 0;
-        let denoise = self.denoises_next(samples);
+        // A frame without samples has nothing new to filter (its guides are an earlier
+        // frame's): it shows the accumulation.
+        let denoise = samples > 0 && self.denoises_next(samples);
         self.denoised_last = denoise;
         if self.denoise == Denoise::EveryFrame && denoise {
             self.write_motion()?;

@@ -1,6 +1,6 @@
 //! The viewer's input: the key bindings ([`KEYS`]) and what each key does, the flight by
-//! held keys, and the edits and window actions that keys, the mouse and `--script` (parsed
-//! by [`parse_action`]) share ([`Action`]).
+//! held keys, and the edits, camera moves, switches and window actions that keys, the mouse
+//! and `--script` (parsed by [`parse_action`]) share ([`Action`]).
 use super::overlay::on;
 use super::window::App;
 use super::LiveScene;
@@ -29,6 +29,8 @@ Keys and mouse:
   N                  next-event estimation on / off
   B                  BVH on / off (off: brute force, the thesis's comparison)
   V                  vsync on / off
+  L                  denoiser on / off (on: denoised while the image moves, raw once still
+                     past 64 samples per pixel)
   I                  print backend statistics (device, primitives, BVH, stage times, rays/s)
   P                  save a screenshot (PNG) of the converged image
   H                  print these keys      Esc   quit";
@@ -43,8 +45,12 @@ pub(super) enum Action {
     Move(Vec3),
     Rotate(f32),
     Resize(u32, u32),
+    /// Moves the camera along its (right, up, forward) axes.
+    Fly(Vec3),
     Minimize,
     Restore,
+    /// Denoiser on or off.
+    Denoise(bool),
 }
 
 pub(super) fn parse_action(s: &str) -> Result<(u64, Action)> {
@@ -75,11 +81,22 @@ pub(super) fn parse_action(s: &str) -> Result<(u64, Action)> {
         "move" => nums(3).map(|v| Action::Move(Vec3::new(v[0], v[1], v[2])))?,
         "rotate" => nums(1).map(|v| Action::Rotate(v[0]))?,
         "resize" => nums(2).map(|v| Action::Resize(v[0] as u32, v[1] as u32))?,
+        "fly" => nums(3).map(|v| Action::Fly(Vec3::new(v[0], v[1], v[2])))?,
         "minimize" => Action::Minimize,
         "restore" => Action::Restore,
+        "denoise" => Action::Denoise(switch(s, arg)?),
         other => bail!("script step {s:?}: unknown action {other:?}"),
     };
     Ok((frame, a))
+}
+
+/// `on` or `off` in script step `step`.
+fn switch(step: &str, arg: &str) -> Result<bool> {
+    match arg.trim() {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        other => bail!("script step {step:?}: expected on or off, got {other:?}"),
+    }
 }
 
 impl App {
@@ -121,6 +138,7 @@ impl App {
                     println!("vsync {}", on(sc.vsync));
                 }
             }
+            KeyCode::KeyL => self.act(&Action::Denoise(!self.denoise))?,
             KeyCode::KeyI => self.print_statistics()?,
             KeyCode::KeyP => self.screenshot()?,
             KeyCode::KeyF => self.act(&Action::AddSphere)?,
@@ -166,10 +184,16 @@ impl App {
                     let _ = win.request_inner_size(PhysicalSize::new(w, h));
                 }
             }
+            Action::Fly(d) => self.camera.fly(d),
             Action::Minimize => self.resized(PhysicalSize::new(0, 0))?,
             Action::Restore => {
                 let size = self.window.as_ref().map(|w| w.inner_size()).unwrap_or_default();
                 self.resized(size)?
+            }
+            Action::Denoise(d) => {
+                // Applied to the renderer before the next frame (a scene must be loaded).
+                self.denoise = d;
+                println!("denoiser {}", on(d));
             }
         }
         Ok(())
@@ -265,7 +289,8 @@ impl App {
         let path = PathBuf::from(format!("{}-{}.png", self.live.scene.name, self.shots));
         let p = self.renderer.picture()?;
         p.save(&path)?;
-        println!("wrote {} ({} spp)", path.display(), p.samples);
+        let how = if self.denoised_shown() { ", denoised" } else { "" };
+        println!("wrote {} ({} spp{how})", path.display(), p.samples);
         Ok(())
     }
 }
@@ -283,7 +308,21 @@ mod tests {
             parse_action("2:move=1;0;-1").unwrap(),
             (2, Action::Move(Vec3::new(1.0, 0.0, -1.0)))
         );
-        for bad in ["x:add-sphere", "3:fly", "3:remove=1", "3:move=a;b;c", "add-sphere"] {
+        assert_eq!(
+            parse_action("3:fly=0;0;0.5").unwrap(),
+            (3, Action::Fly(Vec3::new(0.0, 0.0, 0.5)))
+        );
+        assert_eq!(parse_action("4:denoise=off").unwrap(), (4, Action::Denoise(false)));
+        assert_eq!(parse_action("5:denoise=on").unwrap(), (5, Action::Denoise(true)));
+        for bad in [
+            "x:add-sphere",
+            "3:fly",
+            "3:remove=1",
+            "3:move=a;b;c",
+            "add-sphere",
+            "3:denoise=maybe",
+            "3:denoise",
+        ] {
             let e = parse_action(bad).unwrap_err().to_string();
             assert!(e.contains(bad), "{bad}: {e}");
         }

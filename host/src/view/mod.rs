@@ -1,7 +1,8 @@
 //! `raytrace view`: a window presented through a Vulkan swapchain. Every frame, on the GPU and
 //! in one submission: transform the objects, rebuild the BVH, trace samples into the float
-//! accumulation image, run the display pass, copy its pixels into the swapchain image. The
-//! scene is live ([`LiveScene`]): it animates, and keys add, move, rotate and remove objects.
+//! accumulation image, run the display pass (or, while the image moves, the denoiser: SVGF,
+//! Schied et al. 2017), copy its pixels into the swapchain image. The scene is live
+//! ([`LiveScene`]): it animates, and keys add, move, rotate and remove objects.
 //!
 //! This file holds the entry point and its options; `window` the event loop and the frame,
 //! `input` the key bindings and the actions they and `--script` take, `overlay` what the
@@ -33,7 +34,8 @@ use winit::event_loop::EventLoop;
 #[command(after_help = KEYS)]
 pub struct ViewArgs {
     /// Scene and settings; here `--spp` stops accumulating at that many samples per pixel
-    /// (default: never) and `--time` is where the animation starts.
+    /// (default: never; the frames after show the accumulation, not denoised) and `--time` is
+    /// where the animation starts.
     #[command(flatten)]
     pub scene: SceneArgs,
     /// Samples per pixel traced each frame.
@@ -48,9 +50,14 @@ pub struct ViewArgs {
     /// With --frames: save the last presented frame (read back from the swapchain) here.
     #[arg(long)]
     pub screenshot: Option<PathBuf>,
+    /// Start with the denoiser off (the L key switches it). By default (and with --denoise)
+    /// every frame is denoised while the image moves, and a still image, once past 64 samples
+    /// per pixel, shows the accumulation itself.
+    #[arg(long, conflicts_with = "denoise")]
+    pub no_denoise: bool,
     /// Actions at given frames, for tests and demos: `FRAME:ACTION,...` with ACTION one of
     /// add-sphere, add-mesh, pick=X;Y, remove=X;Y, move=DX;DY;DZ, rotate=DEG, resize=WxH,
-    /// minimize, restore.
+    /// fly=RIGHT;UP;FORWARD (the camera, world units), minimize, restore, denoise=on|off.
     #[arg(long, value_delimiter = ',')]
     pub script: Vec<String>,
 }
@@ -69,7 +76,11 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
         .map(|s| input::parse_action(s))
         .collect::<Result<Vec<_>>>()?;
     script.sort_by_key(|(f, _)| *f);
-    let prepared = args.scene.prepare()?;
+    // The scene's frame as the viewer starts: with the denoiser's guides unless --no-denoise
+    // (what --explain reports).
+    let mut scene_args = args.scene.clone();
+    scene_args.denoise = !args.no_denoise;
+    let prepared = scene_args.prepare()?;
     let event_loop = EventLoop::new().context("opening the window system (is a display available?)")?;
     let display = event_loop
         .display_handle()

@@ -1,7 +1,9 @@
 //! What the viewer reports besides the picture: the title bar (fps, GPU time per stage,
-//! rays/s and the switches, averaged over half a second) and the backend statistics the `I`
-//! key prints (device, scene, stage times, the BVH checked by the validator, rays/s).
+//! rays/s and the switches, averaged over half a second, and whether the frame shown was
+//! denoised) and the backend statistics the `I` key prints (device, scene, stage times, the
+//! BVH checked by the validator, rays/s, the denoiser).
 use super::window::App;
+use crate::gpu::stage_ms;
 use crate::render::stage_totals;
 use anyhow::Result;
 use std::time::Instant;
@@ -11,14 +13,18 @@ use std::time::Instant;
 pub(super) struct Stats {
     since: Option<Instant>,
     frames: u32,
+    /// Frames that ran the denoiser.
+    denoised: u32,
     stages: Vec<(&'static str, f64)>,
 }
 
 impl App {
     pub(super) fn count_frame(&mut self) -> Result<()> {
+        let denoised = self.denoised_shown();
         let st = &mut self.stats;
         let since = *st.since.get_or_insert_with(Instant::now);
         st.frames += 1;
+        st.denoised += u32::from(denoised);
         for &(label, t) in &stage_totals(&self.last_timings) {
             match st.stages.iter_mut().find(|(l, _)| *l == label) {
                 Some(e) => e.1 += t,
@@ -33,11 +39,17 @@ impl App {
         let gpu: f64 = st.stages.iter().map(|(_, t)| t).sum::<f64>() / n;
         let stage = |name: &str| st.stages.iter().find(|(l, _)| *l == name).map_or(0.0, |(_, t)| t / n);
         let (transform, trace, display) = (stage("transform"), stage("trace"), stage("display"));
-        let build = gpu - transform - trace - display;
+        let denoise = stage("denoise");
+        let build = gpu - transform - trace - display - denoise;
+        // The denoiser's time per frame it ran in.
+        let denoise_ms = match st.denoised {
+            0 => String::new(),
+            d => format!(", denoise {:.2}", denoise * n / d as f64 * 1e3),
+        };
         // Twice a second: one read of the accumulation image's ray counts.
         let rays = self.renderer.rays_per_sample()? * self.traced as f64;
         let title = format!(
-            "raytrace · {} · {:.1} fps · GPU {:.2} ms (transform {:.2}, build {:.2}, trace {:.2}, display {:.2}) · {:.2} Grays/s · {} spp/frame, {} spp · depth {} · NEE {} · BVH {}{}",
+            "raytrace · {} · {:.1} fps · GPU {:.2} ms (transform {:.2}, build {:.2}, trace {:.2}, display {:.2}{denoise_ms}) · {:.2} Grays/s · {} spp/frame, {} spp · depth {} · NEE {} · BVH {} · {}{}",
             self.live.scene.name,
             n / elapsed,
             gpu * 1e3,
@@ -51,6 +63,7 @@ impl App {
             self.live.scene.settings.max_depth,
             on(self.live.scene.settings.nee),
             on(self.live.bvh),
+            self.denoise_state(),
             if self.paused { " · paused" } else { "" },
         );
         if let Some(w) = &self.window {
@@ -84,7 +97,12 @@ impl App {
             Ok(s) => println!("BVH valid: {s:?}"),
             Err(e) => println!("BVH INVALID: {e}"),
         }
-        let trace_ms = crate::gpu::stage_ms(&self.last_timings, "trace");
+        println!(
+            "denoiser {}: the last frame is {}",
+            on(self.denoise),
+            self.denoise_state()
+        );
+        let trace_ms = stage_ms(&self.last_timings, "trace");
         let rays = self.renderer.rays_per_sample()? * self.traced as f64;
         println!(
             "last frame: {:.0} rays in {trace_ms:.3} ms of tracing = {:.2} Grays/s",
@@ -92,6 +110,22 @@ impl App {
             rays / trace_ms.max(1e-6) * 1e-6
         );
         Ok(())
+    }
+
+    /// Whether the frame shown last was denoised (its submission ran the denoiser).
+    pub(super) fn denoised_shown(&self) -> bool {
+        self.last_timings.iter().any(|(l, _)| *l == "denoise")
+    }
+
+    /// What the frame shown last is: denoised, or the raw accumulation and why.
+    fn denoise_state(&self) -> &'static str {
+        if self.denoised_shown() {
+            "denoised"
+        } else if !self.denoise {
+            "raw (denoiser off)"
+        } else {
+            "raw (a still image past the denoiser's samples)"
+        }
     }
 }
 

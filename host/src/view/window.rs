@@ -1,11 +1,12 @@
 //! The viewer's window and event loop (winit): opening the window and its swapchain,
 //! dispatching window and device events, and each frame's work: scripted actions, the
-//! camera's flight, then record, submit, present and wait (see ARCHITECTURE.md, "The viewer").
+//! camera's flight, the denoiser's switch, then record, submit, present and wait (see
+//! ARCHITECTURE.md, "The viewer").
 use super::input::Action;
 use super::overlay::Stats;
 use super::LiveScene;
 use super::{FlyCamera, ViewArgs};
-use crate::gpu::{frame_timings, Buffer, Commands, Gpu, GpuRenderer, Swapchain};
+use crate::gpu::{frame_timings, Buffer, Commands, Denoise, Gpu, GpuRenderer, Swapchain};
 use crate::picture::{swap_red_blue, Picture};
 use anyhow::{anyhow, bail, Context, Result};
 use gpu_allocator::MemoryLocation;
@@ -38,6 +39,9 @@ pub(super) struct App {
     pub(super) cursor: (f64, f64),
     pub(super) paused: bool,
     pub(super) spf: u32,
+    /// Denoise every frame while the image moves ([`Denoise::EveryFrame`]), else show the
+    /// accumulation ([`Denoise::Off`]).
+    pub(super) denoise: bool,
     /// Frames begun (presented or not).
     pub(super) tick: u64,
     pub(super) last: Instant,
@@ -140,6 +144,7 @@ impl App {
         let camera = FlyCamera::new(live.scene.camera);
         Ok(App {
             spf: args.spf,
+            denoise: !args.no_denoise,
             args,
             script,
             cmds: Commands::new(&gpu)?,
@@ -306,6 +311,12 @@ impl App {
             Some(cap) => self.spf.min(cap.saturating_sub(self.renderer.samples())),
             None => self.spf,
         };
+        // (A frame that traces nothing, --spp reached, shows the accumulation: `record`.)
+        self.renderer.set_denoise(if self.denoise {
+            Denoise::EveryFrame
+        } else {
+            Denoise::Off
+        })?;
         self.cmds.begin()?;
         self.renderer.record(&mut self.cmds, samples, true)?;
         self.traced = samples;
