@@ -213,9 +213,9 @@ fn a_still_denoised_viewer_converges_to_the_headless_render() {
     let test = "a_still_denoised_viewer_converges_to_the_headless_render";
     let dir = temp(test);
     let shot = dir.join("shot.png");
-    // The denoiser is on by default. 5 frames of 16 samples: the first four (16 to 64
-    // samples per pixel) are denoised, the fifth (80) shows the accumulation itself, which
-    // the denoiser has left as the path tracer made it.
+    // The denoiser is on by default. 7 frames of 16 samples: the first six (16 to 96
+    // samples per pixel) are denoised, the seventh (112) shows the accumulation itself,
+    // which the denoiser has left as the path tracer made it.
     let args = [
         "--validation",
         "view",
@@ -225,7 +225,7 @@ fn a_still_denoised_viewer_converges_to_the_headless_render() {
         "--spf",
         "16",
         "--frames",
-        "5",
+        "7",
         "--screenshot",
         shot.to_str().unwrap(),
     ];
@@ -233,7 +233,7 @@ fn a_still_denoised_viewer_converges_to_the_headless_render() {
         return;
     };
     check(test, &o);
-    assert_equals_render(&shot, &dir, 80);
+    assert_equals_render(&shot, &dir, 112);
 }
 
 #[test]

@@ -366,7 +366,29 @@ pub fn temporal(
         object: g.object,
         _pad: [0; 3],
     };
-    if g.object != INVALID && p.flags & DENOISE_NO_HISTORY == 0 {
+    if p.flags & (DENOISE_STILL | DENOISE_NO_HISTORY) == DENOISE_STILL {
+        // Nothing moved: the pixel's own history, whatever its first sample hit this time
+        // (at an edge the jittered first hit changes from frame to frame, and the pixel's
+        // mean is the mixture).
+        let t = *at(history, prev + i);
+        let len = (t.len + 1.0).min(MAX_LEN);
+        let a = 1.0 / len;
+        let mix = |old: f32, new: f32| old * (1.0 - a) + new * a;
+        h.illum = [
+            mix(t.illum[0], illum.x),
+            mix(t.illum[1], illum.y),
+            mix(t.illum[2], illum.z),
+        ];
+        h.emission = [
+            mix(t.emission[0], emission.x),
+            mix(t.emission[1], emission.y),
+            mix(t.emission[2], emission.z),
+        ];
+        h.m1 = mix(t.m1, l);
+        h.m2 = mix(t.m2, l * l);
+        h.w2 = (1.0 - a) * (1.0 - a) * t.w2 + a * a;
+        h.len = len;
+    } else if g.object != INVALID && p.flags & DENOISE_NO_HISTORY == 0 {
         let (px, py) = (g.prev_x - 0.5, g.prev_y - 0.5);
         let (x0, y0) = (floor(px), floor(py));
         let (fx, fy) = (px - x0, py - y0);
@@ -400,11 +422,7 @@ pub fn temporal(
         if wsum > 0.01 {
             let r = 1.0 / wsum;
             let len = (sum.len * r + 1.0).min(MAX_LEN);
-            let a = if p.flags & DENOISE_STILL != 0 {
-                1.0 / len
-            } else {
-                (1.0 / len).max(ALPHA)
-            };
+            let a = (1.0 / len).max(ALPHA);
             let mix = |old: f32, new: f32| old * r * (1.0 - a) + new * a;
             h.illum = [
                 mix(sum.illum[0], illum.x),
@@ -494,7 +512,7 @@ pub fn atrous(i: u32, p: &DenoisePush, f: &Frame, history: &mut [History], filte
     if i >= n {
         return;
     }
-    let (src, dst) = if p.level % 2 == 0 { (0, n) } else { (n, 0) };
+    let (src, dst) = if p.level.is_multiple_of(2) { (0, n) } else { (n, 0) };
     let centre = *at(filter, src + i);
     let c = Tap::unpack(centre);
     if c.object == NO_OBJECT {
@@ -615,14 +633,11 @@ pub fn finish(
         return;
     }
     let g = *at(guides, i);
-    let c = if g.object == INVALID {
-        sanitize((Vec3::from(g.color) + Vec3::from(g.emission)) / p.samples.max(1) as f32)
-    } else {
-        let (cur, _) = halves(n, p.flags);
-        // LEVELS is odd: the last level wrote the second half.
-        let filtered = Tap::unpack(*at(filter, (LEVELS % 2) * n + i)).illum;
-        sanitize(filtered * demodulation(g.albedo) + Vec3::from(at(history, cur + i).emission))
-    };
+    let (cur, _) = halves(n, p.flags);
+    // LEVELS is odd: the last level wrote the second half. (A pixel without a surface was
+    // passed through: its temporal estimate, albedo 1.)
+    let filtered = Tap::unpack(*at(filter, (LEVELS % 2) * n + i)).illum;
+    let c = sanitize(filtered * demodulation(g.albedo) + Vec3::from(at(history, cur + i).emission));
     *at_mut(output, i) = [c.x, c.y, c.z, 1.0];
     *at_mut(image, i) = display::pack(c, f, p.flags & DENOISE_BGRA != 0);
 }

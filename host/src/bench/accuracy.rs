@@ -17,10 +17,11 @@ use crate::cli::{Prepared, SceneArgs};
 use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
 use crate::inputs::hard_cases::{closed_meshes, rays_at_vertices_and_edges, scene_of, OFFSETS};
 use crate::picture::Picture;
+use crate::scene::SceneGpu;
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use shared::types::{
-    Frame, Node, Ray, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, VARIANT_MOLLER_TRUMBORE,
+    Frame, Node, Object, Ray, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, VARIANT_MOLLER_TRUMBORE,
     VARIANT_PLAIN_SLAB,
 };
 use shared::wide::WideNode;
@@ -204,15 +205,31 @@ fn build_ms(t: &[(&'static str, f64)]) -> f64 {
 /// The reference image: `spp` samples with NEE and MIS (unbiased, as every configuration
 /// measured) and an independent seed, from `cache` when rendered before with the same frame.
 fn reference(r: &mut GpuRenderer, p: &Prepared, spp: u32, cache: &Path) -> Result<(Vec<[f32; 3]>, PathBuf)> {
-    let mut f = with_flags(&p.frame, FLAG_NEE | FLAG_MIS | FLAG_RUSSIAN_ROULETTE | FLAG_BVH, 0);
+    cached_reference(r, &p.data, &p.data.objects, &p.frame, &p.scene.name, spp, cache)
+}
+
+/// The reference image of `frame` over `data` with its objects placed by `objects`: `spp`
+/// samples with NEE and MIS and an independent seed, rendered by `r` (which it loads) or read
+/// from `cache`, where it is kept as EXR named by the scene `name`, the size, `spp` and a hash
+/// of the frame and scene data.
+pub(crate) fn cached_reference(
+    r: &mut GpuRenderer,
+    data: &SceneGpu,
+    objects: &[Object],
+    frame: &Frame,
+    name: &str,
+    spp: u32,
+    cache: &Path,
+) -> Result<(Vec<[f32; 3]>, PathBuf)> {
+    let mut f = with_flags(frame, FLAG_NEE | FLAG_MIS | FLAG_RUSSIAN_ROULETTE | FLAG_BVH, 0);
     f.seed ^= 0x9e37_79b9;
     let key = fnv1a(bytemuck::bytes_of(&f))
-        ^ fnv1a(bytemuck::cast_slice(&p.data.model_tris))
-        ^ fnv1a(bytemuck::cast_slice(&p.data.materials))
-        ^ fnv1a(bytemuck::cast_slice(&p.data.objects));
+        ^ fnv1a(bytemuck::cast_slice(&data.model_tris))
+        ^ fnv1a(bytemuck::cast_slice(&data.materials))
+        ^ fnv1a(bytemuck::cast_slice(objects));
     let path = cache.join(format!(
         "reference-{}-{}x{}-{spp}spp-{key:016x}.exr",
-        crate::bench::slug(&p.scene.name),
+        crate::bench::slug(name),
         f.width,
         f.height
     ));
@@ -226,7 +243,10 @@ fn reference(r: &mut GpuRenderer, p: &Prepared, spp: u32, cache: &Path) -> Resul
         }
     }
     eprintln!("rendering the reference ({spp} spp) to {}", path.display());
-    r.load(&p.data, &f)?;
+    r.load(data, &f)?;
+    if objects != data.objects.as_slice() {
+        r.set_objects(objects)?;
+    }
     let mut done = 0;
     while done < spp {
         let n = (spp - done).min(256);

@@ -2,10 +2,12 @@
 //! the animation advances 1/60 s, the objects' transforms are uploaded, and one submission
 //! transforms every primitive, rebuilds the whole BVH, traces the frame's samples into a
 //! fresh accumulation image (the scene moved) and runs the display pass. Reports frame-time
-//! percentiles from GPU timestamps and from the host's clock.
+//! percentiles from GPU timestamps and from the host's clock. Each scene runs again with the
+//! real-time denoiser (SVGF, Schied et al. 2017: `Denoise::EveryFrame`) in place of the
+//! display pass, every frame denoised: its frame time, and the denoiser's own.
 use crate::bench::percentile;
 use crate::cli::SceneArgs;
-use crate::gpu::{frame_timings, Commands, Gpu, GpuRenderer, Kernels};
+use crate::gpu::{frame_timings, Commands, Denoise, Gpu, GpuRenderer, Kernels};
 use crate::view::LiveScene;
 use anyhow::{bail, Context, Result};
 use std::fmt::Write;
@@ -54,6 +56,22 @@ pub struct Row {
     pub fps: f64,
     /// Rays traced per frame (primary, bounce and shadow rays).
     pub rays_per_frame: f64,
+    /// The same frames with the real-time denoiser on (absent with `--no-denoise`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub denoised: Option<DenoisedRow>,
+}
+
+/// A scene's frames with every frame denoised ([`Denoise::EveryFrame`]).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DenoisedRow {
+    /// GPU time of a whole frame (transform, rebuild, trace, denoise), ms.
+    pub gpu_ms: Percentiles,
+    /// Path tracing (with the denoiser's guides written), ms.
+    pub trace_ms: Percentiles,
+    /// The denoiser's passes (they replace the display pass), ms.
+    pub denoise_ms: Percentiles,
+    /// Frames per second at the median GPU frame time.
+    pub fps: f64,
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -96,6 +114,9 @@ pub struct Options {
     /// Which BVH every frame builds and traces (see `raytrace render --help`).
     #[arg(long, value_enum, default_value = "binary")]
     pub bvh: crate::bvh::Layout,
+    /// Skip the second run of every scene with the real-time denoiser.
+    #[arg(long)]
+    pub no_denoise: bool,
 }
 
 /// Runs every scene of `o` and returns the report.
@@ -136,9 +157,22 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
     })
 }
 
-fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options, nee: bool) -> Result<Row> {
+/// GPU milliseconds of every timed frame: the whole frame, its transform and rebuild, its
+/// trace and its denoising (0 where it was not denoised), and the host's wall time.
+#[derive(Default)]
+struct Timed {
+    total: Vec<f64>,
+    build: Vec<f64>,
+    trace: Vec<f64>,
+    denoise: Vec<f64>,
+    wall: Vec<f64>,
+}
+
+/// Runs `o.warmup + o.frames` frames (the animation advancing 1/60 s a frame from time 0),
+/// timing the last `o.frames`; returns the times and the rays of the last frame.
+fn frames(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options) -> Result<(Timed, f64)> {
     let mut cmds = Commands::new(gpu)?;
-    let (mut total, mut build, mut trace, mut wall) = (vec![], vec![], vec![], vec![]);
+    let mut timed = Timed::default();
     let mut rays = 0.0;
     for i in 0..o.warmup + o.frames {
         let start = Instant::now();
@@ -153,16 +187,44 @@ fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Opti
             continue;
         }
         let sum = |f: &dyn Fn(&str) -> bool| t.iter().filter(|(l, _)| f(l)).map(|(_, s)| s * 1e3).sum::<f64>();
-        total.push(sum(&|_| true));
-        trace.push(sum(&|l| l == "trace"));
-        build.push(sum(&|l| l != "trace" && l != "display"));
-        wall.push(elapsed * 1e3);
+        timed.total.push(sum(&|_| true));
+        timed.trace.push(sum(&|l| l == "trace"));
+        timed.denoise.push(sum(&|l| l == "denoise"));
+        timed
+            .build
+            .push(sum(&|l| l != "trace" && l != "display" && l != "denoise"));
+        timed.wall.push(elapsed * 1e3);
         if i + 1 == o.warmup + o.frames {
             rays = r.rays_per_sample()? * o.spf as f64;
         }
     }
+    Ok((timed, rays))
+}
+
+fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options, nee: bool) -> Result<Row> {
+    let (plain, rays) = frames(gpu, r, live, o)?;
+    let denoised = if o.no_denoise {
+        None
+    } else {
+        // Every frame denoised, a still scene's too (it would show its accumulation from
+        // 96 samples per pixel on).
+        r.set_denoise(Denoise::EveryFrame)?;
+        r.set_denoise_until(u32::MAX);
+        let (d, _) = frames(gpu, r, live, o)?;
+        r.set_denoise(Denoise::Off)?;
+        if d.denoise.iter().any(|&ms| ms <= 0.0) {
+            bail!("a frame was not denoised");
+        }
+        let gpu_ms = Percentiles::of(d.total);
+        Some(DenoisedRow {
+            fps: 1e3 / gpu_ms.p50,
+            gpu_ms,
+            trace_ms: Percentiles::of(d.trace),
+            denoise_ms: Percentiles::of(d.denoise),
+        })
+    };
     let (tris, spheres) = live.scene.counts();
-    let gpu_ms = Percentiles::of(total);
+    let gpu_ms = Percentiles::of(plain.total);
     Ok(Row {
         scene: live.scene.name.clone(),
         triangles: tris,
@@ -176,16 +238,21 @@ fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Opti
         },
         fps: 1e3 / gpu_ms.p50,
         gpu_ms,
-        build_ms: Percentiles::of(build),
-        trace_ms: Percentiles::of(trace),
-        wall_ms: Percentiles::of(wall),
+        build_ms: Percentiles::of(plain.build),
+        trace_ms: Percentiles::of(plain.trace),
+        wall_ms: Percentiles::of(plain.wall),
         rays_per_frame: rays,
+        denoised,
     })
 }
 
 fn row_line(r: &Row) -> String {
+    let denoised = r.denoised.as_ref().map_or_else(
+        || "- | - | -".to_string(),
+        |d| format!("{:.3} | {:.1} | {:.3}", d.gpu_ms.p50, d.fps, d.denoise_ms.p50),
+    );
     format!(
-        "| {} | {} | {} | {} | {:?} | {:.3} / {:.3} / {:.3} | {:.1} | {:.3} | {:.3} | {:.3} / {:.3} | {:.2} |",
+        "| {} | {} | {} | {} | {:?} | {:.3} / {:.3} / {:.3} | {:.1} | {:.3} | {:.3} | {:.3} / {:.3} | {:.2} | {denoised} |",
         r.scene,
         r.triangles + r.spheres,
         if r.animated { "yes" } else { "no" },
@@ -215,13 +282,16 @@ pub fn markdown(r: &Report) -> String {
         "Every frame: objects' transforms uploaded (animation advancing 1/60 s), transform of every \
          primitive, full BVH rebuild, path tracing into a fresh accumulation image, display pass; one \
          submission, waited for. GPU times from timestamp queries; wall time is the host's clock around \
-         upload, submission and wait.\n"
+         upload, submission and wait. Denoised: the same frames again with the real-time denoiser \
+         (SVGF) in place of the display pass, every frame denoised (a still scene's too, past the \
+         96 samples per pixel from which the viewer shows its accumulation instead); its GPU frame \
+         time, fps, and the denoiser's passes alone.\n"
     );
     let _ = writeln!(
         s,
-        "| scene | primitives | animated | NEE | BVH | GPU frame p50 / p90 / p99 ms | fps (p50) | rebuild p50 ms | trace p50 ms | wall p50 / p99 ms | Grays/s (trace) |"
+        "| scene | primitives | animated | NEE | BVH | GPU frame p50 / p90 / p99 ms | fps (p50) | rebuild p50 ms | trace p50 ms | wall p50 / p99 ms | Grays/s (trace) | denoised: GPU frame p50 ms | denoised: fps (p50) | denoise p50 ms |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for row in &r.rows {
         let _ = writeln!(s, "{}", row_line(row));
     }

@@ -82,6 +82,17 @@ pub(super) enum Bench {
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
+    /// The real-time denoiser's error against time: along a camera path of animated frames,
+    /// relative MSE against per-frame references of raw 1 spp, denoised 1 spp and raw N spp,
+    /// with GPU times at 1920x1080; a still view's frame-to-frame change (flicker) and the
+    /// accumulated spp from which the raw accumulation beats the denoised image. Markdown,
+    /// JSON and PNG plots.
+    Denoise {
+        #[command(flatten)]
+        options: bench::denoise::Options,
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
     /// BVH build: per-stage GPU time, throughput, memory, CPU executor time.
     Build {
         /// Timed runs per input (after warm-up).
@@ -161,6 +172,16 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
             let plots = bench::accuracy::plots(&r, &out, &stem)?;
             let md = bench::write_files(&out, &stem, &bench::accuracy::markdown(&r, &plots), &r)?;
             println!("{}", bench::accuracy::markdown(&r, &plots));
+            println!("wrote {} and {} plots", md.display(), plots.len());
+        }
+        Bench::Denoise { options, out } => {
+            let gpu = Gpu::new(opts)?;
+            let r = bench::denoise::run(&gpu, &options)?;
+            let stem = bench::denoise::stem(&r, &gpu.name);
+            let plots = bench::denoise::plots(&r, &out, &stem)?;
+            let markdown = bench::denoise::markdown(&r, &plots);
+            let md = bench::write_files(&out, &stem, &markdown, &r)?;
+            println!("{markdown}");
             println!("wrote {} and {} plots", md.display(), plots.len());
         }
         Bench::Table2 {

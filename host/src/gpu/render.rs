@@ -16,10 +16,11 @@ use shared::types::{
 };
 use std::sync::Arc;
 
-/// Samples per pixel of a still image from which the real-time denoiser stops: the
-/// accumulation's error is then below the denoised image's (`bench accuracy`'s denoiser
-/// section).
-pub const DENOISE_UNTIL: u32 = 64;
+/// Samples per pixel of a still image from which the real-time denoiser stops and the
+/// accumulation is shown: `bench denoise` measured the raw accumulation's error below the
+/// denoised image's from 96 (instances), 135 (bunny) and 213 (Cornell box) samples per
+/// pixel on (H100, 2026-11-25): the least of them.
+pub const DENOISE_UNTIL: u32 = 96;
 
 /// Samples per pixel one path-tracing dispatch adds at most. Lanes run their samples back to
 /// back (`path::pixel_samples`), so longer runs leave less idle tail per dispatch: 32
@@ -137,6 +138,8 @@ pub struct GpuRenderer {
     denoise_until: u32,
     /// Whether the last frame recorded was denoised.
     denoised_last: bool,
+    /// Times the accumulation restarted since the denoiser began (see [`Self::write_motion`]).
+    restarts: u32,
     /// The camera and objects of the last frame recorded (the denoiser's motion).
     shown: Option<(Camera, Vec<Object>)>,
 }
@@ -159,6 +162,7 @@ impl GpuRenderer {
             denoise: Denoise::Off,
             denoise_until: DENOISE_UNTIL,
             denoised_last: false,
+            restarts: 0,
             shown: None,
         })
     }
@@ -204,6 +208,7 @@ impl GpuRenderer {
     fn make_denoiser(&mut self) -> Result<()> {
         self.denoiser = None;
         self.shown = None;
+        self.restarts = 0;
         let b = self.bufs.as_mut().context("no scene loaded")?;
         let (w, h) = (self.frame.width, self.frame.height);
         let bytes = guide_bytes((w * h) as u64);
@@ -406,7 +411,7 @@ impl GpuRenderer {
         let denoise = samples > 0 && self.denoises_next(samples);
         self.denoised_last = denoise;
         if self.denoise == Denoise::EveryFrame && denoise {
-            self.write_motion()?;
+            self.write_motion(still)?;
         }
         // Guides sum this frame's samples, or every sample since the last change.
         let guides_from = match self.denoise {
@@ -478,8 +483,15 @@ impl GpuRenderer {
 
     /// Writes the previous frame's camera and object transforms where the path tracer's
     /// motion vectors read them (`Frame::prev_camera`, the second half of the objects), and
-    /// remembers this frame's for the next.
-    fn write_motion(&mut self) -> Result<()> {
+    /// remembers this frame's for the next. Every restart of the accumulation (a frame that
+    /// is not `still`) after the first changes the seed: otherwise each moving frame
+    /// would trace its pixels with the same random numbers (sample 0 of the same seed), and
+    /// the denoiser's temporal history would average the same noise. A still image that was
+    /// never moved keeps the scene's seed, so it accumulates what `render` does.
+    fn write_motion(&mut self, still: bool) -> Result<()> {
+        if !still && self.shown.is_some() {
+            self.restarts = self.restarts.wrapping_add(1);
+        }
         let b = self.bufs.as_mut().context("no scene loaded")?;
         let (camera, objects) = self
             .shown
@@ -488,6 +500,9 @@ impl GpuRenderer {
         let mut f = self.frame;
         f.prev_camera = camera;
         f.prev_objects = self.objects.len() as u32;
+        // Mixed (as `bench denoise`'s "seed per frame"): consecutive seeds would be streams
+        // of neighbouring pixels.
+        f.seed ^= 0x5bd1_e995u32.wrapping_mul(self.restarts);
         b.frame.write(std::slice::from_ref(&f))?;
         b.objects
             .write(&[self.objects.as_slice(), objects.as_slice()].concat())?;

@@ -30,7 +30,7 @@ Keys and mouse:
   B                  BVH on / off (off: brute force, the thesis's comparison)
   V                  vsync on / off
   L                  denoiser on / off (on: denoised while the image moves, raw once still
-                     past 64 samples per pixel)
+                     past 96 samples per pixel)
   I                  print backend statistics (device, primitives, BVH, stage times, rays/s)
   P                  save a screenshot (PNG) of the converged image
   H                  print these keys      Esc   quit";

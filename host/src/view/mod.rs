@@ -51,7 +51,7 @@ pub struct ViewArgs {
     #[arg(long)]
     pub screenshot: Option<PathBuf>,
     /// Start with the denoiser off (the L key switches it). By default (and with --denoise)
-    /// every frame is denoised while the image moves, and a still image, once past 64 samples
+    /// every frame is denoised while the image moves, and a still image, once past 96 samples
     /// per pixel, shows the accumulation itself.
     #[arg(long, conflicts_with = "denoise")]
     pub no_denoise: bool,
