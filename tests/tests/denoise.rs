@@ -320,6 +320,8 @@ fn gpu_guides_and_denoised_images_equal_the_cpu() {
     let gpu_guides = r.guides().expect("guides");
     let mut f = frame;
     f.prev_objects = data.objects.len() as u32;
+    // The renderer changed the seed when the accumulation restarted.
+    f.seed = r.traced_seed();
     let scene = SceneGpu {
         objects: away.clone(),
         ..data.clone()

@@ -189,6 +189,14 @@ impl GpuRenderer {
         self.denoise
     }
 
+    /// The seed of the random streams the frames trace with now: the frame's, changed at
+    /// every restart of the accumulation while denoising every frame (see
+    /// [`Self::write_motion`]). The restart count is mixed in (as `bench denoise`'s "seed per
+    /// frame"): consecutive seeds would be the streams of neighbouring pixels.
+    pub fn traced_seed(&self) -> u32 {
+        self.frame.seed ^ 0x5bd1_e995u32.wrapping_mul(self.restarts)
+    }
+
     /// Samples per pixel of a still image from which [`Denoise::EveryFrame`] shows the
     /// accumulation unfiltered (`u32::MAX`: never).
     pub fn set_denoise_until(&mut self, samples: u32) {
@@ -492,6 +500,7 @@ impl GpuRenderer {
         if !still && self.shown.is_some() {
             self.restarts = self.restarts.wrapping_add(1);
         }
+        let seed = self.traced_seed();
         let b = self.bufs.as_mut().context("no scene loaded")?;
         let (camera, objects) = self
             .shown
@@ -500,9 +509,7 @@ impl GpuRenderer {
         let mut f = self.frame;
         f.prev_camera = camera;
         f.prev_objects = self.objects.len() as u32;
-        // Mixed (as `bench denoise`'s "seed per frame"): consecutive seeds would be streams
-        // of neighbouring pixels.
-        f.seed ^= 0x5bd1_e995u32.wrapping_mul(self.restarts);
+        f.seed = seed;
         b.frame.write(std::slice::from_ref(&f))?;
         b.objects
             .write(&[self.objects.as_slice(), objects.as_slice()].concat())?;
