@@ -77,31 +77,28 @@ fn png(path: &Path) -> RgbImage {
 
 #[test]
 fn presented_frames_equal_a_headless_render_of_the_same_samples() {
-    let test = "presented_frames_equal_a_headless_render_of_the_same_samples";
-    let dir = temp(test);
-    let shot = dir.join("shot.png");
-    let shot_s = shot.to_str().unwrap();
     // 8 frames of 2 samples each: 16 samples per pixel, accumulated while nothing moves, shown
     // without the denoiser.
-    let args = [
-        "--validation",
-        "view",
-        "cornell",
-        "--size",
-        "64x48",
-        "--spf",
-        "2",
-        "--frames",
-        "8",
-        "--no-denoise",
-        "--screenshot",
-        shot_s,
-    ];
+    assert_viewer_shows_render(
+        "presented_frames_equal_a_headless_render_of_the_same_samples",
+        &["--spf", "2", "--frames", "8", "--no-denoise"],
+        16,
+    );
+}
+
+/// Runs the viewer on the Cornell box at 64x48 with `view_args`, and asserts that its last
+/// presented frame equals `raytrace render cornell` of `spp` samples per pixel.
+fn assert_viewer_shows_render(test: &str, view_args: &[&str], spp: u32) {
+    let dir = temp(test);
+    let shot = dir.join("shot.png");
+    let mut args = vec!["--validation", "view", "cornell", "--size", "64x48"];
+    args.extend_from_slice(view_args);
+    args.extend(["--screenshot", shot.to_str().unwrap()]);
     let Some(o) = run_windowed(test, &args) else {
         return;
     };
     check(test, &o);
-    assert_equals_render(&shot, &dir, 16);
+    assert_equals_render(&shot, &dir, spp);
 }
 
 /// Asserts that the screenshot `shot` equals `raytrace render cornell` at 64x48 and `spp`
@@ -210,59 +207,25 @@ fn objects_are_added_picked_moved_and_removed_in_the_window() {
 
 #[test]
 fn a_still_denoised_viewer_converges_to_the_headless_render() {
-    let test = "a_still_denoised_viewer_converges_to_the_headless_render";
-    let dir = temp(test);
-    let shot = dir.join("shot.png");
     // The denoiser is on by default. 7 frames of 16 samples: the first six (16 to 96
     // samples per pixel) are denoised, the seventh (112) shows the accumulation itself,
     // which the denoiser has left as the path tracer made it.
-    let args = [
-        "--validation",
-        "view",
-        "cornell",
-        "--size",
-        "64x48",
-        "--spf",
-        "16",
-        "--frames",
-        "7",
-        "--screenshot",
-        shot.to_str().unwrap(),
-    ];
-    let Some(o) = run_windowed(test, &args) else {
-        return;
-    };
-    check(test, &o);
-    assert_equals_render(&shot, &dir, 112);
+    assert_viewer_shows_render(
+        "a_still_denoised_viewer_converges_to_the_headless_render",
+        &["--spf", "16", "--frames", "7"],
+        112,
+    );
 }
 
 #[test]
 fn a_denoised_viewer_past_its_spp_cap_shows_the_accumulation() {
-    let test = "a_denoised_viewer_past_its_spp_cap_shows_the_accumulation";
-    let dir = temp(test);
-    let shot = dir.join("shot.png");
     // --spp 16 in one frame of 16 samples: that frame is denoised; the two after trace
     // nothing and show the accumulation (the denoiser never filters a frame's guides twice).
-    let args = [
-        "--validation",
-        "view",
-        "cornell",
-        "--size",
-        "64x48",
-        "--spf",
-        "16",
-        "--spp",
-        "16",
-        "--frames",
-        "3",
-        "--screenshot",
-        shot.to_str().unwrap(),
-    ];
-    let Some(o) = run_windowed(test, &args) else {
-        return;
-    };
-    check(test, &o);
-    assert_equals_render(&shot, &dir, 16);
+    assert_viewer_shows_render(
+        "a_denoised_viewer_past_its_spp_cap_shows_the_accumulation",
+        &["--spf", "16", "--spp", "16", "--frames", "3"],
+        16,
+    );
 }
 
 #[test]

@@ -349,3 +349,47 @@ fn gpu_guides_and_denoised_images_equal_the_cpu() {
     );
     assert_no_validation_errors(&gpu);
 }
+
+#[test]
+fn a_removed_object_leaves_no_trace_in_the_next_denoised_frame() {
+    let test = "a_removed_object_leaves_no_trace_in_the_next_denoised_frame";
+    let Some(gpu) = integration_tests::gpu(test) else {
+        return;
+    };
+    let kernels = std::sync::Arc::new(raytrace::gpu::Kernels::new(&gpu).expect("kernels"));
+    let mut scene = Scene::builtin("cornell").expect("cornell");
+    (scene.settings.width, scene.settings.height) = (32, 32);
+    let target = scene.camera.look_at;
+    let mut live = raytrace::view::LiveScene::new(scene);
+    let mut r = raytrace::gpu::GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    r.set_denoise(Denoise::EveryFrame).expect("denoise");
+    let frame = |live: &mut raytrace::view::LiveScene, r: &mut raytrace::gpu::GpuRenderer| {
+        live.sync(r).expect("sync");
+        r.render(1, true).expect("render");
+        r.picture().expect("picture")
+    };
+    frame(&mut live, &mut r);
+    // A sphere in the middle of the view for four denoised frames, moving, then removed.
+    let sphere = live.add_sphere(target, 0.25 * target.length().max(1.0));
+    for k in 0..4 {
+        frame(&mut live, &mut r);
+        live.translate(sphere, Vec3::new(0.01 * k as f32, 0.0, 0.0))
+            .expect("move");
+    }
+    live.remove(sphere).expect("remove");
+    let after = frame(&mut live, &mut r);
+    // The same scene loaded by a renderer that never saw the sphere.
+    let mut fresh = raytrace::gpu::GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    fresh.set_denoise(Denoise::EveryFrame).expect("denoise");
+    fresh
+        .load(&live.scene.gpu_data(live.time), &live.frame())
+        .expect("load");
+    fresh.render(1, true).expect("render");
+    let clean = fresh.picture().expect("picture");
+    assert_eq!(
+        after.accum, clean.accum,
+        "the removed sphere left a trace in the denoised frame"
+    );
+    assert_eq!(after.display, clean.display);
+    assert_no_validation_errors(&gpu);
+}

@@ -177,7 +177,8 @@ impl GpuRenderer {
             // Its guides sum every sample since the last change: start afresh.
             self.samples = 0;
         }
-        if mode == Denoise::Off {
+        if mode == Denoise::Off || self.bufs.is_none() {
+            // (Without a scene yet, `load` makes the denoiser.)
             self.denoiser = None;
             return Ok(());
         }
@@ -338,7 +339,7 @@ impl GpuRenderer {
         }
         self.lbvh.reserve(scene.model_tris.len(), scene.model_spheres.len())?;
         self.set_frame(frame)?;
-        if self.denoiser.is_some() {
+        if self.denoise != Denoise::Off {
             self.make_denoiser()?;
         }
         Ok(())
