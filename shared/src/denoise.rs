@@ -18,16 +18,17 @@
 //!    independent frames); from a 7x7 neighbourhood where the history is shorter than 4
 //!    frames.
 //! 3. [`atrous`], five times: the edge-avoiding a-trous wavelet filter (Dammertz et al.
-//!    2010) with the B3-spline 5x5 kernel at steps 1, 2, 4, 8, 16, each tap weighted by its
-//!    object (another object never blends in), normal (`max(0, n.n')^128`), distance to
-//!    the centre's tangent plane (relative to the tap's footprint) and luminance (relative
-//!    to the centre's prefiltered standard deviation); variances carried as `sum w^2 var /
-//!    (sum w)^2`. The first level's output becomes the history (SVGF's feedback) while the
-//!    image moves.
+//!    2010) at steps 1, 2, 4, 8, 16 with a 3x3 kernel ([`RADIUS`]; SVGF's 5x5 B3 spline
+//!    measured the same error in 1.5 times the time on the H100), each tap weighted by its
+//!    object (another object never blends in), normal (`max(0, n.n')^128`), distance from
+//!    the centre's tangent plane (predicted linearly, relative to the tap's footprint) and
+//!    luminance (relative to the centre's standard deviation, prefiltered on the first
+//!    level); variances carried as `sum w^2 var / (sum w)^2`. The first level's output
+//!    becomes the history (SVGF's feedback) while the image moves.
 //! 4. [`finish`]: remodulation by the albedo, the first hit's emission added back, and the
 //!    display encoding.
 //!
-//! Pixels whose first sample left the scene are passed through unfiltered. Non-finite
+//! Pixels whose first sample left the scene are passed through the spatial filter. Non-finite
 //! radiance never enters the history or the filter (it counts as black).
 use crate::display;
 use crate::math::{exp, finite3, floor, pack_half2, sqrt, unpack_half2};
