@@ -582,7 +582,7 @@ pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32;
     let guides = w.scene.features & FEATURE_GUIDES != 0;
     // Only the first sample's first hit is kept in the loop; its guide is made after it.
     let mut first = Hit::MISS;
-    let (mut color, mut emission) = (Vec3::ZERO, Vec3::ZERO);
+    let mut emission = Vec3::ZERO;
     let mode = Mode::of(w);
     let pixel = y * f.width + x;
     let mut sum = Vec3::ZERO;
@@ -610,7 +610,6 @@ pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32;
             if finite3(q.l) {
                 sum += q.l;
                 if guides {
-                    color += q.l - q.emitted;
                     emission += q.emitted;
                 }
             }
@@ -623,7 +622,8 @@ pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32;
     } else {
         Guide::NONE
     };
-    guide.color = color.into();
+    // What the first hits reflect: the rest of the radiance.
+    guide.color = (sum - emission).into();
     guide.emission = emission.into();
     ([sum.x, sum.y, sum.z, rays as f32], guide)
 }
