@@ -5,7 +5,7 @@
 
 use shared::alpha::Coverage;
 use shared::bounds::{self, BoundsState};
-use shared::denoise::{self, DenoisePush, Guide, History};
+use shared::denoise::{self, DenoisePush};
 use shared::envmap::EnvEntry;
 use shared::path::{self, World};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
@@ -393,7 +393,7 @@ pub fn path_trace(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 16)] guides: &mut [Guide],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 16)] guides: &mut [[u32; 4]],
     #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
 ) {
     let w = world!(
@@ -424,8 +424,8 @@ pub fn path_trace(
 pub fn denoise_temporal(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &DenoisePush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[Guide],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [History],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
 ) {
@@ -438,7 +438,7 @@ pub fn denoise_temporal(
 pub fn denoise_variance(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &DenoisePush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &[History],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &[[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
 ) {
@@ -448,41 +448,20 @@ pub fn denoise_variance(
 }
 
 #[spirv(compute(threads(8, 8)))]
+#[allow(clippy::too_many_arguments)]
 pub fn denoise_atrous(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &DenoisePush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [History],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[u32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
-) {
-    if id.x < frame.width {
-        denoise::atrous(id.y * frame.width + id.x, p, frame, history, filter);
-    }
-}
-
-#[spirv(compute(threads(8, 8)))]
-#[allow(clippy::too_many_arguments)]
-pub fn denoise_finish(
-    #[spirv(global_invocation_id)] id: UVec3,
-    #[spirv(push_constant)] p: &DenoisePush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[Guide],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &[History],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &[[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] output: &mut [[f32; 4]],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
     #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32],
 ) {
     if id.x < frame.width {
-        denoise::finish(
-            id.y * frame.width + id.x,
-            p,
-            frame,
-            guides,
-            history,
-            filter,
-            output,
-            image,
-        );
+        let i = id.y * frame.width + id.x;
+        denoise::atrous(i, p, frame, guides, history, filter, output, image);
     }
 }
 

@@ -4,7 +4,7 @@
 //!
 //! The path tracer (with `FEATURE_GUIDES`) leaves a [`Guide`] per pixel: the frame's radiance
 //! split into what the first hit emits and what it reflects, and that hit's albedo, shading
-//! normal, distance, object and place in the previous frame (motion). Four per-pixel passes
+//! normal, distance, object and place in the previous frame (motion). Three per-pixel passes
 //! follow, each a step over every pixel before the next:
 //!
 //! 1. [`temporal`]: the reflected radiance divided by the albedo (demodulation: texture
@@ -16,7 +16,7 @@
 //! 2. [`variance`]: the luminance variance of the temporal estimate, `(m2 - m1^2) w2` where
 //!    `w2` is the sum of the squared blend weights (the variance of a weighted mean of
 //!    independent frames); from a 7x7 neighbourhood where the history is shorter than 4
-//!    frames.
+//!    frames. It also writes the pixel's tangent [`Plane`] for the next pass.
 //! 3. [`atrous`], five times: the edge-avoiding a-trous wavelet filter (Dammertz et al.
 //!    2010) at steps 1, 2, 4, 8, 16 with a 3x3 kernel ([`RADIUS`]; SVGF's 5x5 B3 spline
 //!    measured the same error in 1.5 times the time on the H100), each tap weighted by its
@@ -24,21 +24,26 @@
 //!    the centre's tangent plane (predicted linearly, relative to the tap's footprint) and
 //!    luminance (relative to the centre's standard deviation, prefiltered on the first
 //!    level); variances carried as `sum w^2 var / (sum w)^2`. The first level's output
-//!    becomes the history (SVGF's feedback) while the image moves.
-//! 4. [`finish`]: remodulation by the albedo, the first hit's emission added back, and the
-//!    display encoding.
+//!    becomes the history (SVGF's feedback) while the image moves. The last level also
+//!    finishes the pixel: remodulation by the albedo, the first hit's emission added back,
+//!    and the display encoding.
+//!
+//! Per-pixel data lives in planes of 16-byte words (word `k` of pixel `i` at `k * n + i`),
+//! the layout a warp reads fastest: side by side as 64-byte structures, the temporal pass
+//! took 0.40 ms at 1080p on the H100 instead of 0.14 (bench/NOTES.md, session 21).
 //!
 //! Pixels whose first sample left the scene are passed through the spatial filter. Non-finite
 //! radiance never enters the history or the filter (it counts as black).
 use crate::display;
-use crate::math::{exp, finite3, floor, pack_half2, sqrt, unpack_half2};
+use crate::math::{exp, finite3, floor, inverse_sqrt, pack_half2, sqrt, unpack_half2};
 use crate::sync::{at, at_mut};
 use crate::types::{xyz, Camera, Frame, Object, INVALID};
 use bytemuck::{Pod, Zeroable};
 use spirv_std::glam::Vec3;
 
-/// What the path tracer leaves per pixel for the denoiser (64 bytes). Sums run over the
-/// frame's samples; the geometry is the first sample's first hit.
+/// What the path tracer leaves per pixel for the denoiser (64 bytes, stored as four planes:
+/// [`Guide::store`]). Sums run over the frame's samples; the geometry is the first sample's
+/// first hit.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Guide {
@@ -63,7 +68,54 @@ pub struct Guide {
     pub _pad: u32,
 }
 
+/// Planes of 16-byte words of the guides of an image (see [`Guide::store`]).
+pub const GUIDE_PLANES: u32 = 4;
+
 impl Guide {
+    /// Stores the guide of pixel `i` of an `n`-pixel image into `planes`: its 16-byte word
+    /// `k` at `k * n + i`. Planes rather than 64-byte guides side by side let a warp's lanes
+    /// read and write a word of neighbouring pixels together.
+    pub fn store(&self, planes: &mut [[u32; 4]], n: u32, i: u32) {
+        let b = |v: f32| v.to_bits();
+        let (c, e, a) = (self.color, self.emission, self.albedo);
+        *at_mut(planes, i) = [b(c[0]), b(c[1]), b(c[2]), b(self.prev_x)];
+        *at_mut(planes, n + i) = [b(e[0]), b(e[1]), b(e[2]), b(self.prev_y)];
+        *at_mut(planes, 2 * n + i) = [b(a[0]), b(a[1]), b(a[2]), self.object];
+        *at_mut(planes, 3 * n + i) = [self.normal, b(self.depth), b(self.prev_depth), 0];
+    }
+
+    /// The guide [`Self::store`] stored (a plane whose fields go unused is not read).
+    pub fn load(planes: &[[u32; 4]], n: u32, i: u32) -> Guide {
+        let f = f32::from_bits;
+        let (c, e) = (*at(planes, i), *at(planes, n + i));
+        let (a, g) = (*at(planes, 2 * n + i), *at(planes, 3 * n + i));
+        Guide {
+            color: [f(c[0]), f(c[1]), f(c[2])],
+            prev_x: f(c[3]),
+            emission: [f(e[0]), f(e[1]), f(e[2])],
+            prev_y: f(e[3]),
+            albedo: [f(a[0]), f(a[1]), f(a[2])],
+            object: a[3],
+            normal: g[0],
+            depth: f(g[1]),
+            prev_depth: f(g[2]),
+            _pad: 0,
+        }
+    }
+
+    /// Adds the sums of `more` (later samples of the same frame) to the guide of pixel `i`.
+    pub fn add_sums(more: &Guide, planes: &mut [[u32; 4]], n: u32, i: u32) {
+        let add = |w: &mut [u32; 4], v: [f32; 3]| {
+            let mut k = 0;
+            while k < 3 {
+                w[k] = (f32::from_bits(w[k]) + v[k]).to_bits();
+                k += 1;
+            }
+        };
+        add(at_mut(planes, i), more.color);
+        add(at_mut(planes, n + i), more.emission);
+    }
+
     /// A pixel the denoiser passes through (its first sample left the scene).
     pub const NONE: Guide = Guide {
         color: [0.0; 3],
@@ -79,25 +131,67 @@ impl Guide {
     };
 }
 
-/// The denoiser's state of a pixel, kept from one frame to the next (64 bytes).
+/// The denoiser's state of a pixel, kept from one frame to the next (48 bytes, three planes
+/// of the history buffer: [`History::store`]). Its surface (normal, object, distance) is kept
+/// with the filter's (see [`filter_entries`]).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct History {
-    /// Demodulated radiance (the estimate the filter starts from).
+    /// Demodulated radiance (the estimate the filter starts from; the first level of the
+    /// a-trous filter writes its output back here).
     pub illum: [f32; 3],
-    /// Frames the history spans (its blend weight is at least `1 / len`).
-    pub len: f32,
+    pub _pad0: f32,
     pub emission: [f32; 3],
-    /// Sum of the squared weights of the frames in the history: its variance is the
-    /// per-frame variance times this.
-    pub w2: f32,
+    pub _pad1: f32,
     /// First and second moments of the per-frame luminance.
     pub m1: f32,
     pub m2: f32,
-    pub depth: f32,
-    pub normal: u32,
-    pub object: u32,
-    pub _pad: [u32; 3],
+    /// Sum of the squared weights of the frames in the history: its variance is the
+    /// per-frame variance times this.
+    pub w2: f32,
+    /// Frames the history spans (its blend weight is at least `1 / len`).
+    pub len: f32,
+}
+
+/// Planes of 16-byte words of one frame's histories.
+pub const HISTORY_PLANES: u32 = 3;
+
+impl History {
+    /// Stores the history of pixel `i` of an `n`-pixel image into the frame's half of the
+    /// history buffer that starts at `base`: its 16-byte word `k` at `base + k * n + i`.
+    pub fn store(&self, history: &mut [[u32; 4]], base: u32, n: u32, i: u32) {
+        let b = |v: f32| v.to_bits();
+        let (c, e) = (self.illum, self.emission);
+        *at_mut(history, base + i) = [b(c[0]), b(c[1]), b(c[2]), 0];
+        *at_mut(history, base + n + i) = [b(e[0]), b(e[1]), b(e[2]), 0];
+        *at_mut(history, base + 2 * n + i) = [b(self.m1), b(self.m2), b(self.w2), b(self.len)];
+    }
+
+    /// The history [`Self::store`] stored (a plane whose fields go unused is not read).
+    pub fn load(history: &[[u32; 4]], base: u32, n: u32, i: u32) -> History {
+        let f = f32::from_bits;
+        let (c, e, m) = (
+            *at(history, base + i),
+            *at(history, base + n + i),
+            *at(history, base + 2 * n + i),
+        );
+        History {
+            illum: [f(c[0]), f(c[1]), f(c[2])],
+            _pad0: 0.0,
+            emission: [f(e[0]), f(e[1]), f(e[2])],
+            _pad1: 0.0,
+            m1: f(m[0]),
+            m2: f(m[1]),
+            w2: f(m[2]),
+            len: f(m[3]),
+        }
+    }
+}
+
+/// Entries (16 bytes) of the history buffer for `n` pixels: this frame's and the previous
+/// frame's [`History`] planes.
+pub const fn history_entries(n: u32) -> u32 {
+    2 * HISTORY_PLANES * n
 }
 
 /// Push constants of the denoiser's passes (16 bytes, the size of every kernel's).
@@ -176,19 +270,19 @@ pub fn oct_encode(n: Vec3) -> u32 {
 
 /// The unit vector of [`oct_encode`].
 pub fn oct_decode(e: u32) -> Vec3 {
-    let d = |v: u32| (v as f32 - 32768.0) / 32767.0;
+    // (The direction's length is at least 1/sqrt(3).)
+    let n = oct_direction(e);
+    n * inverse_sqrt(n.length_squared())
+}
+
+/// [`oct_decode`] before its normalisation (what a comparison of directions needs: no square
+/// root, no division).
+fn oct_direction(e: u32) -> Vec3 {
+    let d = |v: u32| (v as f32 - 32768.0) * (1.0 / 32767.0);
     let (x, y) = (d(e & 0xffff), d(e >> 16));
     let z = 1.0 - x.abs() - y.abs();
     let t = (-z).max(0.0);
-    let x = x + if x >= 0.0 { -t } else { t };
-    let y = y + if y >= 0.0 { -t } else { t };
-    let n = Vec3::new(x, y, z);
-    let l = n.length();
-    if l > 0.0 {
-        n / l
-    } else {
-        Vec3::Z
-    }
+    Vec3::new(x + if x >= 0.0 { -t } else { t }, y + if y >= 0.0 { -t } else { t }, z)
 }
 
 /// Where the pinhole of camera `c` sees point `p` on a `width x height` image: continuous
@@ -236,12 +330,23 @@ pub fn pixel_direction(c: &Camera, width: u32, height: u32, x: u32, y: u32) -> V
     (target - xyz(c.origin)).normalize()
 }
 
-/// Halves of the history buffer: (this frame's first index, the previous frame's).
+/// Halves of the history buffer: (where this frame's planes start, the previous frame's).
 fn halves(n: u32, flags: u32) -> (u32, u32) {
+    let half = HISTORY_PLANES * n;
     if flags & DENOISE_PARITY != 0 {
-        (n, 0)
+        (half, 0)
     } else {
-        (0, n)
+        (0, half)
+    }
+}
+
+/// The pixels' surfaces in the filter buffer: (this frame's first index, the previous
+/// frame's).
+fn surfaces(n: u32, flags: u32) -> (u32, u32) {
+    if flags & DENOISE_PARITY != 0 {
+        (3 * n, 2 * n)
+    } else {
+        (2 * n, 3 * n)
     }
 }
 
@@ -254,22 +359,85 @@ fn sanitize(c: Vec3) -> Vec3 {
     }
 }
 
-/// What the 7x7 variance estimate reads of a pixel, 16 bytes in the third part of the
-/// filter buffer (not its 64-byte history): normal (octahedral), object, distance, and the
-/// luminance of the temporal estimate.
-fn surface_of(h: &History) -> [u32; 4] {
-    [
-        h.normal,
-        h.object,
-        h.depth.to_bits(),
-        luminance(Vec3::from(h.illum)).to_bits(),
-    ]
+/// A pixel's surface, 16 bytes in the filter buffer: normal (octahedral), object, distance,
+/// and the luminance of the temporal estimate. The next frame's reprojection compares its
+/// surfaces with these; the 7x7 variance estimate reads them.
+#[derive(Copy, Clone)]
+struct Surface {
+    normal: u32,
+    object: u32,
+    depth: f32,
+    lum: f32,
+}
+
+impl Surface {
+    fn pack(&self) -> [u32; 4] {
+        [self.normal, self.object, self.depth.to_bits(), self.lum.to_bits()]
+    }
+
+    fn unpack(e: [u32; 4]) -> Surface {
+        Surface {
+            normal: e[0],
+            object: e[1],
+            depth: f32::from_bits(e[2]),
+            lum: f32::from_bits(e[3]),
+        }
+    }
 }
 
 /// Entries of the filter buffer for `n` pixels: the two halves the a-trous levels filter
-/// back and forth (a [`Tap`] a pixel), and the pixels' surfaces.
+/// back and forth (a [`Tap`] a pixel), this frame's and the previous frame's [`Surface`]s
+/// (swapped every frame, as the history's halves), and the pixels' [`Plane`]s.
 pub const fn filter_entries(n: u32) -> u32 {
-    3 * n
+    5 * n
+}
+
+/// Where the pixels' [`Plane`]s start in the filter buffer.
+const fn planes(n: u32) -> u32 {
+    4 * n
+}
+
+/// What every a-trous level asks of a pixel's tangent plane, 16 bytes in the filter buffer
+/// (written once by the variance pass: the three camera rays it takes would cost each of
+/// the five levels a quarter of its time at 1080p).
+#[derive(Copy, Clone)]
+struct Plane {
+    /// How much farther the plane is along the rays of the next pixel right and down than
+    /// along the pixel's own: a tap's distance is compared with the plane's, predicted
+    /// linearly (SVGF's depth gradient), so that no tap needs its own ray.
+    gx: f32,
+    gy: f32,
+    /// A distance off the plane counts in units of a tap's footprint: 1 / the world size of
+    /// a pixel at the centre's distance, foreshortened by the plane's slope (divided by the
+    /// level's step).
+    geometry: f32,
+}
+
+impl Plane {
+    /// The plane of normal `normal` at distance `depth` through pixel `(x, y)`.
+    fn of(f: &Frame, x: u32, y: u32, normal: Vec3, depth: f32) -> Plane {
+        let cam = &f.camera;
+        let dir = pixel_direction(cam, f.width, f.height, x, y);
+        let plane_d = normal.dot(dir * depth);
+        let along = |qx: u32, qy: u32| plane_d / normal.dot(pixel_direction(cam, f.width, f.height, qx, qy)) - depth;
+        Plane {
+            gx: along(x + 1, y),
+            gy: along(x, y + 1),
+            geometry: normal.dot(dir).abs() / (depth * f.pixel_spread + 1e-20),
+        }
+    }
+
+    fn pack(&self) -> [u32; 4] {
+        [self.gx.to_bits(), self.gy.to_bits(), self.geometry.to_bits(), 0]
+    }
+
+    fn unpack(e: [u32; 4]) -> Plane {
+        Plane {
+            gx: f32::from_bits(e[0]),
+            gy: f32::from_bits(e[1]),
+            geometry: f32::from_bits(e[2]),
+        }
+    }
 }
 
 /// A pixel as the a-trous filter reads it, in 16 bytes (two 32-byte reads a tap took the
@@ -325,6 +493,11 @@ fn normal8_decode(e: u32) -> Vec3 {
     oct_decode(((e & 0xff) << 8) | 0x80 | ((e >> 8) << 24) | (0x80 << 16))
 }
 
+/// [`normal8_decode`] before its normalisation ([`oct_direction`]).
+fn normal8_direction(e: u32) -> Vec3 {
+    oct_direction(((e & 0xff) << 8) | 0x80 | ((e >> 8) << 24) | (0x80 << 16))
+}
+
 /// An object index to the 16 bits of [`Tap::object`] (objects 65535 apart share one).
 fn object16(o: u32) -> u32 {
     if o == INVALID {
@@ -335,13 +508,13 @@ fn object16(o: u32) -> u32 {
 }
 
 /// Pass 1 at pixel `i`: the history of this frame from guide `i` and the previous frame's
-/// history, and the pixel's surface for the spatial passes.
+/// history, and the pixel's surface.
 pub fn temporal(
     i: u32,
     p: &DenoisePush,
     f: &Frame,
-    guides: &[Guide],
-    history: &mut [History],
+    guides: &[[u32; 4]],
+    history: &mut [[u32; 4]],
     filter: &mut [[u32; 4]],
 ) {
     let n = f.width * f.height;
@@ -349,7 +522,8 @@ pub fn temporal(
         return;
     }
     let (cur, prev) = halves(n, p.flags);
-    let g = *at(guides, i);
+    let (cur_surface, prev_surface) = surfaces(n, p.flags);
+    let g = Guide::load(guides, n, i);
     let inv = 1.0 / p.samples.max(1) as f32;
     let albedo = demodulation(g.albedo);
     let illum = sanitize(Vec3::from(g.color) * inv) / albedo;
@@ -362,16 +536,13 @@ pub fn temporal(
         w2: 1.0,
         m1: l,
         m2: l * l,
-        depth: g.depth,
-        normal: g.normal,
-        object: g.object,
-        _pad: [0; 3],
+        ..Default::default()
     };
     if p.flags & (DENOISE_STILL | DENOISE_NO_HISTORY) == DENOISE_STILL {
         // Nothing moved: the pixel's own history, whatever its first sample hit this time
         // (at an edge the jittered first hit changes from frame to frame, and the pixel's
         // mean is the mixture).
-        let t = *at(history, prev + i);
+        let t = History::load(history, prev, n, i);
         let len = (t.len + 1.0).min(MAX_LEN);
         let a = 1.0 / len;
         let mix = |old: f32, new: f32| old * (1.0 - a) + new * a;
@@ -399,26 +570,31 @@ pub fn temporal(
         let mut k = 0;
         while k < 4 {
             let (dx, dy) = (k & 1, k >> 1);
+            k += 1;
             let (x, y) = (x0 + dx as f32, y0 + dy as f32);
             let w = if dx == 0 { 1.0 - fx } else { fx } * if dy == 0 { 1.0 - fy } else { fy };
-            k += 1;
-            if !(x >= 0.0 && y >= 0.0 && x < f.width as f32 && y < f.height as f32) || w <= 0.0 {
-                continue;
+            // Every tap is read (outside the image, its nearest pixel) before any is judged, so
+            // that the loads go out together.
+            let inside = x >= 0.0 && y >= 0.0 && x < f.width as f32 && y < f.height as f32;
+            let q = y.clamp(0.0, f.height as f32 - 1.0) as u32 * f.width + x.clamp(0.0, f.width as f32 - 1.0) as u32;
+            let s = Surface::unpack(*at(filter, prev_surface + q));
+            let t = History::load(history, prev, n, q);
+            // The normals' cosine at least MIN_NORMAL_COS, without normalising the tap's.
+            let v = oct_direction(s.normal);
+            let cos_l = v.dot(normal);
+            let same = s.object == g.object
+                && (s.depth - g.prev_depth).abs() <= MAX_DEPTH_CHANGE * g.prev_depth
+                && cos_l >= 0.0
+                && cos_l * cos_l >= MIN_NORMAL_COS * MIN_NORMAL_COS * v.length_squared();
+            if inside && same && w > 0.0 {
+                sum.illum = (Vec3::from(sum.illum) + Vec3::from(t.illum) * w).into();
+                sum.emission = (Vec3::from(sum.emission) + Vec3::from(t.emission) * w).into();
+                sum.len += t.len * w;
+                sum.w2 += t.w2 * w;
+                sum.m1 += t.m1 * w;
+                sum.m2 += t.m2 * w;
+                wsum += w;
             }
-            let t = *at(history, prev + y as u32 * f.width + x as u32);
-            let same = t.object == g.object
-                && (t.depth - g.prev_depth).abs() <= MAX_DEPTH_CHANGE * g.prev_depth
-                && oct_decode(t.normal).dot(normal) >= MIN_NORMAL_COS;
-            if !same {
-                continue;
-            }
-            sum.illum = (Vec3::from(sum.illum) + Vec3::from(t.illum) * w).into();
-            sum.emission = (Vec3::from(sum.emission) + Vec3::from(t.emission) * w).into();
-            sum.len += t.len * w;
-            sum.w2 += t.w2 * w;
-            sum.m1 += t.m1 * w;
-            sum.m2 += t.m2 * w;
-            wsum += w;
         }
         if wsum > 0.01 {
             let r = 1.0 / wsum;
@@ -441,26 +617,35 @@ pub fn temporal(
             h.len = len;
         }
     }
-    *at_mut(filter, 2 * n + i) = surface_of(&h);
-    *at_mut(history, cur + i) = h;
+    let surface = Surface {
+        normal: g.normal,
+        object: g.object,
+        depth: g.depth,
+        lum: luminance(Vec3::from(h.illum)),
+    };
+    *at_mut(filter, cur_surface + i) = surface.pack();
+    h.store(history, cur, n, i);
 }
 
 /// Pass 2 at pixel `i`: the filter's input (demodulated radiance, variance of its
 /// luminance) in the first half of `filter`.
-pub fn variance(i: u32, p: &DenoisePush, f: &Frame, history: &[History], filter: &mut [[u32; 4]]) {
+pub fn variance(i: u32, p: &DenoisePush, f: &Frame, history: &[[u32; 4]], filter: &mut [[u32; 4]]) {
     let n = f.width * f.height;
     if i >= n {
         return;
     }
     let (cur, _) = halves(n, p.flags);
-    let h = *at(history, cur + i);
+    let (surfaces, _) = surfaces(n, p.flags);
+    let h = History::load(history, cur, n, i);
+    let c = Surface::unpack(*at(filter, surfaces + i));
     let mut var = (h.m2 - h.m1 * h.m1).max(0.0) * h.w2;
-    if h.object != INVALID && h.len < 4.0 {
+    if c.object != INVALID && h.len < 4.0 {
         // Too few frames for temporal moments: the luminance moments of the 7x7
         // neighbourhood on the same surface, their variance raised while the history is short
         // (SVGF).
         let (x, y) = ((i % f.width) as i32, (i / f.width) as i32);
-        let normal = oct_decode(h.normal);
+        let normal = oct_decode(c.normal);
+        let depth_scale = 1.0 / (MAX_DEPTH_CHANGE * c.depth + 1e-20);
         let (mut m1, mut m2, mut wsum) = (0.0, 0.0, 0.0);
         let mut k = 0;
         while k < 49 {
@@ -469,15 +654,13 @@ pub fn variance(i: u32, p: &DenoisePush, f: &Frame, history: &[History], filter:
             if qx < 0 || qy < 0 || qx >= f.width as i32 || qy >= f.height as i32 {
                 continue;
             }
-            let t = *at(filter, 2 * n + qy as u32 * f.width + qx as u32);
-            if t[1] != h.object {
+            let t = Surface::unpack(*at(filter, surfaces + qy as u32 * f.width + qx as u32));
+            if t.object != c.object {
                 continue;
             }
-            let w = normal_weight(normal, oct_decode(t[0]))
-                * exp(-(f32::from_bits(t[2]) - h.depth).abs() / (MAX_DEPTH_CHANGE * h.depth + 1e-20));
-            let l = f32::from_bits(t[3]);
-            m1 += w * l;
-            m2 += w * l * l;
+            let w = normal_weight_of(normal, oct_direction(t.normal)) * exp(-(t.depth - c.depth).abs() * depth_scale);
+            m1 += w * t.lum;
+            m2 += w * t.lum * t.lum;
             wsum += w;
         }
         if wsum > 0.0 {
@@ -488,17 +671,22 @@ pub fn variance(i: u32, p: &DenoisePush, f: &Frame, history: &[History], filter:
     let tap = Tap {
         illum: sanitize(Vec3::from(h.illum)),
         var: if var.is_finite() { var } else { 0.0 },
-        normal: normal8(h.normal),
-        object: object16(h.object),
-        depth: h.depth,
+        normal: normal8(c.normal),
+        object: object16(c.object),
+        depth: c.depth,
     };
     *at_mut(filter, i) = tap.pack();
+    if tap.object != NO_OBJECT {
+        let plane = Plane::of(f, i % f.width, i / f.width, normal8_decode(tap.normal), c.depth);
+        *at_mut(filter, planes(n) + i) = plane.pack();
+    }
 }
 
-/// `max(0, a.b)^128`.
-fn normal_weight(a: Vec3, b: Vec3) -> f32 {
-    let mut w = a.dot(b).max(0.0);
-    let mut k = 0;
+/// `max(0, a.v / |v|)^128` for unit `a` (SVGF's normal weight, of `v` normalised).
+fn normal_weight_of(a: Vec3, v: Vec3) -> f32 {
+    let c = a.dot(v).max(0.0) * inverse_sqrt(v.length_squared());
+    let mut w = c * c;
+    let mut k = 1;
     while k < NORMAL_POWER_SQUARINGS {
         w *= w;
         k += 1;
@@ -507,19 +695,47 @@ fn normal_weight(a: Vec3, b: Vec3) -> f32 {
 }
 
 /// Pass 3 at pixel `i`, level `p.level`: filters the half `level % 2` of `filter` into the
-/// other; at level 0 while the image moves the result also becomes this frame's history.
-pub fn atrous(i: u32, p: &DenoisePush, f: &Frame, history: &mut [History], filter: &mut [[u32; 4]]) {
+/// other; at level 0 while the image moves the result also becomes this frame's history. The
+/// last level finishes the pixel instead ([`finish`]).
+#[allow(clippy::too_many_arguments)]
+pub fn atrous(
+    i: u32,
+    p: &DenoisePush,
+    f: &Frame,
+    guides: &[[u32; 4]],
+    history: &mut [[u32; 4]],
+    filter: &mut [[u32; 4]],
+    output: &mut [[f32; 4]],
+    image: &mut [u32],
+) {
     let n = f.width * f.height;
     if i >= n {
         return;
     }
     let (src, dst) = if p.level.is_multiple_of(2) { (0, n) } else { (n, 0) };
-    let centre = *at(filter, src + i);
-    let c = Tap::unpack(centre);
-    if c.object == NO_OBJECT {
-        *at_mut(filter, dst + i) = centre;
+    let c = Tap::unpack(*at(filter, src + i));
+    // A pixel without a surface is passed through.
+    let out = if c.object == NO_OBJECT {
+        c
+    } else {
+        filtered(i, p, f, &c, filter, src)
+    };
+    if p.level == LEVELS - 1 {
+        finish(i, p, f, out.illum, guides, history, output, image);
         return;
     }
+    *at_mut(filter, dst + i) = out.pack();
+    if p.level == 0 && p.flags & DENOISE_STILL == 0 && c.object != NO_OBJECT {
+        // The history's first plane: its radiance.
+        let (cur, _) = halves(n, p.flags);
+        let b = |v: f32| v.to_bits();
+        *at_mut(history, cur + i) = [b(out.illum.x), b(out.illum.y), b(out.illum.z), 0];
+    }
+}
+
+/// The a-trous filter's output at pixel `i` of centre tap `c`, reading the taps of the half
+/// of `filter` that starts at `src`.
+fn filtered(i: u32, p: &DenoisePush, f: &Frame, c: &Tap, filter: &[[u32; 4]], src: u32) -> Tap {
     let (w, hgt) = (f.width as i32, f.height as i32);
     let (x, y) = ((i % f.width) as i32, (i / f.width) as i32);
     // The centre's variance prefiltered by a 3x3 Gaussian (SVGF) on the first level; the
@@ -537,25 +753,16 @@ pub fn atrous(i: u32, p: &DenoisePush, f: &Frame, history: &mut [History], filte
         }
     }
     let normal = normal8_decode(c.normal);
-    // The tangent plane's distance along the rays of the next pixels right and down: a tap's
-    // distance is compared with the plane's, predicted linearly (SVGF's depth gradient),
-    // so that no tap needs its own ray.
-    let cam = &f.camera;
-    let dir = pixel_direction(cam, f.width, f.height, x as u32, y as u32);
-    let plane_d = normal.dot(dir * c.depth);
-    let along = |qx: i32, qy: i32| {
-        let q = pixel_direction(cam, f.width, f.height, qx.max(0) as u32, qy.max(0) as u32);
-        plane_d / normal.dot(q) - c.depth
-    };
-    let (gx, gy) = (along(x + 1, y), along(x, y + 1));
+    let Plane { gx, gy, geometry } = Plane::unpack(*at(filter, planes(f.width * f.height) + i));
     let lum = luminance(c.illum);
     let lum_scale = 1.0 / (SIGMA_LUMINANCE * sqrt(gvar.max(0.0)) + 1e-10);
     let step = 1i32 << p.level;
-    // A distance off the plane counts in units of a tap's footprint: the world size of a
-    // pixel at the centre's distance, times the tap's offset in pixels.
-    let geometry_scale = normal.dot(dir).abs() / (c.depth * f.pixel_spread * step as f32 + 1e-20);
-    let mut sum = Vec3::ZERO;
-    let (mut sum_var, mut wsum) = (0.0, 0.0);
+    // (Steps are powers of two: the division is exact.)
+    let geometry_scale = geometry / step as f32;
+    // The centre's weight is the kernel's.
+    let h0 = kernel(0) * kernel(0);
+    let mut sum = c.illum * h0;
+    let (mut sum_var, mut wsum) = (h0 * h0 * c.var, h0);
     let r = RADIUS as i32;
     let mut dy = -r;
     while dy <= r {
@@ -563,44 +770,49 @@ pub fn atrous(i: u32, p: &DenoisePush, f: &Frame, history: &mut [History], filte
         let hy = kernel(dy);
         let mut dx = -r;
         while dx <= r {
+            if dx == 0 && dy == 0 {
+                dx += 1;
+                continue;
+            }
             let qx = x + dx * step;
-            let ddx = dx;
-            dx += 1;
-            if qx < 0 || qy < 0 || qx >= w || qy >= hgt {
-                continue;
-            }
-            let t = Tap::unpack(*at(filter, src + (qy * w + qx) as u32));
-            if t.object != c.object {
-                continue;
-            }
-            let h = hy * kernel(ddx);
-            let wt = if ddx == 0 && dy == 0 {
-                h
-            } else {
-                let predicted = c.depth + (gx * ddx as f32 + gy * dy as f32) * step as f32;
-                let offset = sqrt((ddx * ddx + dy * dy) as f32);
-                // The geometry and luminance weights in one exponential.
-                let e = (t.depth - predicted).abs() * geometry_scale / offset
-                    + (luminance(t.illum) - lum).abs() * lum_scale;
-                h * normal_weight(normal, normal8_decode(t.normal)) * exp(-e)
+            // Every tap is read (at the image's edge, the edge pixel's) and weighed, and the
+            // ones outside the image or on another object get weight 0: no branch on the
+            // data, so a warp's loads go out together and its lanes never diverge.
+            let inside = qx >= 0 && qy >= 0 && qx < w && qy < hgt;
+            let q = (qy.clamp(0, hgt - 1) * w + qx.clamp(0, w - 1)) as u32;
+            let t = Tap::unpack(*at(filter, src + q));
+            let h = hy * kernel(dx);
+            let predicted = c.depth + (gx * dx as f32 + gy * dy as f32) * step as f32;
+            // 1 / the tap's offset in steps.
+            let inv_offset = match dx * dx + dy * dy {
+                1 => 1.0,
+                2 => core::f32::consts::FRAC_1_SQRT_2,
+                d2 => 1.0 / sqrt(d2 as f32),
             };
-            if wt > 0.0 {
-                sum += t.illum * wt;
-                sum_var += wt * wt * t.var;
-                wsum += wt;
-            }
+            // The geometry and luminance weights in one exponential (0 for a tap without a
+            // surface: its distance is infinite).
+            let e = (t.depth - predicted).abs() * geometry_scale * inv_offset
+                + (luminance(t.illum) - lum).abs() * lum_scale;
+            let g = exp(-e);
+            let edge = h * normal_weight_of(normal, normal8_direction(t.normal)) * if g >= 0.0 { g } else { 0.0 };
+            // Weighed by a 0/1 factor rather than chosen: the compiler keeps every tap's
+            // weight out of branches (in a branch, a warp straddling objects diverged, and the
+            // filter took 1.7 times as long on the instances as on the bunny).
+            let keep = (inside && t.object == c.object) as u32 as f32;
+            let wt = edge * keep;
+            sum += t.illum * wt;
+            sum_var += wt * wt * t.var;
+            wsum += wt;
+            dx += 1;
         }
         dy += 1;
     }
-    let out = Tap {
-        illum: sum / wsum,
-        var: sum_var / (wsum * wsum),
-        ..c
-    };
-    *at_mut(filter, dst + i) = out.pack();
-    if p.level == 0 && p.flags & DENOISE_STILL == 0 {
-        let (cur, _) = halves(n, p.flags);
-        at_mut(history, cur + i).illum = out.illum.into();
+    // (wsum is at least the centre's weight.)
+    let r = 1.0 / wsum;
+    Tap {
+        illum: sum * r,
+        var: sum_var * r * r,
+        ..*c
     }
 }
 
@@ -616,29 +828,25 @@ fn kernel(d: i32) -> f32 {
     }
 }
 
-/// Pass 4 at pixel `i`: the denoised radiance into `output` (`w` 1) and its display code
+/// The end of pixel `i`, of filtered demodulated radiance `filtered`: remodulated by its
+/// albedo, the first hit's emission added back, into `output` (`w` 1) and its display code
 /// into `image`.
 #[allow(clippy::too_many_arguments)]
-pub fn finish(
+fn finish(
     i: u32,
     p: &DenoisePush,
     f: &Frame,
-    guides: &[Guide],
-    history: &[History],
-    filter: &[[u32; 4]],
+    filtered: Vec3,
+    guides: &[[u32; 4]],
+    history: &[[u32; 4]],
     output: &mut [[f32; 4]],
     image: &mut [u32],
 ) {
     let n = f.width * f.height;
-    if i >= n {
-        return;
-    }
-    let g = *at(guides, i);
     let (cur, _) = halves(n, p.flags);
-    // LEVELS is odd: the last level wrote the second half. (A pixel without a surface was
-    // passed through: its temporal estimate, albedo 1.)
-    let filtered = Tap::unpack(*at(filter, (LEVELS % 2) * n + i)).illum;
-    let c = sanitize(filtered * demodulation(g.albedo) + Vec3::from(at(history, cur + i).emission));
+    let albedo = Guide::load(guides, n, i).albedo;
+    let emission = History::load(history, cur, n, i).emission;
+    let c = sanitize(filtered * demodulation(albedo) + Vec3::from(emission));
     *at_mut(output, i) = [c.x, c.y, c.z, 1.0];
     *at_mut(image, i) = display::pack(c, f, p.flags & DENOISE_BGRA != 0);
 }

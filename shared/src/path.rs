@@ -541,7 +541,7 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, fir
 /// Adds `p.samples` samples of pixel `(x, y)` to `accum`: see [`pixel_samples`]. With
 /// [`FEATURE_GUIDES`] also the pixel's guide: written by the frame's first dispatch
 /// (`p.count == 0`, the samples the frame traced before), its sums added to by the rest.
-pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [Guide]) {
+pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
     let f = w.frame;
     if x >= f.width || y >= f.height {
         return;
@@ -551,12 +551,11 @@ pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32
     let a = sync::at_mut(accum, pixel);
     *a = [a[0] + s[0], a[1] + s[1], a[2] + s[2], a[3] + s[3]];
     if w.scene.features & FEATURE_GUIDES != 0 {
-        let slot = sync::at_mut(guides, pixel);
+        let n = f.width * f.height;
         if p.count == 0 {
-            *slot = g;
+            g.store(guides, n, pixel);
         } else {
-            slot.color = (Vec3::from(slot.color) + Vec3::from(g.color)).into();
-            slot.emission = (Vec3::from(slot.emission) + Vec3::from(g.emission)).into();
+            Guide::add_sums(&g, guides, n, pixel);
         }
     }
 }

@@ -24,9 +24,10 @@ use crate::bench::accuracy::{cached_reference, rel_mse, REL_MSE_EPS};
 use crate::bench::plot::{line_chart, Chart, Scale, Series};
 use crate::bench::{percentile, warm};
 use crate::cli::Prepared;
-use crate::gpu::{stage_ms, Denoise, Gpu, GpuRenderer, Kernels};
+use crate::gpu::{denoise_ms, stage_ms, Denoise, Gpu, GpuRenderer, Kernels, DENOISE_PASSES};
 use anyhow::{bail, Context, Result};
 use glam::Quat;
+use shared::denoise::LEVELS;
 use shared::types::{Frame, Object};
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
@@ -163,6 +164,9 @@ pub struct SceneReport {
     pub equivalent_spp_seeded: Option<f64>,
     pub stability: Stability,
     pub crossover: Crossover,
+    /// Median GPU ms of each of the denoiser's passes at the timing size (the a-trous levels
+    /// together).
+    pub denoise_passes: Vec<(String, f64)>,
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -352,10 +356,10 @@ fn show(r: &mut GpuRenderer, frame: &Frame, objects: &[Object], spp: u32) -> Res
 
 /// Trace and denoise ms of a denoised frame's timings; an error when it was not denoised.
 fn denoised_ms(t: &[(&'static str, f64)]) -> Result<(f64, f64)> {
-    if !t.iter().any(|(l, _)| *l == "denoise") {
+    if denoise_ms(t) == 0.0 {
         bail!("a frame that should have been denoised was not");
     }
-    Ok((stage_ms(t, "trace"), stage_ms(t, "denoise")))
+    Ok((stage_ms(t, "trace"), denoise_ms(t)))
 }
 
 /// `frame` with a seed of its own for path frame `k`.
@@ -472,14 +476,8 @@ fn errors(
 }
 
 /// Median GPU ms per frame at the timing size of raw N spp (for each of `spps`) and of the
-/// denoised frames (trace + denoise, and denoise alone).
-fn timings(
-    gpu: &Arc<Gpu>,
-    kernels: &Arc<Kernels>,
-    spps: &[u32],
-    scene: &str,
-    o: &Options,
-) -> Result<(Vec<f64>, f64, f64)> {
+/// denoised frames (trace + denoise, denoise alone, each of its passes).
+fn timings(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, spps: &[u32], scene: &str, o: &Options) -> Result<Timings> {
     let mut p = prepare(scene, o.timing_size, o.depth)?;
     let steps = path(&mut p, o.frames, o.orbit_deg);
     let at = |k: usize| &steps[k % steps.len()];
@@ -507,12 +505,39 @@ fn timings(
         denoised_ms(&show(&mut den, &at(k).frame, &at(k).objects, 1)?).map(drop)
     })?;
     let (mut total, mut denoise) = (Vec::new(), Vec::new());
+    let mut passes = vec![Vec::new(); DENOISE_PASSES.len()];
     for k in 0..o.timing_frames.max(1) {
-        let (t, d) = denoised_ms(&show(&mut den, &at(k).frame, &at(k).objects, 1)?)?;
+        let timed = show(&mut den, &at(k).frame, &at(k).objects, 1)?;
+        let (t, d) = denoised_ms(&timed)?;
         total.push(t + d);
         denoise.push(d);
+        for (ms, label) in passes.iter_mut().zip(DENOISE_PASSES) {
+            ms.push(stage_ms(&timed, label));
+        }
     }
-    Ok((raw_ms, p50(total), p50(denoise)))
+    let passes = DENOISE_PASSES
+        .iter()
+        .zip(passes)
+        .map(|(label, ms)| (label.trim_start_matches("denoise ").to_string(), p50(ms)))
+        .collect();
+    Ok(Timings {
+        raw_ms,
+        denoised_ms: p50(total),
+        denoise_ms: p50(denoise),
+        passes,
+    })
+}
+
+/// Median GPU ms at the timing size (see [`timings`]).
+struct Timings {
+    /// Trace of each raw N-spp method.
+    raw_ms: Vec<f64>,
+    /// Trace and denoiser of a denoised 1-spp frame.
+    denoised_ms: f64,
+    /// Of which the denoiser.
+    denoise_ms: f64,
+    /// Each of the denoiser's passes (the a-trous levels together).
+    passes: Vec<(String, f64)>,
 }
 
 /// What one still frame showed: the raw renderer's accumulated sums, the frame's own
@@ -630,7 +655,8 @@ fn scene_report(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, scene: &str, o: &Options
     .context("the still view's reference")?;
     let (stability, crossover) = still(gpu, kernels, &p, &steps[0], &reference, o)?;
     eprintln!("{}: timing at {}x{}", p.scene.name, o.timing_size.0, o.timing_size.1);
-    let (raw_ms, denoised_ms, denoise_ms) = timings(gpu, kernels, &spps, scene, o)?;
+    let timed = timings(gpu, kernels, &spps, scene, o)?;
+    let (raw_ms, denoised_ms, denoise_ms) = (&timed.raw_ms, timed.denoised_ms, timed.denoise_ms);
     let methods: Vec<Method> = measured
         .into_iter()
         .map(|m| {
@@ -677,6 +703,7 @@ fn scene_report(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, scene: &str, o: &Options
         methods,
         stability,
         crossover,
+        denoise_passes: timed.passes,
     })
 }
 
@@ -931,6 +958,14 @@ pub fn markdown(r: &Report, plots: &[String]) -> String {
                 m.ms_p50
             );
         }
+        let passes: Vec<String> = sc.denoise_passes.iter().map(|(l, ms)| format!("{l} {ms:.3}")).collect();
+        let _ = writeln!(
+            s,
+            "\nThe denoiser's passes at {}x{} (median ms; the {LEVELS} a-trous levels together): {}.",
+            o.timing_size.0,
+            o.timing_size.1,
+            passes.join(", ")
+        );
         let st = &sc.stability;
         let _ = writeln!(
             s,

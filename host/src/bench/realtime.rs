@@ -7,7 +7,7 @@
 //! display pass, every frame denoised: its frame time, and the denoiser's own.
 use crate::bench::percentile;
 use crate::cli::SceneArgs;
-use crate::gpu::{frame_timings, Commands, Denoise, Gpu, GpuRenderer, Kernels};
+use crate::gpu::{frame_timings, is_denoise, Commands, Denoise, Gpu, GpuRenderer, Kernels};
 use crate::view::LiveScene;
 use anyhow::{bail, Context, Result};
 use std::fmt::Write;
@@ -189,10 +189,10 @@ fn frames(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options
         let sum = |f: &dyn Fn(&str) -> bool| t.iter().filter(|(l, _)| f(l)).map(|(_, s)| s * 1e3).sum::<f64>();
         timed.total.push(sum(&|_| true));
         timed.trace.push(sum(&|l| l == "trace"));
-        timed.denoise.push(sum(&|l| l == "denoise"));
+        timed.denoise.push(sum(&is_denoise));
         timed
             .build
-            .push(sum(&|l| l != "trace" && l != "display" && l != "denoise"));
+            .push(sum(&|l| l != "trace" && l != "display" && !is_denoise(l)));
         timed.wall.push(elapsed * 1e3);
         if i + 1 == o.warmup + o.frames {
             rays = r.rays_per_sample()? * o.spf as f64;

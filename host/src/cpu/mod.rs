@@ -5,6 +5,6 @@ mod denoise;
 mod lbvh;
 mod render;
 
-pub use denoise::{CpuDenoiser, Denoised};
+pub use denoise::{unplane as guides_from_planes, CpuDenoiser, Denoised};
 pub use lbvh::build;
 pub use render::{render_cpu, render_cpu_moving, world_primitives, CpuRender};

@@ -7,11 +7,31 @@ use anyhow::Result;
 use ash::vk;
 use gpu_allocator::MemoryLocation;
 use shared::denoise::{
-    filter_entries, DenoisePush, Guide, History, DENOISE_BGRA, DENOISE_NO_HISTORY, DENOISE_PARITY, DENOISE_STILL,
-    LEVELS,
+    filter_entries, history_entries, DenoisePush, DENOISE_BGRA, DENOISE_NO_HISTORY, DENOISE_PARITY, DENOISE_STILL,
+    GUIDE_PLANES, LEVELS,
 };
 use shared::types::TILE_SIDE;
 use std::sync::Arc;
+
+/// Timestamp labels of the denoiser's passes (the a-trous levels share one; the last level
+/// also remodulates and writes the image), each after its pass: a frame's denoiser time is
+/// their sum ([`denoise_ms`]).
+pub const PASSES: [&str; 3] = ["denoise temporal", "denoise variance", "denoise a-trous"];
+
+/// Whether `label` is one of [`PASSES`].
+pub fn is_denoise(label: &str) -> bool {
+    PASSES.contains(&label)
+}
+
+/// Milliseconds of the denoiser's passes in timings of `frame_timings` (0 where it did not
+/// run).
+pub fn denoise_ms(timings: &[(&'static str, f64)]) -> f64 {
+    timings
+        .iter()
+        .filter(|(l, _)| is_denoise(l))
+        .map(|(_, s)| s * 1e3)
+        .sum()
+}
 
 /// The denoiser's state for one image size.
 pub struct GpuDenoiser {
@@ -37,7 +57,7 @@ impl GpuDenoiser {
     pub fn new(gpu: &Arc<Gpu>, kernels: &Kernels, guides: &Buffer, width: u32, height: u32) -> Result<GpuDenoiser> {
         let pixels = (width * height) as u64;
         let dev = |name: &str, bytes: u64| Buffer::new(gpu, name, bytes.max(16), MemoryLocation::GpuOnly);
-        let history = dev("denoiser history", 2 * pixels * size_of::<History>() as u64)?;
+        let history = dev("denoiser history", history_entries(pixels as u32) as u64 * 16)?;
         let filter = dev("denoiser filter", filter_entries(pixels as u32) as u64 * 16)?;
         let output = dev("denoised image", pixels * 16)?;
         let mut buffers = [&output; BINDINGS];
@@ -84,7 +104,7 @@ impl GpuDenoiser {
             | flag(bgra, DENOISE_BGRA);
         let sets = [self.set.sets[0], render_set];
         let (gx, gy) = (self.width.div_ceil(TILE_SIDE), self.height.div_ceil(TILE_SIDE));
-        let pass = |kernel: Kernel, level: u32| {
+        let mut pass = |kernel: Kernel, level: u32, label: &'static str| {
             let push = DenoisePush {
                 samples,
                 level,
@@ -93,13 +113,13 @@ impl GpuDenoiser {
             };
             cmds.dispatch_sets(kernels, &sets, kernel, bytemuck::bytes_of(&push), gx, gy);
             cmds.barrier();
+            cmds.timestamp(label);
         };
-        pass(Kernel::DenoiseTemporal, 0);
-        pass(Kernel::DenoiseVariance, 0);
+        pass(Kernel::DenoiseTemporal, 0, PASSES[0]);
+        pass(Kernel::DenoiseVariance, 0, PASSES[1]);
         for level in 0..LEVELS {
-            pass(Kernel::DenoiseAtrous, level);
+            pass(Kernel::DenoiseAtrous, level, PASSES[2]);
         }
-        pass(Kernel::DenoiseFinish, 0);
         self.parity = !self.parity;
         self.has_history = true;
     }
@@ -108,5 +128,5 @@ impl GpuDenoiser {
 /// Bytes of the guides buffer for `pixels` pixels (one guide, the least a binding holds,
 /// where the path tracer leaves none).
 pub fn guide_bytes(pixels: u64) -> u64 {
-    pixels.max(1) * size_of::<Guide>() as u64
+    pixels.max(1) * GUIDE_PLANES as u64 * 16
 }

@@ -43,7 +43,6 @@ pub enum Kernel {
     DenoiseTemporal,
     DenoiseVariance,
     DenoiseAtrous,
-    DenoiseFinish,
 }
 
 impl Kernel {
@@ -52,7 +51,7 @@ impl Kernel {
         matches!(self, Kernel::PathTrace | Kernel::CastRays)
     }
 
-    pub const ALL: [Kernel; 27] = [
+    pub const ALL: [Kernel; 26] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -79,7 +78,6 @@ impl Kernel {
         Kernel::DenoiseTemporal,
         Kernel::DenoiseVariance,
         Kernel::DenoiseAtrous,
-        Kernel::DenoiseFinish,
     ];
 
     /// The entry point's name in the SPIR-V module.
@@ -111,7 +109,6 @@ impl Kernel {
             Kernel::DenoiseTemporal => "denoise_temporal",
             Kernel::DenoiseVariance => "denoise_variance",
             Kernel::DenoiseAtrous => "denoise_atrous",
-            Kernel::DenoiseFinish => "denoise_finish",
         }
     }
 }

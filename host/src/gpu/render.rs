@@ -9,6 +9,7 @@ use crate::scene::SceneGpu;
 use anyhow::{bail, Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
+use shared::denoise::GUIDE_PLANES;
 use shared::envmap::EnvEntry;
 use shared::types::{
     grid, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN,
@@ -474,7 +475,6 @@ impl GpuRenderer {
             } else {
                 d.record(cmds, k, sets[1], samples, true, still, bgra);
             }
-            cmds.timestamp("denoise");
         } else {
             let push = RenderPush {
                 samples: self.samples + samples,
@@ -566,7 +566,8 @@ impl GpuRenderer {
         }
         let pixels = (self.frame.width * self.frame.height) as usize;
         let b = self.bufs.as_ref().context("no scene loaded")?;
-        self.cmds.read_back(&b.guides, pixels)
+        let planes: Vec<[u32; 4]> = self.cmds.read_back(&b.guides, pixels * GUIDE_PLANES as usize)?;
+        Ok(crate::cpu::guides_from_planes(&planes))
     }
 
     /// The BVH of the last build, every stage's output.

@@ -3,7 +3,7 @@
 //! denoised) and the backend statistics the `I` key prints (device, scene, stage times, the
 //! BVH checked by the validator, rays/s, the denoiser).
 use super::window::App;
-use crate::gpu::stage_ms;
+use crate::gpu::{is_denoise, stage_ms};
 use crate::render::stage_totals;
 use anyhow::Result;
 use std::time::Instant;
@@ -39,7 +39,12 @@ impl App {
         let gpu: f64 = st.stages.iter().map(|(_, t)| t).sum::<f64>() / n;
         let stage = |name: &str| st.stages.iter().find(|(l, _)| *l == name).map_or(0.0, |(_, t)| t / n);
         let (transform, trace, display) = (stage("transform"), stage("trace"), stage("display"));
-        let denoise = stage("denoise");
+        let denoise: f64 = st
+            .stages
+            .iter()
+            .filter(|(l, _)| is_denoise(l))
+            .map(|(_, t)| t / n)
+            .sum();
         let build = gpu - transform - trace - display - denoise;
         // The denoiser's time per frame it ran in.
         let denoise_ms = match st.denoised {
@@ -114,7 +119,7 @@ impl App {
 
     /// Whether the frame shown last was denoised (its submission ran the denoiser).
     pub(super) fn denoised_shown(&self) -> bool {
-        self.last_timings.iter().any(|(l, _)| *l == "denoise")
+        self.last_timings.iter().any(|(l, _)| is_denoise(l))
     }
 
     /// What the frame shown last is: denoised, or the raw accumulation and why.
