@@ -77,8 +77,19 @@ impl Picture {
 
     /// Writes by extension: `.png` the display image (8-bit sRGB RGB; the display alpha is
     /// dropped, a render being opaque), `.exr` linear radiance (f32 RGB). Other extensions are an
-    /// error naming the path and the supported ones. Missing parent folders are created.
+    /// error naming the path and the supported ones. Missing parent folders are created. The
+    /// file is written under a temporary name and renamed: a file under `path` is complete.
     pub fn save(&self, path: &Path) -> Result<()> {
+        let tmp = crate::shard::temporary(path);
+        if let Err(e) = self.save_as(path, &tmp) {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e);
+        }
+        std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+    }
+
+    /// [`Self::save`]'s format for `path`, written to `to`.
+    fn save_as(&self, path: &Path, to: &Path) -> Result<()> {
         let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
         match ext.as_deref() {
             Some("png") => {
@@ -87,8 +98,8 @@ impl Picture {
                 let img = RgbImage::from_raw(self.width, self.height, bytes)
                     .with_context(|| format!("building the PNG image for {}", path.display()))?;
                 create_parent(path)?;
-                img.save_with_format(path, ImageFormat::Png)
-                    .with_context(|| format!("writing PNG file {}", path.display()))
+                img.save_with_format(to, ImageFormat::Png)
+                    .with_context(|| format!("writing PNG file {}", to.display()))
             }
             Some("exr") => {
                 self.check_accum(path)?;
@@ -96,8 +107,8 @@ impl Picture {
                 let img = Rgb32FImage::from_raw(self.width, self.height, values)
                     .with_context(|| format!("building the EXR image for {}", path.display()))?;
                 create_parent(path)?;
-                img.save_with_format(path, ImageFormat::OpenExr)
-                    .with_context(|| format!("writing EXR file {}", path.display()))
+                img.save_with_format(to, ImageFormat::OpenExr)
+                    .with_context(|| format!("writing EXR file {}", to.display()))
             }
             _ => bail!("cannot save picture as {}: supported are {SUPPORTED}", path.display()),
         }

@@ -3,7 +3,8 @@
 //! a scene shares: the scene options ([`SceneArgs`]), preparing the scene, rendering on
 //! either backend with progress, the summary line. `compare` renders on both backends and
 //! compares them, `info` lists the devices (and with `--kernels` the driver's statistics of
-//! the kernels), `bench` runs the benchmarks of `crate::bench`; `view` is `crate::view`'s.
+//! the kernels), `bench` runs the benchmarks of `crate::bench`; `view` is `crate::view`'s;
+//! `merge` adds up the shards of a frame (`crate::shard`).
 mod bench;
 mod compare;
 mod info;
@@ -16,6 +17,7 @@ pub use scene::{parse_size, Bits, Prepared, SceneArgs, Treelets};
 
 use crate::gpu::GpuOptions;
 use crate::render::Backend;
+use crate::shard::Shard;
 use crate::view::ViewArgs;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -48,9 +50,29 @@ enum Command {
         /// implementation (lavapipe, SwiftShader) or there is none: then the CPU executor.
         #[arg(long, value_enum, default_value = "auto")]
         backend: Backend,
-        /// Output file, .png or .exr (default: SCENE.png).
+        /// Output file, .png or .exr (default: SCENE.png; with --shard SCENE.shard-I-of-N.exr).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Render only shard I of N of the frame's samples (samples I*S/N up to (I+1)*S/N of
+        /// --spp S), into an EXR of radiance sums that `raytrace merge` adds up with the
+        /// other shards into the image one render makes. For render farms: docs/cluster.md.
+        #[arg(long, value_name = "I/N")]
+        shard: Option<Shard>,
+        /// Render on several GPUs at once: `all`, or device indices or names separated by
+        /// commas; each traces an equal share of the samples and their sums are added in
+        /// device order.
+        #[arg(long, value_name = "all|0,1,...")]
+        devices: Option<String>,
+    },
+    /// Add up the shards of one frame (`render --shard I/N`, each exactly once, any order) into
+    /// the image a single render makes.
+    Merge {
+        /// Shard files (.exr).
+        #[arg(required = true)]
+        shards: Vec<PathBuf>,
+        /// Output file, .png or .exr.
+        #[arg(long)]
+        out: PathBuf,
     },
     /// Render on the CPU and the GPU with the same random streams; write CPU | GPU |
     /// difference and compare per-stage times and BVHs. Exits non-zero when they differ.
@@ -97,8 +119,27 @@ pub fn run() -> Result<()> {
         return first_run(&opts);
     };
     match cmd {
-        Command::Render { scene, backend, out } => {
-            render::render_command(&scene, backend, out, &opts)?;
+        Command::Render {
+            scene,
+            backend,
+            out,
+            shard,
+            devices,
+        } => {
+            render::render_command(&scene, backend, out, shard, devices.as_deref(), &opts)?;
+        }
+        Command::Merge { shards, out } => {
+            let picture = crate::shard::merge(&shards)?;
+            picture.save(&out)?;
+            println!(
+                "merged {} shards: {}x{}, {} spp, mean luminance {:.4}",
+                shards.len(),
+                picture.width,
+                picture.height,
+                picture.samples,
+                picture.mean_luminance()
+            );
+            println!("wrote {}", out.display());
         }
         Command::Compare { scene, out, tolerance } => compare::compare_command(&scene, &out, tolerance, &opts)?,
         Command::View(args) => crate::view::run(&args, &opts)?,
@@ -121,7 +162,14 @@ fn first_run(opts: &GpuOptions) -> Result<()> {
         }
     }
     let args = SceneArgs::parse_from(["raytrace", "cornell"]);
-    let out = render::render_command(&args, Backend::Auto, Some(PathBuf::from("cornell.png")), opts)?;
+    let out = render::render_command(
+        &args,
+        Backend::Auto,
+        Some(PathBuf::from("cornell.png")),
+        None,
+        None,
+        opts,
+    )?;
     println!(
         "open {} to see it; `raytrace view` opens the interactive viewer where a display exists",
         out.display()

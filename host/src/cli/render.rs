@@ -1,11 +1,12 @@
 //! `raytrace render`: rendering a prepared scene on either backend with progress, the
 //! backend `auto` picks, the summary line.
 use super::scene::{Prepared, SceneArgs};
-use crate::cpu::{render_cpu, CpuDenoiser, CpuRender};
+use crate::cpu::{render_cpu_samples, CpuDenoiser, CpuRender};
 use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Kernels};
 use crate::picture::Picture;
 use crate::render::{self, Backend};
-use anyhow::Result;
+use crate::shard::{self, Shard};
+use anyhow::{anyhow, ensure, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use shared::types::FLAG_DENOISE;
 use std::path::PathBuf;
@@ -41,6 +42,12 @@ pub struct Rendered {
 /// Renders on the GPU in submissions of growing size, with a progress bar when it takes
 /// long.
 pub fn render_gpu(r: &mut GpuRenderer, p: &Prepared, quiet: bool) -> Result<Rendered> {
+    render_gpu_samples(r, p, 0, p.spp, quiet)
+}
+
+/// [`render_gpu`] of samples `first..first + spp` of the frame.
+fn render_gpu_samples(r: &mut GpuRenderer, p: &Prepared, first: u32, spp: u32, quiet: bool) -> Result<Rendered> {
+    r.set_first_sample(first);
     r.set_build(p.build(p.spp));
     r.load(&p.data, &p.frame)?;
     r.set_denoise(if p.frame.flags & FLAG_DENOISE != 0 {
@@ -49,12 +56,12 @@ pub fn render_gpu(r: &mut GpuRenderer, p: &Prepared, quiet: bool) -> Result<Rend
         Denoise::Off
     })?;
     let start = Instant::now();
-    let mut timings = r.render(1.min(p.spp), true)?;
+    let mut timings = r.render(1.min(spp), true)?;
     let mut chunk = 1;
-    let bar = (!quiet).then(|| progress_bar(p.spp as u64, "samples"));
-    while r.samples() < p.spp {
+    let bar = (!quiet).then(|| progress_bar(spp as u64, "samples"));
+    while r.samples() < spp {
         let t = Instant::now();
-        let n = chunk.min(p.spp - r.samples());
+        let n = chunk.min(spp - r.samples());
         timings.extend(r.render(n, false)?);
         if let Some(b) = &bar {
             b.set_position(r.samples() as u64);
@@ -80,18 +87,31 @@ pub fn render_gpu(r: &mut GpuRenderer, p: &Prepared, quiet: bool) -> Result<Rend
 
 /// Renders on the CPU executor with a progress bar over rows.
 pub fn render_on_cpu(p: &Prepared, quiet: bool) -> (Rendered, CpuRender) {
+    render_on_cpu_samples(p, 0, p.spp, quiet)
+}
+
+/// [`render_on_cpu`] of samples `first..first + spp` of the frame.
+fn render_on_cpu_samples(p: &Prepared, first: u32, spp: u32, quiet: bool) -> (Rendered, CpuRender) {
     let bar = (!quiet).then(|| progress_bar(p.frame.height as u64, "rows"));
-    let out = render_cpu(&p.data, &p.frame, p.spp, p.build(p.spp), &|rows| {
-        if let Some(b) = &bar {
-            b.set_position(rows as u64);
-        }
-    });
+    let out = render_cpu_samples(
+        &p.data,
+        &p.data.objects,
+        &p.frame,
+        first,
+        spp,
+        p.build(p.spp),
+        &|rows| {
+            if let Some(b) = &bar {
+                b.set_position(rows as u64);
+            }
+        },
+    );
     if let Some(b) = bar {
         b.finish_and_clear();
     }
     let mut picture = out.picture.clone();
     if !out.guides.is_empty() {
-        let d = CpuDenoiser::default().run(&p.frame, &out.guides, p.spp, false, false);
+        let d = CpuDenoiser::default().run(&p.frame, &out.guides, spp, false, false);
         picture = picture.denoised(&d);
     }
     let rendered = Rendered {
@@ -130,9 +150,109 @@ pub fn choose_backend(opts: &GpuOptions) -> (Backend, String) {
     }
 }
 
-/// `raytrace render`.
-pub fn render_command(args: &SceneArgs, backend: Backend, out: Option<PathBuf>, opts: &GpuOptions) -> Result<PathBuf> {
+/// Renders samples `first..first + spp` of `p` on every device of `devices` at once (indices
+/// or names, as `--device` takes them), each an equal share of consecutive samples, and adds
+/// their sums in device order (the same image whichever device finishes first).
+fn render_devices(p: &Prepared, first: u32, spp: u32, devices: &[String], opts: &GpuOptions) -> Result<Rendered> {
+    let n = devices.len() as u32;
+    ensure!(
+        n <= spp,
+        "{n} devices for {spp} samples per pixel: each device needs at least one sample"
+    );
+    let results: Vec<Result<Rendered>> = std::thread::scope(|scope| {
+        let threads: Vec<_> = devices
+            .iter()
+            .enumerate()
+            .map(|(k, device)| {
+                let o = GpuOptions {
+                    device: Some(device.clone()),
+                    ..opts.clone()
+                };
+                let at = |k: usize| first + (k as u64 * spp as u64 / n as u64) as u32;
+                let (a, b) = (at(k), at(k + 1));
+                scope.spawn(move || -> Result<Rendered> {
+                    let (gpu, kernels) = open_gpu(&o).with_context(|| format!("opening device {device}"))?;
+                    let mut r = GpuRenderer::new(&gpu, &kernels)?;
+                    render_gpu_samples(&mut r, p, a, b - a, true)
+                        .with_context(|| format!("rendering on device {device}"))
+                })
+            })
+            .collect();
+        threads
+            .into_iter()
+            .map(|t| {
+                t.join()
+                    .unwrap_or_else(|_| Err(anyhow!("a device's render thread panicked")))
+            })
+            .collect()
+    });
+    let parts = results.into_iter().collect::<Result<Vec<_>>>()?;
+    let sums: Vec<&[[f32; 4]]> = parts.iter().map(|r| r.picture.accum.as_slice()).collect();
+    let picture = shard::sum_pictures(&sums, spp, &p.frame);
+    // The devices ran side by side: the stage times of the slowest.
+    let total = |r: &Rendered| r.timings.iter().map(|t| t.1).sum::<f64>();
+    let slowest = parts.iter().max_by(|a, b| total(a).total_cmp(&total(b)));
+    let timings = slowest.map_or(Vec::new(), |r| r.timings.clone());
+    let names: Vec<String> = parts
+        .iter()
+        .map(|r| format!("{} {}", r.device, super::render::ms(total(r))))
+        .collect();
+    Ok(Rendered {
+        picture,
+        timings,
+        device: format!("{n} devices: {}", names.join(", ")),
+    })
+}
+
+/// The devices `--devices` names: `all` (every Vulkan device), or indices or names separated
+/// by commas.
+pub fn parse_devices(list: &str) -> Result<Vec<String>> {
+    if list.trim() == "all" {
+        let n = Gpu::list()?.len();
+        ensure!(n > 0, "--devices all: no Vulkan device");
+        return Ok((0..n).map(|i| i.to_string()).collect());
+    }
+    let devices: Vec<String> = list.split(',').map(|d| d.trim().to_string()).collect();
+    ensure!(
+        devices.iter().all(|d| !d.is_empty()),
+        "--devices takes all, or device indices or names separated by commas (0,1), not {list:?}"
+    );
+    Ok(devices)
+}
+
+/// `raytrace render`; with `shard` only that shard's samples, written as a shard file
+/// (`crate::shard`); with `devices` on several GPUs at once.
+pub fn render_command(
+    args: &SceneArgs,
+    backend: Backend,
+    out: Option<PathBuf>,
+    shard: Option<Shard>,
+    devices: Option<&str>,
+    opts: &GpuOptions,
+) -> Result<PathBuf> {
+    let devices = devices.map(parse_devices).transpose()?;
+    if devices.is_some() {
+        ensure!(opts.device.is_none(), "--device and --devices: give one of them");
+        ensure!(
+            backend != Backend::Cpu,
+            "--devices renders on GPUs: not with --backend cpu"
+        );
+        ensure!(
+            !args.denoise,
+            "--denoise does not combine with --devices: each device holds the raw sums of some of the frame's samples, and the denoiser needs all of them"
+        );
+    }
     let p = args.prepare()?;
+    let (first, spp) = match shard {
+        Some(s) => {
+            ensure!(
+                !args.denoise,
+                "--denoise does not combine with --shard: a shard holds the raw sums of some of the frame's samples, and the denoiser needs all of them"
+            );
+            s.samples(p.spp)?
+        }
+        None => (0, p.spp),
+    };
     if args.explain {
         println!("kernel features for {}:\n{}", p.scene.name, p.features.explain());
         let b = p.build(p.spp);
@@ -143,9 +263,23 @@ pub fn render_command(args: &SceneArgs, backend: Backend, out: Option<PathBuf>, 
         };
         println!("BVH traced: {tree}");
     }
-    let out = out.unwrap_or_else(|| PathBuf::from(format!("{}.png", p.scene.name)));
+    let out = out.unwrap_or_else(|| match shard {
+        Some(s) => s.default_path(&p.scene.name),
+        None => PathBuf::from(format!("{}.png", p.scene.name)),
+    });
+    if shard.is_some() {
+        // Before the render, not after it: the extension is checked on writing.
+        ensure!(
+            out.extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| e.eq_ignore_ascii_case("exr")),
+            "{}: a shard is written as .exr (its radiance sums and sample count, which a PNG cannot hold)",
+            out.display()
+        );
+    }
     let wall = Instant::now();
     let backend = match backend {
+        Backend::Auto if devices.is_some() => Backend::Gpu,
         Backend::Auto => {
             let (chosen, why) = choose_backend(opts);
             eprintln!("backend: {why}");
@@ -153,21 +287,28 @@ pub fn render_command(args: &SceneArgs, backend: Backend, out: Option<PathBuf>, 
         }
         b => b,
     };
-    let rendered = match backend {
-        Backend::Gpu | Backend::Auto => match open_gpu(opts) {
+    let rendered = match (backend, &devices) {
+        (_, Some(list)) => render_devices(&p, first, spp, list, opts)?,
+        (Backend::Gpu | Backend::Auto, None) => match open_gpu(opts) {
             Ok((gpu, kernels)) => {
                 let mut r = GpuRenderer::new(&gpu, &kernels)?;
-                render_gpu(&mut r, &p, false)?
+                render_gpu_samples(&mut r, &p, first, spp, false)?
             }
             Err(e) => {
                 eprintln!("no usable Vulkan device ({e:#}); rendering on the CPU backend instead");
-                render_on_cpu(&p, false).0
+                render_on_cpu_samples(&p, first, spp, false).0
             }
         },
-        Backend::Cpu => render_on_cpu(&p, false).0,
+        (Backend::Cpu, None) => render_on_cpu_samples(&p, first, spp, false).0,
     };
     let wall = wall.elapsed().as_secs_f64();
-    rendered.picture.save(&out)?;
+    match shard {
+        Some(s) => {
+            shard::write(&out, &rendered.picture, s, first, &p)?;
+            println!("shard {s}: samples {first}..{} of {} per pixel", first + spp, p.spp);
+        }
+        None => rendered.picture.save(&out)?,
+    }
     println!("{}", summary(&p, &rendered, wall));
     println!("wrote {}", out.display());
     Ok(out)
@@ -184,7 +325,7 @@ pub fn summary(p: &Prepared, r: &Rendered, wall: f64) -> String {
         p.scene.name,
         p.frame.width,
         p.frame.height,
-        p.spp,
+        r.picture.samples,
         p.frame.max_depth,
         if p.frame.flags & shared::types::FLAG_BVH == 0 { ", brute force" } else { "" },
         ms(total),

@@ -70,6 +70,20 @@ pub fn render_cpu_moving(
     build: BuildOptions,
     progress: &(dyn Fn(u32) + Sync),
 ) -> CpuRender {
+    render_cpu_samples(scene, previous, frame, 0, samples, build, progress)
+}
+
+/// [`render_cpu_moving`] of samples `first..first + samples` (`render --shard`: the sums of a
+/// frame's later samples alone).
+pub fn render_cpu_samples(
+    scene: &SceneGpu,
+    previous: &[Object],
+    frame: &Frame,
+    first: u32,
+    samples: u32,
+    build: BuildOptions,
+    progress: &(dyn Fn(u32) + Sync),
+) -> CpuRender {
     // The objects binding: the current objects, then the previous ones.
     let objects = [scene.objects.as_slice(), previous].concat();
     let mut timings = Vec::new();
@@ -104,7 +118,7 @@ pub fn render_cpu_moving(
         texels: &scene.textures.texels,
     };
     let push = RenderPush {
-        sample_base: 0,
+        sample_base: first,
         samples,
         ..Default::default()
     };

@@ -124,6 +124,8 @@ pub struct GpuRenderer {
     frame: Frame,
     /// Samples per pixel accumulated so far.
     samples: u32,
+    /// Index of the first sample traced (`render --shard`: a frame's later samples alone).
+    first_sample: u32,
     build: BuildOptions,
     /// `DISPLAY_*` flags of the display pass.
     display_flags: u32,
@@ -155,6 +157,7 @@ impl GpuRenderer {
             bufs: None,
             frame: Frame::default(),
             samples: 0,
+            first_sample: 0,
             build: BuildOptions::lbvh(MortonBits::B30),
             display_flags: 0,
             last_cast_s: 0.0,
@@ -238,6 +241,12 @@ impl GpuRenderer {
     /// Samples per pixel accumulated since the last change.
     pub fn samples(&self) -> u32 {
         self.samples
+    }
+
+    /// Traces samples from index `first` on (each sample's random stream is its index's):
+    /// the accumulation then sums samples `first..first + samples()`. For shards of a frame.
+    pub fn set_first_sample(&mut self, first: u32) {
+        self.first_sample = first;
     }
 
     /// Packs the display image as B, G, R, A bytes (for BGRA swapchain images).
@@ -458,7 +467,7 @@ impl GpuRenderer {
         while done < samples {
             let n = (samples - done).min(SAMPLES_PER_DISPATCH);
             let push = RenderPush {
-                sample_base: self.samples + done,
+                sample_base: self.first_sample + self.samples + done,
                 samples: n,
                 count: guides_from + done,
                 ..Default::default()

@@ -1,0 +1,269 @@
+//! Render farms' shards (`render --shard I/N`, `raytrace merge`): the shards of a frame, merged
+//! in any order, are the image one render makes; merging is deterministic; shards of another
+//! render, missing or repeated shards, and impossible splits are refused with errors that name
+//! them; no partial file is left under a final name.
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_raytrace");
+
+/// A small Cornell box: 48x32, 8 samples per pixel.
+const SCENE: [&str; 5] = ["cornell", "--size", "48x32", "--spp", "8"];
+
+fn run(args: &[&str]) -> (Output, String) {
+    let o = Command::new(BIN).args(args).output().expect("running raytrace");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    (o, text)
+}
+
+fn ok(args: &[&str]) -> String {
+    let (o, text) = run(args);
+    assert!(o.status.success(), "raytrace {} failed:\n{text}", args.join(" "));
+    text
+}
+
+fn fails(args: &[&str]) -> String {
+    let (o, text) = run(args);
+    assert!(
+        !o.status.success(),
+        "raytrace {} should have failed:\n{text}",
+        args.join(" ")
+    );
+    text
+}
+
+fn folder(test: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("raytrace-shards-{}-{test}", std::process::id()));
+    std::fs::create_dir_all(&d).expect("creating a temporary folder");
+    d
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("a UTF-8 path")
+}
+
+/// Renders `SCENE` (plus `extra`) as shard `i` of `n` into `dir`.
+fn shard(dir: &Path, i: u32, n: u32, extra: &[&str]) -> PathBuf {
+    let path = dir.join(format!("s{i}of{n}.exr"));
+    let spec = format!("{i}/{n}");
+    let mut args = vec!["render"];
+    args.extend(SCENE);
+    args.extend(extra);
+    args.extend(["--shard", &spec, "--out", s(&path)]);
+    let text = ok(&args);
+    assert!(text.contains(&format!("shard {spec}: samples")), "{text}");
+    path
+}
+
+fn linear(path: &Path) -> Vec<f32> {
+    image::open(path)
+        .unwrap_or_else(|e| panic!("reading {}: {e}", path.display()))
+        .into_rgb32f()
+        .into_raw()
+}
+
+/// The largest difference between two linear images relative to the brightest value.
+fn max_relative_difference(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len(), "image sizes differ");
+    let peak = a.iter().fold(0f32, |m, &v| m.max(v.abs())).max(1e-6);
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max) / peak
+}
+
+fn png_max_byte_difference(a: &Path, b: &Path) -> u8 {
+    let (a, b) = (image::open(a).unwrap().into_rgb8(), image::open(b).unwrap().into_rgb8());
+    a.as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(x, y)| x.abs_diff(*y))
+        .max()
+        .unwrap_or(0)
+}
+
+/// Whether the GPU tests may run: a Vulkan device, or REQUIRE_VULKAN=1 (then its absence fails).
+fn vulkan(test: &str) -> bool {
+    let has = raytrace::gpu::Gpu::list().is_ok_and(|d| !d.is_empty());
+    if !has && std::env::var_os("REQUIRE_VULKAN").is_some_and(|v| v == "1") {
+        panic!("{test}: REQUIRE_VULKAN=1 but no Vulkan device");
+    }
+    if !has {
+        eprintln!("SKIPPED {test}: no Vulkan device");
+    }
+    has
+}
+
+/// Renders the single run and three shards on `backend`, merges them in a shuffled order,
+/// and checks the merge against the single run.
+fn merged_equals_single_run(test: &str, backend: &str) {
+    let dir = folder(test);
+    let b = ["--backend", backend];
+    let (single_exr, single_png) = (dir.join("single.exr"), dir.join("single.png"));
+    for out in [&single_exr, &single_png] {
+        let mut args = vec!["render"];
+        args.extend(SCENE);
+        args.extend(b);
+        args.extend(["--out", s(out)]);
+        ok(&args);
+    }
+    // 8 samples in 3 shards: 0..2, 2..5, 5..8.
+    let shards: Vec<PathBuf> = (0..3).map(|i| shard(&dir, i, 3, &b)).collect();
+    let (merged_exr, merged_png, again) = (dir.join("merged.exr"), dir.join("merged.png"), dir.join("again.exr"));
+    let order = [s(&shards[2]), s(&shards[0]), s(&shards[1])];
+    for out in [&merged_exr, &merged_png] {
+        let mut args = vec!["merge"];
+        args.extend(order);
+        args.extend(["--out", s(out)]);
+        let text = ok(&args);
+        assert!(text.contains("merged 3 shards: 48x32, 8 spp"), "{text}");
+    }
+    ok(&["merge", s(&shards[0]), s(&shards[1]), s(&shards[2]), "--out", s(&again)]);
+
+    // The same samples, summed in other groups: equal within float rounding.
+    let d = max_relative_difference(&linear(&single_exr), &linear(&merged_exr));
+    assert!(
+        d < 1e-5,
+        "{backend}: merged shards differ from the single run by {d} of the peak"
+    );
+    assert!(png_max_byte_difference(&single_png, &merged_png) <= 1);
+    // Merging is deterministic whatever order the files are given in.
+    assert_eq!(
+        std::fs::read(&merged_exr).unwrap(),
+        std::fs::read(&again).unwrap(),
+        "two merges of the same shards differ"
+    );
+    // Files appear whole under their names: nothing partial is left behind.
+    let leftovers: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains(".partial-"))
+        .collect();
+    assert!(leftovers.is_empty(), "partial files left: {leftovers:?}");
+}
+
+#[test]
+fn cpu_shards_merge_into_the_single_run() {
+    merged_equals_single_run("cpu", "cpu");
+}
+
+#[test]
+fn gpu_shards_merge_into_the_single_run() {
+    if vulkan("gpu_shards_merge_into_the_single_run") {
+        merged_equals_single_run("gpu", "gpu");
+    }
+}
+
+/// `--devices`: the samples split across devices (here the first device opened twice, as
+/// two logical devices, where a host has one), the sums added in device order.
+#[test]
+fn devices_split_the_samples_and_add_up_to_the_single_run() {
+    if !vulkan("devices_split_the_samples_and_add_up_to_the_single_run") {
+        return;
+    }
+    let dir = folder("devices");
+    let (single, split, all) = (dir.join("single.exr"), dir.join("split.exr"), dir.join("all.exr"));
+    let render = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["render"];
+        args.extend(SCENE);
+        args.extend(["--backend", "gpu"]);
+        args.extend(extra);
+        args.extend(["--out", s(out)]);
+        ok(&args)
+    };
+    render(&single, &[]);
+    let text = render(&split, &["--devices", "0,0"]);
+    assert!(text.contains("on 2 devices: "), "{text}");
+    let d = max_relative_difference(&linear(&single), &linear(&split));
+    assert!(d < 1e-5, "two devices differ from one by {d} of the peak");
+    render(&all, &["--devices", "all"]);
+    let d = max_relative_difference(&linear(&single), &linear(&all));
+    assert!(d < 1e-5, "--devices all differs from one device by {d} of the peak");
+
+    let out = dir.join("x.exr");
+    let base = ["render", "cornell", "--size", "8x8", "--spp", "2", "--out", s(&out)];
+    for (extra, says) in [
+        (&["--devices", "0,0", "--backend", "cpu"][..], "not with --backend cpu"),
+        (&["--devices", "0,,1"][..], "--devices takes all"),
+        (&["--devices", "0,0,0"][..], "3 devices for 2 samples per pixel"),
+        (&["--devices", "0", "--device", "0"][..], "give one of them"),
+        (&["--devices", "0,99"][..], "device 99"),
+    ] {
+        let mut args = base.to_vec();
+        args.extend(extra);
+        let text = fails(&args);
+        assert!(text.contains(says), "{extra:?}: {text}");
+    }
+}
+
+#[test]
+fn merge_refuses_what_is_not_one_frames_shards() {
+    let dir = folder("refuse");
+    let cpu = ["--backend", "cpu"];
+    let a: Vec<PathBuf> = (0..3).map(|i| shard(&dir, i, 3, &cpu)).collect();
+    let out = dir.join("out.png");
+    let o = s(&out);
+
+    let text = fails(&["merge", s(&a[0]), s(&a[2]), "--out", o]);
+    assert!(text.contains("shards missing of 3: 1"), "{text}");
+    let text = fails(&["merge", s(&a[0]), s(&a[1]), s(&a[1]), s(&a[2]), "--out", o]);
+    assert!(text.contains("more than once: 1"), "{text}");
+
+    // Another seed is another render: the hashes differ.
+    let other = dir.join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    let seeded = shard(&other, 1, 3, &["--backend", "cpu", "--seed", "7"]);
+    let text = fails(&["merge", s(&a[0]), s(&seeded), s(&a[2]), "--out", o]);
+    assert!(
+        text.contains("not shards of the same render") && text.contains("hashes"),
+        "{text}"
+    );
+
+    // Another split of the same render.
+    let half = shard(&other, 0, 2, &cpu);
+    let text = fails(&["merge", s(&a[1]), s(&half), "--out", o]);
+    assert!(text.contains("shard counts differ"), "{text}");
+
+    // Not a shard at all: a plain render's EXR, and a file that is not an EXR.
+    let plain = dir.join("plain.exr");
+    let mut args = vec!["render"];
+    args.extend(SCENE);
+    args.extend(["--backend", "cpu", "--out", s(&plain)]);
+    ok(&args);
+    let text = fails(&["merge", s(&plain), "--out", o]);
+    assert!(text.contains("not a shard written by"), "{text}");
+    let junk = dir.join("junk.exr");
+    std::fs::write(&junk, b"not an image").unwrap();
+    let text = fails(&["merge", s(&junk), "--out", o]);
+    assert!(text.contains("junk.exr"), "{text}");
+    assert!(!out.exists(), "a failed merge wrote {}", out.display());
+}
+
+#[test]
+fn impossible_shards_are_refused_before_rendering() {
+    let dir = folder("impossible");
+    let out = dir.join("x.exr");
+    let base = ["render", "cornell", "--size", "8x8", "--spp", "4", "--backend", "cpu"];
+    for (spec, says) in [
+        ("4/4", "0 <= I < N"),
+        ("1/0", "0 <= I < N"),
+        ("a/b", "0 <= I < N"),
+        ("0/5", "5 shards of 4 samples per pixel"),
+    ] {
+        let mut args = base.to_vec();
+        args.extend(["--shard", spec, "--out", s(&out)]);
+        let text = fails(&args);
+        assert!(text.contains(says), "--shard {spec}: {text}");
+    }
+    let png = dir.join("x.png");
+    let mut args = base.to_vec();
+    args.extend(["--shard", "0/2", "--out", s(&png)]);
+    let text = fails(&args);
+    assert!(text.contains("a shard is written as .exr"), "{text}");
+    let mut args = base.to_vec();
+    args.extend(["--shard", "0/2", "--denoise", "--out", s(&out)]);
+    let text = fails(&args);
+    assert!(text.contains("--denoise does not combine with --shard"), "{text}");
+    assert!(!out.exists() && !png.exists());
+}
