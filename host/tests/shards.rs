@@ -267,3 +267,152 @@ fn impossible_shards_are_refused_before_rendering() {
     assert!(text.contains("--denoise does not combine with --shard"), "{text}");
     assert!(!out.exists() && !png.exists());
 }
+
+/// A small animated scene: a sphere orbiting over a floor under a sky.
+const ANIMATED: &str = r#"
+[camera]
+position = [0, 2, -6]
+look_at = [0, 0.5, 0]
+vfov = 40
+
+[render]
+width = 40
+height = 30
+spp = 4
+sky = { top = [0.5, 0.7, 1.0], bottom = [1, 1, 1] }
+
+[materials.ground]
+kind = "diffuse"
+albedo = [0.5, 0.5, 0.5]
+
+[materials.red]
+kind = "diffuse"
+albedo = [0.8, 0.1, 0.1]
+
+[[objects]]
+name = "floor"
+mesh = "builtin:quad"
+material = "ground"
+scale = [20, 1, 20]
+
+[[objects]]
+name = "ball"
+sphere = 0.5
+material = "red"
+
+[objects.animation]
+orbit = { center = [0, 0.5, 0], radius = 2, period = 2 }
+"#;
+
+/// `--frames A..B`: each frame at its own time into its own file, the same picture `--time`
+/// gives; shards of a frame merge into it; frame ranges and names that cannot work are refused.
+#[test]
+fn frames_render_each_frame_at_its_time_to_its_own_file() {
+    let dir = folder("frames");
+    let scene = dir.join("orbit.toml");
+    std::fs::write(&scene, ANIMATED).unwrap();
+    let sc = s(&scene);
+    let pattern = dir.join("f-###.png");
+    let text = ok(&[
+        "render",
+        sc,
+        "--backend",
+        "cpu",
+        "--frames",
+        "2..5",
+        "--fps",
+        "4",
+        "--out",
+        s(&pattern),
+    ]);
+    assert!(
+        text.contains("frame at 0.5 s:") && text.contains("frame at 1 s:"),
+        "{text}"
+    );
+    let frames: Vec<PathBuf> = (2..5).map(|k| dir.join(format!("f-{k:03}.png"))).collect();
+    for f in &frames {
+        assert!(f.exists(), "{} not written:\n{text}", f.display());
+    }
+    assert!(!dir.join("f-001.png").exists() && !dir.join("f-005.png").exists());
+    // Frame 3 at 4 frames per second is time 0.75 s.
+    let at = dir.join("at.png");
+    ok(&["render", sc, "--backend", "cpu", "--time", "0.75", "--out", s(&at)]);
+    assert_eq!(std::fs::read(&at).unwrap(), std::fs::read(&frames[1]).unwrap());
+    assert_ne!(
+        std::fs::read(&frames[0]).unwrap(),
+        std::fs::read(&frames[1]).unwrap(),
+        "the ball did not move between frames"
+    );
+
+    // Shards of one frame (a farm's unit of work: frame by sample range).
+    let shard_pattern = dir.join("s-####.exr");
+    for spec in ["0/2", "1/2"] {
+        let shard_pattern = shard_pattern.with_file_name(format!("s{}-####.exr", &spec[..1]));
+        ok(&[
+            "render",
+            sc,
+            "--backend",
+            "cpu",
+            "--frames",
+            "3..4",
+            "--fps",
+            "4",
+            "--shard",
+            spec,
+            "--out",
+            s(&shard_pattern),
+        ]);
+    }
+    let (merged, at_exr) = (dir.join("merged.exr"), dir.join("at.exr"));
+    ok(&[
+        "merge",
+        s(&dir.join("s0-0003.exr")),
+        s(&dir.join("s1-0003.exr")),
+        "--out",
+        s(&merged),
+    ]);
+    ok(&["render", sc, "--backend", "cpu", "--time", "0.75", "--out", s(&at_exr)]);
+    let d = max_relative_difference(&linear(&at_exr), &linear(&merged));
+    assert!(d < 1e-5, "a frame's merged shards differ from its render by {d}");
+    // Shards of different frames are different renders.
+    ok(&[
+        "render",
+        sc,
+        "--backend",
+        "cpu",
+        "--frames",
+        "4..5",
+        "--fps",
+        "4",
+        "--shard",
+        "1/2",
+        "--out",
+        s(&shard_pattern),
+    ]);
+    let text = fails(&[
+        "merge",
+        s(&dir.join("s0-0003.exr")),
+        s(&dir.join("s-0004.exr")),
+        "--out",
+        s(&merged),
+    ]);
+    assert!(text.contains("hashes"), "{text}");
+
+    for (extra, says) in [
+        (&["--frames", "5..5"][..], "A < B"),
+        (&["--frames", "x"][..], "frames are A..B"),
+        (
+            &["--frames", "0..2", "--out", "plain.png"][..],
+            "needs # where the frame number goes",
+        ),
+        (
+            &["--frames", "0..2", "--fps", "0"][..],
+            "--fps must be a positive number",
+        ),
+    ] {
+        let mut args = vec!["render", sc, "--backend", "cpu"];
+        args.extend(extra);
+        let text = fails(&args);
+        assert!(text.contains(says), "{extra:?}: {text}");
+    }
+}

@@ -12,7 +12,7 @@ mod render;
 mod scene;
 
 pub use compare::{compare, Comparison};
-pub use render::Rendered;
+pub use render::{frame_path, FrameRange, RenderJob, Rendered};
 pub use scene::{parse_size, Bits, Prepared, SceneArgs, Treelets};
 
 use crate::gpu::GpuOptions;
@@ -63,6 +63,14 @@ enum Command {
         /// device order.
         #[arg(long, value_name = "all|0,1,...")]
         devices: Option<String>,
+        /// Render frames A up to B - 1 of the animation, frame k at time --time + k / --fps,
+        /// each to --out with its last run of # replaced by the frame number (default
+        /// SCENE-####.png).
+        #[arg(long, value_name = "A..B")]
+        frames: Option<FrameRange>,
+        /// Frames per second of --frames.
+        #[arg(long, default_value_t = 30.0)]
+        fps: f32,
     },
     /// Add up the shards of one frame (`render --shard I/N`, each exactly once, any order) into
     /// the image a single render makes.
@@ -125,8 +133,18 @@ pub fn run() -> Result<()> {
             out,
             shard,
             devices,
+            frames,
+            fps,
         } => {
-            render::render_command(&scene, backend, out, shard, devices.as_deref(), &opts)?;
+            let job = RenderJob {
+                backend,
+                out,
+                shard,
+                devices: devices.as_deref(),
+                frames,
+                fps,
+            };
+            render::render_command(&scene, &job, &opts)?;
         }
         Command::Merge { shards, out } => {
             let picture = crate::shard::merge(&shards)?;
@@ -162,14 +180,7 @@ fn first_run(opts: &GpuOptions) -> Result<()> {
         }
     }
     let args = SceneArgs::parse_from(["raytrace", "cornell"]);
-    let out = render::render_command(
-        &args,
-        Backend::Auto,
-        Some(PathBuf::from("cornell.png")),
-        None,
-        None,
-        opts,
-    )?;
+    let out = render::render_command(&args, &RenderJob::to(Some(PathBuf::from("cornell.png"))), opts)?;
     println!(
         "open {} to see it; `raytrace view` opens the interactive viewer where a display exists",
         out.display()

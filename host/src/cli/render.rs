@@ -9,7 +9,7 @@ use crate::shard::{self, Shard};
 use anyhow::{anyhow, ensure, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use shared::types::FLAG_DENOISE;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -220,21 +220,92 @@ pub fn parse_devices(list: &str) -> Result<Vec<String>> {
     Ok(devices)
 }
 
+/// `--frames A..B`: frames `A` up to `B - 1` of an animation.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct FrameRange {
+    pub start: u32,
+    pub end: u32,
+}
+
+impl std::str::FromStr for FrameRange {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<FrameRange, String> {
+        let bad = || format!("frames are A..B, frames A up to B - 1 with A < B (for example 0..120), not {s:?}");
+        let (a, b) = s.split_once("..").ok_or_else(bad)?;
+        let (start, end): (u32, u32) = (
+            a.trim().parse().map_err(|_| bad())?,
+            b.trim().parse().map_err(|_| bad())?,
+        );
+        if start >= end {
+            return Err(bad());
+        }
+        Ok(FrameRange { start, end })
+    }
+}
+
+/// `pattern` with its last run of `#` replaced by `frame`, zero-padded to the run's length
+/// (`bunny-####.png`, frame 7: `bunny-0007.png`); an error where the file name has no `#`.
+pub fn frame_path(pattern: &Path, frame: u32) -> Result<PathBuf> {
+    let name = pattern
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let end = name.rfind('#').with_context(|| {
+        format!(
+            "{}: with --frames the output's name needs # where the frame number goes (for example frames/bunny-####.png)",
+            pattern.display()
+        )
+    })?;
+    let start = name[..end].rfind(|c| c != '#').map_or(0, |i| i + 1);
+    let width = end + 1 - start;
+    let name = format!("{}{frame:0width$}{}", &name[..start], &name[end + 1..]);
+    Ok(pattern.with_file_name(name))
+}
+
+/// How `render` traces: one GPU, several, or the CPU executor.
+enum Engine {
+    Gpu(Box<GpuRenderer>),
+    Devices(Vec<String>),
+    Cpu,
+}
+
+/// What `render_command` does besides the scene: where to write, which samples, where.
+pub struct RenderJob<'a> {
+    pub backend: Backend,
+    /// Output file (a pattern with `#` for frames).
+    pub out: Option<PathBuf>,
+    pub shard: Option<Shard>,
+    /// `--devices`.
+    pub devices: Option<&'a str>,
+    /// `--frames` and the frames per second of their animation times.
+    pub frames: Option<FrameRange>,
+    pub fps: f32,
+}
+
+impl RenderJob<'_> {
+    /// One frame to `out`, as `render FILE` without options.
+    pub fn to(out: Option<PathBuf>) -> RenderJob<'static> {
+        RenderJob {
+            backend: Backend::Auto,
+            out,
+            shard: None,
+            devices: None,
+            frames: None,
+            fps: 30.0,
+        }
+    }
+}
+
 /// `raytrace render`; with `shard` only that shard's samples, written as a shard file
-/// (`crate::shard`); with `devices` on several GPUs at once.
-pub fn render_command(
-    args: &SceneArgs,
-    backend: Backend,
-    out: Option<PathBuf>,
-    shard: Option<Shard>,
-    devices: Option<&str>,
-    opts: &GpuOptions,
-) -> Result<PathBuf> {
-    let devices = devices.map(parse_devices).transpose()?;
+/// (`crate::shard`); with `devices` on several GPUs at once; with `frames` every frame of
+/// the range at times `--time + k / fps`, each to its own file. Returns the last file written.
+pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> Result<PathBuf> {
+    let devices = job.devices.map(parse_devices).transpose()?;
     if devices.is_some() {
         ensure!(opts.device.is_none(), "--device and --devices: give one of them");
         ensure!(
-            backend != Backend::Cpu,
+            job.backend != Backend::Cpu,
             "--devices renders on GPUs: not with --backend cpu"
         );
         ensure!(
@@ -242,8 +313,13 @@ pub fn render_command(
             "--denoise does not combine with --devices: each device holds the raw sums of some of the frame's samples, and the denoiser needs all of them"
         );
     }
-    let p = args.prepare()?;
-    let (first, spp) = match shard {
+    ensure!(
+        job.fps.is_finite() && job.fps > 0.0,
+        "--fps must be a positive number, not {}",
+        job.fps
+    );
+    let mut p = args.prepare()?;
+    let (first, spp) = match job.shard {
         Some(s) => {
             ensure!(
                 !args.denoise,
@@ -263,12 +339,20 @@ pub fn render_command(
         };
         println!("BVH traced: {tree}");
     }
-    let out = out.unwrap_or_else(|| match shard {
-        Some(s) => s.default_path(&p.scene.name),
-        None => PathBuf::from(format!("{}.png", p.scene.name)),
+    let name = &p.scene.name;
+    let frames_tag = if job.frames.is_some() { "-####" } else { "" };
+    let out = job.out.clone().unwrap_or_else(|| match job.shard {
+        Some(s) => PathBuf::from(format!("{name}{frames_tag}.shard-{}-of-{}.exr", s.index, s.count)),
+        None => PathBuf::from(format!("{name}{frames_tag}.png")),
     });
-    if shard.is_some() {
-        // Before the render, not after it: the extension is checked on writing.
+    // Checked before any rendering: the names and the extension.
+    let outputs: Vec<(f32, PathBuf)> = match job.frames {
+        Some(r) => (r.start..r.end)
+            .map(|k| Ok((args.time + k as f32 / job.fps, frame_path(&out, k)?)))
+            .collect::<Result<_>>()?,
+        None => vec![(args.time, out.clone())],
+    };
+    if job.shard.is_some() {
         ensure!(
             out.extension()
                 .and_then(|e| e.to_str())
@@ -277,8 +361,7 @@ pub fn render_command(
             out.display()
         );
     }
-    let wall = Instant::now();
-    let backend = match backend {
+    let backend = match job.backend {
         Backend::Auto if devices.is_some() => Backend::Gpu,
         Backend::Auto => {
             let (chosen, why) = choose_backend(opts);
@@ -287,31 +370,42 @@ pub fn render_command(
         }
         b => b,
     };
-    let rendered = match (backend, &devices) {
-        (_, Some(list)) => render_devices(&p, first, spp, list, opts)?,
+    let mut engine = match (backend, devices) {
+        (_, Some(list)) => Engine::Devices(list),
         (Backend::Gpu | Backend::Auto, None) => match open_gpu(opts) {
-            Ok((gpu, kernels)) => {
-                let mut r = GpuRenderer::new(&gpu, &kernels)?;
-                render_gpu_samples(&mut r, &p, first, spp, false)?
-            }
+            Ok((gpu, kernels)) => Engine::Gpu(Box::new(GpuRenderer::new(&gpu, &kernels)?)),
             Err(e) => {
                 eprintln!("no usable Vulkan device ({e:#}); rendering on the CPU backend instead");
-                render_on_cpu_samples(&p, first, spp, false).0
+                Engine::Cpu
             }
         },
-        (Backend::Cpu, None) => render_on_cpu_samples(&p, first, spp, false).0,
+        (Backend::Cpu, None) => Engine::Cpu,
     };
-    let wall = wall.elapsed().as_secs_f64();
-    match shard {
-        Some(s) => {
-            shard::write(&out, &rendered.picture, s, first, &p)?;
-            println!("shard {s}: samples {first}..{} of {} per pixel", first + spp, p.spp);
+    for (time, path) in &outputs {
+        if job.frames.is_some() {
+            p.data.objects = p.scene.objects_at(*time);
         }
-        None => rendered.picture.save(&out)?,
+        let wall = Instant::now();
+        let rendered = match &mut engine {
+            Engine::Devices(list) => render_devices(&p, first, spp, list, opts)?,
+            Engine::Gpu(r) => render_gpu_samples(r, &p, first, spp, false)?,
+            Engine::Cpu => render_on_cpu_samples(&p, first, spp, false).0,
+        };
+        let wall = wall.elapsed().as_secs_f64();
+        match job.shard {
+            Some(s) => {
+                shard::write(path, &rendered.picture, s, first, &p)?;
+                println!("shard {s}: samples {first}..{} of {} per pixel", first + spp, p.spp);
+            }
+            None => rendered.picture.save(path)?,
+        }
+        if job.frames.is_some() {
+            println!("frame at {time} s:");
+        }
+        println!("{}", summary(&p, &rendered, wall));
+        println!("wrote {}", path.display());
     }
-    println!("{}", summary(&p, &rendered, wall));
-    println!("wrote {}", out.display());
-    Ok(out)
+    Ok(outputs.last().map(|o| o.1.clone()).unwrap_or(out))
 }
 
 /// The summary line: scene, settings, device, time per stage, rays per second.
