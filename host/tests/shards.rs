@@ -181,6 +181,35 @@ fn devices_split_the_samples_and_add_up_to_the_single_run() {
     let d = max_relative_difference(&linear(&single), &linear(&all));
     assert!(d < 1e-5, "--devices all differs from one device by {d} of the peak");
 
+    // `bench devices` runs the same split for 1, 2, ... devices and reports the agreement.
+    let results = dir.join("bench");
+    ok(&[
+        "bench",
+        "devices",
+        "--devices",
+        "0,0",
+        "--scene",
+        "cornell",
+        "--size",
+        "24x16",
+        "--spp",
+        "4",
+        "--out",
+        s(&results),
+    ]);
+    let json = std::fs::read_dir(&results)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .find(|e| e.path().extension().is_some_and(|x| x == "json"))
+        .expect("bench devices wrote no JSON");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(json.path()).unwrap()).unwrap();
+    let rows = v["rows"].as_array().expect("rows");
+    assert_eq!(rows.len(), 2);
+    for r in rows {
+        assert!(r["max_rel_diff"].as_f64().unwrap() < 1e-5, "{r}");
+        assert!(r["wall_s"].as_f64().unwrap() > 0.0, "{r}");
+    }
+
     let out = dir.join("x.exr");
     let base = ["render", "cornell", "--size", "8x8", "--spp", "2", "--out", s(&out)];
     for (extra, says) in [

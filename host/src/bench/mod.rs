@@ -1,8 +1,8 @@
 //! Benchmarks, one module each, and what they share (the median, report files, names): the
 //! BVH build (`build`), the thesis's tables (`table2`), real-time frames (`realtime`), trace
 //! throughput per BVH layout (`trace`), specialised kernels (`features`), what accuracy costs
-//! in time (`accuracy`, and for the real-time denoiser `denoise`), and README's performance
-//! section made from their results (`readme`).
+//! in time (`accuracy`, and for the real-time denoiser `denoise`), one render on several
+//! devices (`devices`), and README's performance section made from their results (`readme`).
 //! Results go to `bench/results`, each file naming the GPU and driver; `plot` draws their
 //! charts.
 use anyhow::{Context, Result};
@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 pub mod accuracy;
 pub mod build;
 pub mod denoise;
+pub mod devices;
 pub mod features;
 pub mod plot;
 pub mod readme;

@@ -93,6 +93,14 @@ pub(super) enum Bench {
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
+    /// One render split across the first 1, 2, ... of the host's devices (`render
+    /// --devices`): wall and GPU time, speed-up, efficiency, agreement with one device.
+    Devices {
+        #[command(flatten)]
+        options: bench::devices::Options,
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
     /// BVH build: per-stage GPU time, throughput, memory, CPU executor time.
     Build {
         /// Timed runs per input (after warm-up).
@@ -183,6 +191,16 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
             let md = bench::write_files(&out, &stem, &markdown, &r)?;
             println!("{markdown}");
             println!("wrote {} and {} plots", md.display(), plots.len());
+        }
+        Bench::Devices { options, out } => {
+            let r = bench::devices::run(&options, opts)?;
+            let first = r.rows.first().and_then(|row| row.device_seconds.first());
+            let name = first.map_or("no-device".to_string(), |d| d.0.clone());
+            let stem = format!("devices-{}-{}", r.date, slug(&name));
+            let markdown = bench::devices::markdown(&r);
+            let md = bench::write_files(&out, &stem, &markdown, &r)?;
+            println!("{markdown}");
+            println!("wrote {}", md.display());
         }
         Bench::Table2 {
             runs,

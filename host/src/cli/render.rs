@@ -153,7 +153,18 @@ pub fn choose_backend(opts: &GpuOptions) -> (Backend, String) {
 /// Renders samples `first..first + spp` of `p` on every device of `devices` at once (indices
 /// or names, as `--device` takes them), each an equal share of consecutive samples, and adds
 /// their sums in device order (the same image whichever device finishes first).
-fn render_devices(p: &Prepared, first: u32, spp: u32, devices: &[String], opts: &GpuOptions) -> Result<Rendered> {
+pub fn render_devices(p: &Prepared, first: u32, spp: u32, devices: &[String], opts: &GpuOptions) -> Result<Rendered> {
+    Ok(render_devices_each(p, first, spp, devices, opts)?.0)
+}
+
+/// [`render_devices`], and each device's description and GPU seconds.
+pub fn render_devices_each(
+    p: &Prepared,
+    first: u32,
+    spp: u32,
+    devices: &[String],
+    opts: &GpuOptions,
+) -> Result<(Rendered, Vec<(String, f64)>)> {
     let n = devices.len() as u32;
     ensure!(
         n <= spp,
@@ -197,11 +208,13 @@ fn render_devices(p: &Prepared, first: u32, spp: u32, devices: &[String], opts: 
         .iter()
         .map(|r| format!("{} {}", r.device, super::render::ms(total(r))))
         .collect();
-    Ok(Rendered {
+    let seconds = parts.iter().map(|r| (r.device.clone(), total(r))).collect();
+    let rendered = Rendered {
         picture,
         timings,
         device: format!("{n} devices: {}", names.join(", ")),
-    })
+    };
+    Ok((rendered, seconds))
 }
 
 /// The devices `--devices` names: `all` (every Vulkan device), or indices or names separated

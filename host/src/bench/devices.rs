@@ -1,0 +1,144 @@
+//! `raytrace bench devices`: one render split across the first 1, 2, ..., D devices of the
+//! host (`render --devices`): wall-clock and GPU time, speed-up and efficiency against one
+//! device, and each image's largest difference from the one device's (float rounding only).
+use crate::cli::{render_devices, render_devices_each, Prepared, SceneArgs};
+use crate::gpu::GpuOptions;
+use anyhow::{ensure, Result};
+use clap::Parser;
+use std::fmt::Write;
+use std::time::Instant;
+
+#[derive(clap::Args, Clone, Debug, serde::Serialize)]
+pub struct Options {
+    /// Scene (built-in name or file).
+    #[arg(long, default_value = "bunny")]
+    pub scene: String,
+    #[arg(long, default_value = "3840x2160", value_parser = crate::cli::parse_size)]
+    pub size: (u32, u32),
+    /// Samples per pixel of the render.
+    #[arg(long, default_value_t = 1024)]
+    pub spp: u32,
+    /// The devices, in the order they are added: `all`, or indices or names separated by
+    /// commas.
+    #[arg(long, default_value = "all")]
+    pub devices: String,
+}
+
+/// The render on the first `devices` devices.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Row {
+    pub devices: usize,
+    /// Each device and its GPU time, seconds.
+    pub device_seconds: Vec<(String, f64)>,
+    /// Host clock around the whole render (devices opened, scene uploaded, traced, summed).
+    pub wall_s: f64,
+    /// The slowest device's GPU time.
+    pub gpu_s: f64,
+    /// One device's wall time over this row's.
+    pub speedup: f64,
+    /// Speed-up over the number of devices.
+    pub efficiency: f64,
+    /// Largest difference of the linear image from one device's, relative to its peak.
+    pub max_rel_diff: f64,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Report {
+    pub date: String,
+    pub command: String,
+    pub options: Options,
+    pub rows: Vec<Row>,
+}
+
+/// The largest difference between the linear images `a` and `b`, relative to `a`'s peak.
+fn max_rel_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    let flat = |v: &[[f32; 3]]| v.iter().flatten().map(|&x| x as f64).collect::<Vec<f64>>();
+    let (a, b) = (flat(a), flat(b));
+    let peak = a.iter().fold(0f64, |m, &x| m.max(x.abs())).max(1e-12);
+    a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max) / peak
+}
+
+pub fn run(o: &Options, opts: &GpuOptions) -> Result<Report> {
+    let devices = crate::cli::parse_devices(&o.devices)?;
+    let size = format!("{}x{}", o.size.0, o.size.1);
+    let spp = o.spp.to_string();
+    let args = SceneArgs::try_parse_from(["raytrace", o.scene.as_str(), "--size", &size, "--spp", &spp])?;
+    let p: Prepared = args.prepare()?;
+    ensure!(
+        devices.len() as u32 <= p.spp,
+        "{} devices for {} samples per pixel",
+        devices.len(),
+        p.spp
+    );
+    // Warm-up: every device opened and its pipelines made once (the driver caches them).
+    let small =
+        SceneArgs::try_parse_from(["raytrace", o.scene.as_str(), "--size", "64x64", "--spp", "1"])?.prepare()?;
+    for d in &devices {
+        render_devices(&small, 0, 1, std::slice::from_ref(d), opts)?;
+    }
+    let mut rows: Vec<Row> = Vec::new();
+    let mut one: Option<(Vec<[f32; 3]>, f64)> = None;
+    for k in 1..=devices.len() {
+        eprintln!("{} on {k} device(s)", o.scene);
+        let start = Instant::now();
+        let (rendered, seconds) = render_devices_timed(&p, &devices[..k], opts)?;
+        let wall_s = start.elapsed().as_secs_f64();
+        let image = rendered.linear();
+        let (base, base_wall) = one.get_or_insert_with(|| (image.clone(), wall_s)).clone();
+        let speedup = base_wall / wall_s;
+        rows.push(Row {
+            devices: k,
+            gpu_s: seconds.iter().map(|s| s.1).fold(0.0, f64::max),
+            device_seconds: seconds,
+            wall_s,
+            speedup,
+            efficiency: speedup / k as f64,
+            max_rel_diff: max_rel_diff(&base, &image),
+        });
+    }
+    Ok(Report {
+        date: chrono::Local::now().format("%Y-%m-%d").to_string(),
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        options: o.clone(),
+        rows,
+    })
+}
+
+/// [`render_devices`] of all of `p`'s samples: the picture and each device's GPU seconds.
+fn render_devices_timed(
+    p: &Prepared,
+    devices: &[String],
+    opts: &GpuOptions,
+) -> Result<(crate::picture::Picture, Vec<(String, f64)>)> {
+    let (r, seconds) = render_devices_each(p, 0, p.spp, devices, opts)?;
+    Ok((r.picture, seconds))
+}
+
+pub fn markdown(r: &Report) -> String {
+    let o = &r.options;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# One render on several devices\n\n- date: {}\n- command: `{}`\n- {} at {}x{}, {} spp: the samples split into equal consecutive shares, one a device, each device on a thread of its own with its own renderer; the sums added in device order\n- wall: the host's clock around the whole render (devices opened, scene uploaded, BVH built, traced, sums read back and added; pipelines made once before); GPU: the slowest device's timestamps\n",
+        r.date, r.command, o.scene, o.size.0, o.size.1, o.spp
+    );
+    let _ = writeln!(
+        s,
+        "| devices | wall s | GPU s (slowest) | speed-up | efficiency | largest difference from one device | devices' GPU s |\n|---|---|---|---|---|---|---|"
+    );
+    for row in &r.rows {
+        let each: Vec<String> = row.device_seconds.iter().map(|(d, t)| format!("{d}: {t:.3}")).collect();
+        let _ = writeln!(
+            s,
+            "| {} | {:.3} | {:.3} | {:.2}x | {:.0}% | {:.1e} | {} |",
+            row.devices,
+            row.wall_s,
+            row.gpu_s,
+            row.speedup,
+            row.efficiency * 100.0,
+            row.max_rel_diff,
+            each.join(", ")
+        );
+    }
+    s
+}
