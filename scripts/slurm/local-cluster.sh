@@ -20,8 +20,11 @@ start)
   chmod 400 /etc/munge/munge.key
   mkdir -p /run/munge /var/log/munge /var/lib/munge
   chown munge:munge /run/munge /var/log/munge /var/lib/munge
-  if ! pgrep -x munged >/dev/null; then
-    runuser -u munge -- /usr/sbin/munged --force
+  # (One munged serves every cluster on the machine: a second one fails, harmlessly.)
+  if [ ! -S /run/munge/munge.socket.2 ]; then
+    runuser -u munge -- /usr/sbin/munged --force 2>/dev/null ||
+      setpriv --reuid=munge --regid=munge --init-groups /usr/sbin/munged --force ||
+      true
   fi
   host=$(hostname -s)
   cat > "$conf" <<CONF
