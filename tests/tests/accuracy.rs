@@ -22,7 +22,9 @@ fn accuracy_bench_measures_error_time_and_leaks() {
         cache: dir.join("cache"),
     };
     let r = run(&gpu, &o).expect("bench accuracy");
-    assert_eq!(r.convergence.len(), 4);
+    // Plain, NEE, NEE + MIS, without roulette, and NEE + MIS denoised.
+    assert_eq!(r.convergence.len(), 5);
+    assert!(r.convergence[4].name.contains("denoised"), "{}", r.convergence[4].name);
     for c in &r.convergence {
         let spp: Vec<u32> = c.points.iter().map(|p| p.spp).collect();
         assert_eq!(spp, [1, 2, 4, 8, 16], "{}", c.name);

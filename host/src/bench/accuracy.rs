@@ -2,8 +2,9 @@
 //!
 //! 1. Convergence: relative MSE against a converged reference (rendered once, cached as EXR)
 //!    and GPU trace time, for 1..max samples per pixel, with plain path tracing, next-event
-//!    estimation, NEE with MIS, and NEE with MIS without Russian roulette; efficiency
-//!    `1 / (relMSE x seconds)`.
+//!    estimation, NEE with MIS, NEE with MIS without Russian roulette, and the denoiser's
+//!    section: NEE with MIS denoised once at each point (`render --denoise`, its time added;
+//!    moving frames are `bench denoise`'s); efficiency `1 / (relMSE x seconds)`.
 //! 2. Maximum depth 1..16 at a fixed sample count: error (bias included) against time.
 //! 3. BVH quality: 30- and 63-bit Morton codes (build time, SAH cost, rays per second) and
 //!    brute force.
@@ -14,7 +15,7 @@ use crate::bench::percentile;
 use crate::bench::plot::{line_chart, Chart, Scale, Series};
 use crate::bvh::{BuildOptions, MortonBits};
 use crate::cli::{Prepared, SceneArgs};
-use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
+use crate::gpu::{denoise_ms, stage_ms, Denoise, Gpu, GpuRenderer, Kernels};
 use crate::inputs::hard_cases::{closed_meshes, rays_at_vertices_and_edges, scene_of, OFFSETS};
 use crate::picture::Picture;
 use crate::scene::SceneGpu;
@@ -288,9 +289,12 @@ fn convergence(
     let (mut spp, mut ms, mut out) = (0, 0.0, Vec::new());
     let mut next = 1;
     while next <= max_spp {
-        ms += stage_ms(&r.render(next - spp, false)?, "trace");
+        let t = r.render(next - spp, false)?;
+        ms += stage_ms(&t, "trace");
         spp = next;
-        out.push(point(&r.picture()?, reference, spp, f.max_depth, ms));
+        // A denoised point's time adds one run of the denoiser over all its samples (what
+        // `render --denoise` does once at the end), not every run before it.
+        out.push(point(&r.picture()?, reference, spp, f.max_depth, ms + denoise_ms(&t)));
         next *= 2;
     }
     Ok(out)
@@ -472,6 +476,18 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             points,
         });
     }
+    // The denoiser's section: the same samples as NEE + MIS, denoised once at each point as
+    // `render --denoise` does (moving frames, the real-time case: `bench denoise`).
+    r.set_denoise(Denoise::Accumulated)?;
+    let f = with_flags(&base, FLAG_NEE | FLAG_MIS, 0);
+    let name = "NEE + MIS, denoised (render --denoise)";
+    let points = convergence(&mut r, &p, &f, o.max_spp, &reference).with_context(|| name.to_string())?;
+    r.set_denoise(Denoise::Off)?;
+    eprintln!("{name}: {:?}", points.last().map(|p| (p.ms, p.rel_mse)));
+    curves.push(Curve {
+        name: name.into(),
+        points,
+    });
     let mut depth = Curve {
         name: format!("NEE + MIS, {} spp", o.depth_spp),
         points: Vec::new(),
