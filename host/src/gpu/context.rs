@@ -308,13 +308,18 @@ impl Gpu {
         let candidates = Self::candidates(instance)?;
         let wanted = opts.device.clone().or_else(|| std::env::var("RAYTRACE_DEVICE").ok());
         let chosen = match &wanted {
-            Some(w) => candidates
-                .iter()
-                .find(|c| w.parse::<usize>().ok() == Some(c.index) || c.name.to_lowercase().contains(&w.to_lowercase()))
-                .ok_or_else(|| {
-                    let names: Vec<_> = candidates.iter().map(|c| format!("{}: {}", c.index, c.name)).collect();
-                    anyhow!("no Vulkan device matches {w:?}; available: {}", names.join(", "))
-                })?,
+            // A number is an index, never part of a name ("1" is in "NVIDIA H100": on a host
+            // of two H100s, device 1 was device 0).
+            Some(w) => match w.trim().parse::<usize>() {
+                Ok(i) => candidates.iter().find(|c| c.index == i),
+                Err(_) => candidates
+                    .iter()
+                    .find(|c| c.name.to_lowercase().contains(&w.to_lowercase())),
+            }
+            .ok_or_else(|| {
+                let names: Vec<_> = candidates.iter().map(|c| format!("{}: {}", c.index, c.name)).collect();
+                anyhow!("no Vulkan device matches {w:?}; available: {}", names.join(", "))
+            })?,
             None => candidates
                 .iter()
                 .min_by_key(|c| c.rank())
