@@ -4,7 +4,7 @@
 //! (Plots are `crate::bench::plot`'s.)
 use anyhow::{bail, ensure, Context, Result};
 use image::{ImageFormat, Rgb, Rgb32FImage, RgbImage};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Rec.709 / sRGB luminance weights of linear R, G, B.
 const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
@@ -80,7 +80,7 @@ impl Picture {
     /// error naming the path and the supported ones. Missing parent folders are created. The
     /// file is written under a temporary name and renamed: a file under `path` is complete.
     pub fn save(&self, path: &Path) -> Result<()> {
-        let tmp = crate::shard::temporary(path);
+        let tmp = temporary(path);
         if let Err(e) = self.save_as(path, &tmp) {
             let _ = std::fs::remove_file(&tmp);
             return Err(e);
@@ -318,6 +318,16 @@ fn check_same_size(a: &Picture, b: &Picture) -> Result<()> {
         b.accum.len()
     );
     Ok(())
+}
+
+/// Where a file is written before it is renamed to `path` (so that no half-written file
+/// carries the final name): `.NAME.partial-PID` beside it, hidden and without the final
+/// extension, so that no pattern such as `shard-*.exr` takes it.
+pub fn temporary(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map_or("out".into(), |s| s.to_string_lossy().to_string());
+    path.with_file_name(format!(".{name}.partial-{}", std::process::id()))
 }
 
 fn create_parent(path: &Path) -> Result<()> {

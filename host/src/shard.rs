@@ -14,7 +14,7 @@
 //! total`), [`ATTR_HASH`] and the display settings (exposure, gamma) a merged PNG needs. It is
 //! written to a temporary name and renamed, so a file under the shard's name is complete.
 use crate::cli::Prepared;
-use crate::picture::Picture;
+use crate::picture::{temporary, Picture};
 use anyhow::{bail, ensure, Context, Result};
 use exr::prelude::{AttributeValue, Image, SpecificChannels, Text, Vec2, WritableImage};
 use shared::types::{Frame, RenderPush, FLAG_GAMMA2};
@@ -179,16 +179,6 @@ pub fn write(path: &Path, picture: &Picture, shard: Shard, first: u32, p: &Prepa
         return Err(e).with_context(|| format!("writing shard file {}", tmp.display()));
     }
     std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
-}
-
-/// Where a file is written before it is renamed to `path` (so that no half-written file
-/// carries the final name): `.NAME.partial-PID` beside it, hidden and without the final
-/// extension, so that no pattern such as `shard-*.exr` takes it.
-pub fn temporary(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map_or("out".into(), |s| s.to_string_lossy().to_string());
-    path.with_file_name(format!(".{name}.partial-{}", std::process::id()))
 }
 
 /// Reads a shard file, or says what is wrong with it.

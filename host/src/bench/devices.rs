@@ -81,9 +81,9 @@ pub fn run(o: &Options, opts: &GpuOptions) -> Result<Report> {
     for k in 1..=devices.len() {
         eprintln!("{} on {k} device(s)", o.scene);
         let start = Instant::now();
-        let (rendered, seconds) = render_devices_timed(&p, &devices[..k], opts)?;
+        let (rendered, seconds) = render_devices_each(&p, 0, p.spp, &devices[..k], opts)?;
         let wall_s = start.elapsed().as_secs_f64();
-        let image = rendered.linear();
+        let image = rendered.picture.linear();
         let (base, base_wall) = one.get_or_insert_with(|| (image.clone(), wall_s)).clone();
         let speedup = base_wall / wall_s;
         rows.push(Row {
@@ -102,16 +102,6 @@ pub fn run(o: &Options, opts: &GpuOptions) -> Result<Report> {
         options: o.clone(),
         rows,
     })
-}
-
-/// [`render_devices`] of all of `p`'s samples: the picture and each device's GPU seconds.
-fn render_devices_timed(
-    p: &Prepared,
-    devices: &[String],
-    opts: &GpuOptions,
-) -> Result<(crate::picture::Picture, Vec<(String, f64)>)> {
-    let (r, seconds) = render_devices_each(p, 0, p.spp, devices, opts)?;
-    Ok((r.picture, seconds))
 }
 
 pub fn markdown(r: &Report) -> String {

@@ -179,12 +179,17 @@ pub fn render_devices_each(
                     device: Some(device.clone()),
                     ..opts.clone()
                 };
-                let at = |k: usize| first + (k as u64 * spp as u64 / n as u64) as u32;
-                let (a, b) = (at(k), at(k + 1));
+                // The same split as shards': device k traces shard k of n of these samples.
+                let share = Shard {
+                    index: k as u32,
+                    count: n,
+                }
+                .samples(spp);
                 scope.spawn(move || -> Result<Rendered> {
+                    let (a, count) = share?;
                     let (gpu, kernels) = open_gpu(&o).with_context(|| format!("opening device {device}"))?;
                     let mut r = GpuRenderer::new(&gpu, &kernels)?;
-                    render_gpu_samples(&mut r, p, a, b - a, true)
+                    render_gpu_samples(&mut r, p, first + a, count, true)
                         .with_context(|| format!("rendering on device {device}"))
                 })
             })
@@ -204,10 +209,7 @@ pub fn render_devices_each(
     let total = |r: &Rendered| r.timings.iter().map(|t| t.1).sum::<f64>();
     let slowest = parts.iter().max_by(|a, b| total(a).total_cmp(&total(b)));
     let timings = slowest.map_or(Vec::new(), |r| r.timings.clone());
-    let names: Vec<String> = parts
-        .iter()
-        .map(|r| format!("{} {}", r.device, super::render::ms(total(r))))
-        .collect();
+    let names: Vec<String> = parts.iter().map(|r| format!("{} {}", r.device, ms(total(r)))).collect();
     let seconds = parts.iter().map(|r| (r.device.clone(), total(r))).collect();
     let rendered = Rendered {
         picture,
