@@ -3,7 +3,7 @@
 # (host/tests/slurm.rs). Needs root and Debian's slurmctld, slurmd, slurm-client and munge.
 #   local-cluster.sh start DIR PORT   state, logs and slurm.conf in DIR; slurmctld on PORT,
 #                                     slurmd on PORT+1; waits until the node is idle
-#   local-cluster.sh stop DIR         stops both daemons
+#   local-cluster.sh stop DIR         stops the daemons (and the cluster's own munged)
 # Commands reach the cluster with SLURM_CONF=DIR/slurm.conf.
 set -euo pipefail
 what=${1:?start or stop} dir=${2:?folder}
@@ -12,19 +12,26 @@ case $what in
 start)
   port=${3:?port}
   mkdir -p "$dir/state" "$dir/spool" "$dir/log"
-  # munge authenticates the daemons and the clients to each other: one key, one munged.
-  if [ ! -s /etc/munge/munge.key ]; then
-    dd if=/dev/urandom of=/etc/munge/munge.key bs=1024 count=1 2>/dev/null
-  fi
-  chown munge:munge /etc/munge/munge.key
-  chmod 400 /etc/munge/munge.key
-  mkdir -p /run/munge /var/log/munge /var/lib/munge
-  chown munge:munge /run/munge /var/log/munge /var/lib/munge
-  # (One munged serves every cluster on the machine: a second one fails, harmlessly.)
-  if [ ! -S /run/munge/munge.socket.2 ]; then
-    runuser -u munge -- /usr/sbin/munged --force 2>/dev/null ||
-      setpriv --reuid=munge --regid=munge --init-groups /usr/sbin/munged --force ||
-      true
+  # munge authenticates the daemons and the clients to each other. The cluster has a munged of
+  # its own (key, socket, pid and log in DIR/munge; slurm.conf's AuthInfo names the socket): a
+  # system munged may be missing, stopped, or a stale socket left by one that was killed.
+  m=$dir/munge
+  mkdir -p "$m"
+  chmod 700 "$m"
+  dd if=/dev/urandom of="$m/munge.key" bs=1024 count=1 2>/dev/null
+  chmod 400 "$m/munge.key"
+  /usr/sbin/munged --force --socket="$m/socket" --key-file="$m/munge.key" \
+    --pid-file="$m/munged.pid" --log-file="$m/munged.log" --seed-file="$m/munged.seed"
+  for _ in $(seq 1 20); do
+    if timeout 2 munge -n -S "$m/socket" 2>/dev/null | timeout 2 unmunge -S "$m/socket" >/dev/null 2>&1; then
+      break
+    fi
+    sleep 0.5
+  done
+  if ! timeout 2 munge -n -S "$m/socket" 2>/dev/null | timeout 2 unmunge -S "$m/socket" >/dev/null 2>&1; then
+    echo "munged did not answer on $m/socket in 10 s; its log:" >&2
+    tail -n 20 "$m/munged.log" >&2 || true
+    exit 1
   fi
   host=$(hostname -s)
   cat > "$conf" <<CONF
@@ -35,6 +42,8 @@ SlurmdPort=$((port + 1))
 SlurmUser=root
 SlurmdUser=root
 AuthType=auth/munge
+AuthInfo=socket=$m/socket
+CredType=cred/munge
 StateSaveLocation=$dir/state
 SlurmdSpoolDir=$dir/spool
 SlurmctldPidFile=$dir/slurmctld.pid
@@ -55,8 +64,10 @@ PartitionName=main Nodes=$host Default=YES MaxTime=INFINITE State=UP
 CONF
   /usr/sbin/slurmctld -f "$conf"
   /usr/sbin/slurmd -f "$conf"
-  for _ in $(seq 1 60); do
-    if SLURM_CONF=$conf sinfo -h -o %t 2>/dev/null | grep -q idle; then
+  # Every query bounded (a client that cannot authenticate retries for most of a minute).
+  deadline=$(($(date +%s) + 30))
+  while [ "$(date +%s)" -lt "$deadline" ]; do
+    if SLURM_CONF=$conf timeout 5 sinfo -h -o %t 2>/dev/null | grep -q idle; then
       exit 0
     fi
     sleep 0.5
@@ -66,9 +77,9 @@ CONF
   exit 1
   ;;
 stop)
-  SLURM_CONF=$conf scontrol shutdown >/dev/null 2>&1 || true
+  SLURM_CONF=$conf timeout 5 scontrol shutdown >/dev/null 2>&1 || true
   pids=""
-  for f in "$dir/slurmd.pid" "$dir/slurmctld.pid"; do
+  for f in "$dir/slurmd.pid" "$dir/slurmctld.pid" "$dir/munge/munged.pid"; do
     if [ -s "$f" ]; then pids="$pids $(cat "$f")"; fi
   done
   for pid in $pids; do kill "$pid" 2>/dev/null || true; done
