@@ -17,6 +17,7 @@ use crate::cli::Prepared;
 use crate::picture::{temporary, Picture};
 use anyhow::{bail, ensure, Context, Result};
 use exr::prelude::{AttributeValue, Image, SpecificChannels, Text, Vec2, WritableImage};
+use rayon::prelude::*;
 use shared::types::{Frame, RenderPush, FLAG_GAMMA2};
 use std::path::{Path, PathBuf};
 
@@ -338,20 +339,25 @@ pub fn merge(paths: &[PathBuf]) -> Result<Picture> {
 /// exposure and gamma).
 pub fn sum_pictures(parts: &[&[[f32; 4]]], samples: u32, frame: &Frame) -> Picture {
     let (w, h) = (frame.width, frame.height);
+    // Pixels in parallel, each one's parts added in the parts' order (the same bits as one
+    // pass after another).
     let mut accum = vec![[0f32; 4]; (w * h) as usize];
-    for part in parts {
-        for (a, b) in accum.iter_mut().zip(part.iter()) {
-            *a = [a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3]];
-        }
-    }
+    accum
+        .par_chunks_mut(w.max(1) as usize)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let at = y * w as usize;
+            for part in parts {
+                for (a, b) in row.iter_mut().zip(&part[at..]) {
+                    *a = [a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3]];
+                }
+            }
+        });
     let push = RenderPush {
         samples,
         ..Default::default()
     };
-    let mut display = vec![0u32; (w * h) as usize];
-    for i in 0..w * h {
-        shared::display::display(i, &push, frame, &accum, &mut display);
-    }
+    let display = crate::cpu::display_image(&accum, &push, frame);
     Picture {
         width: w,
         height: h,

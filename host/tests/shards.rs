@@ -207,7 +207,21 @@ fn devices_split_the_samples_and_add_up_to_the_single_run() {
     assert_eq!(rows.len(), 2);
     for r in rows {
         assert!(r["max_rel_diff"].as_f64().unwrap() < 1e-5, "{r}");
-        assert!(r["wall_s"].as_f64().unwrap() > 0.0, "{r}");
+        let wall = r["wall_s"].as_f64().unwrap();
+        assert!(wall > 0.0, "{r}");
+        // The breakdown: every part measured, and together within the wall clock.
+        let t = &r["times"];
+        let parts: Vec<f64> = ["open_s", "trace_s", "read_s", "merge_s"]
+            .iter()
+            .map(|k| t[k].as_f64().unwrap_or_else(|| panic!("no times.{k} in {r}")))
+            .collect();
+        assert!(parts.iter().all(|&p| p > 0.0), "{r}");
+        assert!(parts.iter().sum::<f64>() <= wall * 1.001, "{r}");
+        assert_eq!(
+            t["names"].as_array().map(|a| a.len()),
+            r["devices"].as_u64().map(|d| d as usize),
+            "{r}"
+        );
     }
 
     let out = dir.join("x.exr");

@@ -28,9 +28,13 @@ pub fn display(i: u32, p: &RenderPush, f: &Frame, accum: &[[f32; 4]], image: &mu
     if i >= f.width * f.height {
         return;
     }
-    let a = accum[i as usize];
+    image[i as usize] = pixel(accum[i as usize], p, f);
+}
+
+/// The display code of one accumulation pixel after `p.samples` samples.
+pub fn pixel(a: [f32; 4], p: &RenderPush, f: &Frame) -> u32 {
     let scale = 1.0 / p.samples.max(1) as f32;
-    image[i as usize] = pack(Vec3::new(a[0], a[1], a[2]) * scale, f, p.flags & DISPLAY_BGRA != 0);
+    pack(Vec3::new(a[0], a[1], a[2]) * scale, f, p.flags & DISPLAY_BGRA != 0)
 }
 
 /// The display code of linear radiance `c`: RGBA8, or BGRA8 with `bgra`.

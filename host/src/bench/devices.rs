@@ -1,7 +1,7 @@
 //! `raytrace bench devices`: one render split across the first 1, 2, ..., D devices of the
 //! host (`render --devices`): wall-clock and GPU time, speed-up and efficiency against one
 //! device, and each image's largest difference from the one device's (float rounding only).
-use crate::cli::{render_devices, render_devices_each, Prepared, SceneArgs};
+use crate::cli::{render_devices, render_devices_each, DevicesTimes, Prepared, SceneArgs};
 use crate::gpu::GpuOptions;
 use anyhow::{ensure, Result};
 use clap::Parser;
@@ -28,10 +28,10 @@ pub struct Options {
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Row {
     pub devices: usize,
-    /// Each device and its GPU time, seconds.
-    pub device_seconds: Vec<(String, f64)>,
     /// Host clock around the whole render (devices opened, scene uploaded, traced, summed).
     pub wall_s: f64,
+    /// Where the wall clock went, and each device's GPU time.
+    pub times: DevicesTimes,
     /// The slowest device's GPU time.
     pub gpu_s: f64,
     /// One device's wall time over this row's.
@@ -81,15 +81,15 @@ pub fn run(o: &Options, opts: &GpuOptions) -> Result<Report> {
     for k in 1..=devices.len() {
         eprintln!("{} on {k} device(s)", o.scene);
         let start = Instant::now();
-        let (rendered, seconds) = render_devices_each(&p, 0, p.spp, &devices[..k], opts)?;
+        let (rendered, times) = render_devices_each(&p, 0, p.spp, &devices[..k], opts)?;
         let wall_s = start.elapsed().as_secs_f64();
         let image = rendered.picture.linear();
         let (base, base_wall) = one.get_or_insert_with(|| (image.clone(), wall_s)).clone();
         let speedup = base_wall / wall_s;
         rows.push(Row {
             devices: k,
-            gpu_s: seconds.iter().map(|s| s.1).fold(0.0, f64::max),
-            device_seconds: seconds,
+            gpu_s: times.gpu_s.iter().map(|s| s.1).fold(0.0, f64::max),
+            times,
             wall_s,
             speedup,
             efficiency: speedup / k as f64,
@@ -117,7 +117,7 @@ pub fn markdown(r: &Report) -> String {
         "| devices | wall s | GPU s (slowest) | speed-up | efficiency | largest difference from one device | devices' GPU s |\n|---|---|---|---|---|---|---|"
     );
     for row in &r.rows {
-        let each: Vec<String> = row.device_seconds.iter().map(|(d, t)| format!("{d}: {t:.3}")).collect();
+        let each: Vec<String> = row.times.gpu_s.iter().map(|(d, t)| format!("{d}: {t:.3}")).collect();
         let _ = writeln!(
             s,
             "| {} | {:.3} | {:.3} | {:.2}x | {:.0}% | {:.1e} | {} |",
@@ -128,6 +128,18 @@ pub fn markdown(r: &Report) -> String {
             row.efficiency * 100.0,
             row.max_rel_diff,
             each.join(", ")
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nWhere the wall clock went (host seconds; of the device that took longest): opening the device (instance, device, kernels), loading the scene and tracing until its last submission finished, reading its sums back; then adding the sums and making the display image.\n\n| devices | open | load + trace | read back | add + display |\n|---|---|---|---|---|"
+    );
+    for row in &r.rows {
+        let t = &row.times;
+        let _ = writeln!(
+            s,
+            "| {} | {:.3} | {:.3} | {:.3} | {:.3} |",
+            row.devices, t.open_s, t.trace_s, t.read_s, t.merge_s
         );
     }
     s

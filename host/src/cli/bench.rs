@@ -194,8 +194,8 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
         }
         Bench::Devices { options, out } => {
             let r = bench::devices::run(&options, opts)?;
-            let first = r.rows.first().and_then(|row| row.device_seconds.first());
-            let name = first.map_or("no-device".to_string(), |d| d.0.clone());
+            let first = r.rows.first().and_then(|row| row.times.names.first());
+            let name = first.map_or("no-device".to_string(), |d| d.clone());
             let stem = format!("devices-{}-{}", r.date, slug(&name));
             let markdown = bench::devices::markdown(&r);
             let md = bench::write_files(&out, &stem, &markdown, &r)?;

@@ -12,7 +12,9 @@ mod render;
 mod scene;
 
 pub use compare::{compare, Comparison};
-pub use render::{frame_path, parse_devices, render_devices, render_devices_each, FrameRange, RenderJob, Rendered};
+pub use render::{
+    frame_path, parse_devices, render_devices, render_devices_each, DevicesTimes, FrameRange, RenderJob, Rendered,
+};
 pub use scene::{parse_size, Bits, Prepared, SceneArgs, Treelets};
 
 use crate::gpu::GpuOptions;

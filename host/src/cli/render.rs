@@ -47,6 +47,23 @@ pub fn render_gpu(r: &mut GpuRenderer, p: &Prepared, quiet: bool) -> Result<Rend
 
 /// [`render_gpu`] of samples `first..first + spp` of the frame.
 fn render_gpu_samples(r: &mut GpuRenderer, p: &Prepared, first: u32, spp: u32, quiet: bool) -> Result<Rendered> {
+    let timings = trace_gpu_samples(r, p, first, spp, quiet)?;
+    Ok(Rendered {
+        picture: r.picture()?,
+        timings: render::stage_totals(&timings),
+        device: r.gpu().describe(),
+    })
+}
+
+/// Loads `p` into `r` and traces samples `first..first + spp` of the frame, leaving their
+/// sums on the GPU; every submission's stage times.
+fn trace_gpu_samples(
+    r: &mut GpuRenderer,
+    p: &Prepared,
+    first: u32,
+    spp: u32,
+    quiet: bool,
+) -> Result<Vec<(&'static str, f64)>> {
     r.set_first_sample(first);
     r.set_build(p.build(p.spp));
     r.load(&p.data, &p.frame)?;
@@ -78,11 +95,7 @@ fn render_gpu_samples(r: &mut GpuRenderer, p: &Prepared, first: u32, spp: u32, q
             b.finish_and_clear();
         }
     }
-    Ok(Rendered {
-        picture: r.picture()?,
-        timings: render::stage_totals(&timings),
-        device: r.gpu().describe(),
-    })
+    Ok(timings)
 }
 
 /// Renders on the CPU executor with a progress bar over rows.
@@ -157,20 +170,70 @@ pub fn render_devices(p: &Prepared, first: u32, spp: u32, devices: &[String], op
     Ok(render_devices_each(p, first, spp, devices, opts)?.0)
 }
 
-/// [`render_devices`], and each device's description and GPU seconds.
+/// Where a render on several devices spent its time, in seconds.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct DevicesTimes {
+    /// Each device's name.
+    pub names: Vec<String>,
+    /// Each device's description and GPU time (timestamps).
+    pub gpu_s: Vec<(String, f64)>,
+    /// Host clock of the device that took longest: opening it (instance, device, kernels), loading the
+    /// scene and tracing (until its last submission finished), reading its sums back.
+    pub open_s: f64,
+    pub trace_s: f64,
+    pub read_s: f64,
+    /// Adding the devices' sums and making the display image.
+    pub merge_s: f64,
+}
+
+/// One device's share of a render: its sums, stage times and host clock.
+struct DeviceShare {
+    sums: Vec<[f32; 4]>,
+    timings: Vec<(&'static str, f64)>,
+    name: String,
+    device: String,
+    open_s: f64,
+    trace_s: f64,
+    read_s: f64,
+}
+
+/// Samples `first..first + count` of `p` on the device `o` names.
+fn render_share(p: &Prepared, first: u32, count: u32, o: &GpuOptions) -> Result<DeviceShare> {
+    let t = Instant::now();
+    let (gpu, kernels) = open_gpu(o)?;
+    let mut r = GpuRenderer::new(&gpu, &kernels)?;
+    let open_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let timings = render::stage_totals(&trace_gpu_samples(&mut r, p, first, count, true)?);
+    let trace_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    // Only the sums: the display image is made once, from all devices' sums.
+    let sums = r.sums()?;
+    Ok(DeviceShare {
+        sums,
+        timings,
+        name: gpu.name.clone(),
+        device: gpu.describe(),
+        open_s,
+        trace_s,
+        read_s: t.elapsed().as_secs_f64(),
+    })
+}
+
+/// [`render_devices`], and where its time went.
 pub fn render_devices_each(
     p: &Prepared,
     first: u32,
     spp: u32,
     devices: &[String],
     opts: &GpuOptions,
-) -> Result<(Rendered, Vec<(String, f64)>)> {
+) -> Result<(Rendered, DevicesTimes)> {
     let n = devices.len() as u32;
     ensure!(
         n <= spp,
         "{n} devices for {spp} samples per pixel: each device needs at least one sample"
     );
-    let results: Vec<Result<Rendered>> = std::thread::scope(|scope| {
+    let results: Vec<Result<DeviceShare>> = std::thread::scope(|scope| {
         let threads: Vec<_> = devices
             .iter()
             .enumerate()
@@ -185,12 +248,9 @@ pub fn render_devices_each(
                     count: n,
                 }
                 .samples(spp);
-                scope.spawn(move || -> Result<Rendered> {
+                scope.spawn(move || -> Result<DeviceShare> {
                     let (a, count) = share?;
-                    let (gpu, kernels) = open_gpu(&o).with_context(|| format!("opening device {device}"))?;
-                    let mut r = GpuRenderer::new(&gpu, &kernels)?;
-                    render_gpu_samples(&mut r, p, first + a, count, true)
-                        .with_context(|| format!("rendering on device {device}"))
+                    render_share(p, first + a, count, &o).with_context(|| format!("rendering on device {device}"))
                 })
             })
             .collect();
@@ -203,20 +263,33 @@ pub fn render_devices_each(
             .collect()
     });
     let parts = results.into_iter().collect::<Result<Vec<_>>>()?;
-    let sums: Vec<&[[f32; 4]]> = parts.iter().map(|r| r.picture.accum.as_slice()).collect();
+    let t = Instant::now();
+    let sums: Vec<&[[f32; 4]]> = parts.iter().map(|r| r.sums.as_slice()).collect();
     let picture = shard::sum_pictures(&sums, spp, &p.frame);
+    let merge_s = t.elapsed().as_secs_f64();
     // The devices ran side by side: the stage times of the slowest.
-    let total = |r: &Rendered| r.timings.iter().map(|t| t.1).sum::<f64>();
+    let total = |r: &DeviceShare| r.timings.iter().map(|t| t.1).sum::<f64>();
     let slowest = parts.iter().max_by(|a, b| total(a).total_cmp(&total(b)));
     let timings = slowest.map_or(Vec::new(), |r| r.timings.clone());
     let names: Vec<String> = parts.iter().map(|r| format!("{} {}", r.device, ms(total(r)))).collect();
-    let seconds = parts.iter().map(|r| (r.device.clone(), total(r))).collect();
+    // The host clock of the device that took longest.
+    let host = |r: &DeviceShare| r.open_s + r.trace_s + r.read_s;
+    let last = parts.iter().max_by(|a, b| host(a).total_cmp(&host(b)));
+    let (open_s, trace_s, read_s) = last.map_or((0.0, 0.0, 0.0), |r| (r.open_s, r.trace_s, r.read_s));
+    let times = DevicesTimes {
+        names: parts.iter().map(|r| r.name.clone()).collect(),
+        gpu_s: parts.iter().map(|r| (r.device.clone(), total(r))).collect(),
+        open_s,
+        trace_s,
+        read_s,
+        merge_s,
+    };
     let rendered = Rendered {
         picture,
         timings,
         device: format!("{n} devices: {}", names.join(", ")),
     };
-    Ok((rendered, seconds))
+    Ok((rendered, times))
 }
 
 /// The devices `--devices` names: `all` (every Vulkan device), or indices or names separated

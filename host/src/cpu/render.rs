@@ -21,6 +21,14 @@ pub struct CpuRender {
     pub guides: Vec<Guide>,
 }
 
+/// The display kernel (`shared::display`) over every pixel of `accum`, in parallel.
+pub fn display_image(accum: &[[f32; 4]], push: &RenderPush, frame: &Frame) -> Vec<u32> {
+    accum
+        .par_iter()
+        .map(|&a| shared::display::pixel(a, push, frame))
+        .collect()
+}
+
 /// The scene's primitives in world space: the transform kernel run for each (what the GPU's
 /// transform stage writes).
 pub fn world_primitives(scene: &SceneGpu) -> (Vec<Triangle>, Vec<Sphere>) {
@@ -140,10 +148,7 @@ pub fn render_cpu_samples(
     }
 
     let t = Instant::now();
-    let mut display = vec![0u32; (w * h) as usize];
-    for i in 0..w * h {
-        shared::display::display(i, &push, frame, &accum, &mut display);
-    }
+    let display = display_image(&accum, &push, frame);
     timings.push(("display", t.elapsed().as_secs_f64()));
     CpuRender {
         picture: Picture {

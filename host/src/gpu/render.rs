@@ -568,6 +568,13 @@ impl GpuRenderer {
         })
     }
 
+    /// The accumulation image alone: every pixel's radiance sums and ray count.
+    pub fn sums(&mut self) -> Result<Vec<[f32; 4]>> {
+        let pixels = (self.frame.width * self.frame.height) as usize;
+        let b = self.bufs.as_ref().context("no scene loaded")?;
+        self.cmds.read_back(&b.accum, pixels)
+    }
+
     /// The path tracer's guides of the last frame (while denoising).
     pub fn guides(&mut self) -> Result<Vec<shared::denoise::Guide>> {
         if self.denoiser.is_none() {
