@@ -54,6 +54,11 @@ const BUILDS: [BuildOptions; 5] = [
 
 fn check(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[Sphere], opts: BuildOptions) {
     lbvh.upload(tris, spheres).unwrap();
+    check_uploaded(lbvh, name, tris, spheres, opts);
+}
+
+/// [`check`] of the primitives `lbvh` holds already (`tris` and `spheres`).
+fn check_uploaded(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[Sphere], opts: BuildOptions) {
     lbvh.build(opts, true).unwrap();
     let g = lbvh.result(opts).unwrap();
     let (c, _) = cpu::build(tris, spheres, opts);
@@ -151,6 +156,37 @@ fn bunny_builds_identically_on_gpu_and_cpu() {
     for opts in BUILDS {
         check(&mut lbvh, "bunny", &bunny, &[], opts);
     }
+    assert_no_validation_errors(&gpu);
+}
+
+#[test]
+fn room_for_the_wide_bvh_is_made_by_the_first_wide_build() {
+    let Some((gpu, mut lbvh)) = builder("room_for_the_wide_bvh_is_made_by_the_first_wide_build") else {
+        return;
+    };
+    let (t, s) = generate(3000, Distribution::Random, true, 11);
+    let [binary, _, _, wide, _] = BUILDS;
+    lbvh.upload(&t, &s).unwrap();
+    check_uploaded(&mut lbvh, "room", &t, &s, binary);
+    let (nodes, rest) = lbvh.memory();
+    let n = (t.len() + s.len()) as u64;
+    // Binary builds hold no wide BVH: its worst case is 128 bytes a primitive.
+    assert!(
+        nodes < 2 * n * 32 * 5 / 4 + 64,
+        "{nodes} bytes of nodes for {n} primitives"
+    );
+    // The first wide build makes the buffers again and keeps the primitives uploaded.
+    check_uploaded(&mut lbvh, "room", &t, &s, wide);
+    let (wide_nodes, wide_rest) = lbvh.memory();
+    assert!(wide_nodes >= nodes + (n - 1) * 128, "{nodes} -> {wide_nodes} bytes");
+    assert!(
+        wide_rest > rest,
+        "no room for the collapse's scratch: {rest} -> {wide_rest}"
+    );
+    // The room is kept for later builds of either kind.
+    check_uploaded(&mut lbvh, "room", &t, &s, binary);
+    check_uploaded(&mut lbvh, "room", &t, &s, wide);
+    assert_eq!(lbvh.memory(), (wide_nodes, wide_rest));
     assert_no_validation_errors(&gpu);
 }
 

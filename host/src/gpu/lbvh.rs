@@ -28,9 +28,11 @@ struct Buffers {
     parents: Buffer,
     visits: Buffer,
     /// The wide BVH (room for its worst case: a node per binary internal node) and the
-    /// collapse's scratch (`shared::wide::Scratch`).
+    /// collapse's scratch (`shared::wide::Scratch`), where wide builds were asked for
+    /// (`has_wide`); else a word each, for the bindings (132 bytes a primitive saved).
     wide: Buffer,
     wide_scratch: Buffer,
+    has_wide: bool,
     /// Unsorted Morton codes, copied out when a build is captured for comparison.
     capture: Buffer,
     staging: Buffer,
@@ -42,7 +44,7 @@ struct Buffers {
 }
 
 impl Buffers {
-    fn new(gpu: &Arc<Gpu>, kernels: &Kernels, n_tris: usize, n_spheres: usize) -> Result<Buffers> {
+    fn new(gpu: &Arc<Gpu>, kernels: &Kernels, n_tris: usize, n_spheres: usize, has_wide: bool) -> Result<Buffers> {
         let n = (n_tris + n_spheres).max(1) as u64;
         let dev = |name: &str, bytes: u64| Buffer::new(gpu, name, bytes, MemoryLocation::GpuOnly);
         let tris = dev("triangles", (n_tris * size_of::<Triangle>()) as u64)?;
@@ -59,8 +61,16 @@ impl Buffers {
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
         let scratch = wide::Scratch::new(n as u32);
-        let wide = dev("wide BVH", scratch.slots as u64 * size_of::<WideNode>() as u64)?;
-        let wide_scratch = dev("wide collapse scratch", scratch.total_words() as u64 * 4)?;
+        let (wide_bytes, scratch_bytes) = if has_wide {
+            (
+                scratch.slots as u64 * size_of::<WideNode>() as u64,
+                scratch.total_words() as u64 * 4,
+            )
+        } else {
+            (4, 4)
+        };
+        let wide = dev("wide BVH", wide_bytes)?;
+        let wide_scratch = dev("wide collapse scratch", scratch_bytes)?;
         let capture = dev("captured codes", n * 8)?;
         let staging_bytes = (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
         let staging = Buffer::new(gpu, "staging", staging_bytes, MemoryLocation::CpuToGpu)?;
@@ -98,6 +108,7 @@ impl Buffers {
             visits,
             wide,
             wide_scratch,
+            has_wide,
             capture,
             staging,
             sets,
@@ -114,6 +125,8 @@ pub struct GpuLbvh {
     kernels: Arc<Kernels>,
     cmds: Commands,
     bufs: Option<Buffers>,
+    /// A wide build was asked for: the buffers keep room for wide BVHs from then on.
+    wide: bool,
     n_tris: u32,
     n: u32,
 }
@@ -125,6 +138,7 @@ impl GpuLbvh {
             kernels: kernels.clone(),
             cmds: Commands::new(gpu)?,
             bufs: None,
+            wide: false,
             n_tris: 0,
             n: 0,
         })
@@ -173,21 +187,58 @@ impl GpuLbvh {
             b.tri_capacity >= n_tris && b.sphere_capacity >= n_spheres && b.capacity >= n_tris + n_spheres
         });
         if !fits {
-            self.bufs = None;
             let grow = |x: usize| x + x / 4;
-            let b = Buffers::new(&self.gpu, &self.kernels, grow(n_tris), grow(n_spheres))?;
-            // What every build expects to find and leaves behind (see `record`).
-            self.cmds.begin()?;
-            Self::empty_bounds(&self.cmds, &b, 0);
-            Self::empty_bounds(&self.cmds, &b, 1);
-            self.cmds.fill_range(&b.totals, 0, b.totals.size, 0);
-            self.cmds.fill_range(&b.table, 0, b.table.size, 0);
-            self.cmds.barrier();
-            self.cmds.submit_wait().context("clearing the build's buffers")?;
-            self.bufs = Some(b);
+            self.allocate(grow(n_tris), grow(n_spheres), false)?;
         }
         self.n_tris = n_tris as u32;
         self.n = (n_tris + n_spheres) as u32;
+        Ok(())
+    }
+
+    /// Makes room for wide BVHs where `wide` asks for it (once: the room is kept).
+    /// The buffers are made again at the same capacity, the primitives already there copied
+    /// over; anything recorded before that names the old buffers must have finished.
+    /// Whether the buffers were made again.
+    pub fn reserve_wide(&mut self, wide: bool) -> Result<bool> {
+        self.wide |= wide;
+        match &self.bufs {
+            Some(b) if self.wide && !b.has_wide => {
+                let (t, s) = (b.tri_capacity, b.sphere_capacity);
+                self.allocate(t, s, true)?;
+                Ok(true)
+            }
+            _ => Ok(false),
+        }
+    }
+
+    /// New buffers for `n_tris` triangles and `n_spheres` spheres (and wide BVHs where asked
+    /// for), cleared as every build expects; with `keep`, the old buffers' primitives copied.
+    fn allocate(&mut self, n_tris: usize, n_spheres: usize, keep: bool) -> Result<()> {
+        // The old buffers may still be read by a frame in flight (the viewer's).
+        // SAFETY: plain wait on the live device.
+        unsafe { self.gpu.device.device_wait_idle() }.context("waiting for the GPU")?;
+        if !keep {
+            // Freed before the new ones are made: a scene near the memory's size fits once.
+            self.bufs = None;
+        }
+        let b = Buffers::new(&self.gpu, &self.kernels, n_tris, n_spheres, self.wide)?;
+        // What every build expects to find and leaves behind (see `record`).
+        self.cmds.begin()?;
+        Self::empty_bounds(&self.cmds, &b, 0);
+        Self::empty_bounds(&self.cmds, &b, 1);
+        self.cmds.fill_range(&b.totals, 0, b.totals.size, 0);
+        self.cmds.fill_range(&b.table, 0, b.table.size, 0);
+        if let Some(old) = self.bufs.as_ref().filter(|_| keep) {
+            for (from, to) in [(&old.tris, &b.tris), (&old.spheres, &b.spheres)] {
+                let bytes = from.size.min(to.size);
+                if bytes > 4 {
+                    self.cmds.copy_range(from, 0, to, 0, bytes);
+                }
+            }
+        }
+        self.cmds.barrier();
+        self.cmds.submit_wait().context("clearing the build's buffers")?;
+        self.bufs = Some(b);
         Ok(())
     }
 
@@ -236,6 +287,10 @@ impl GpuLbvh {
         let bits = opts.bits;
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         let n = self.n;
+        anyhow::ensure!(
+            !opts.wide || b.has_wide,
+            "a wide build without room for it (GpuLbvh::reserve_wide first)"
+        );
         anyhow::ensure!(
             !opts.wide || n <= wide::MAX_PRIMITIVES,
             "the wide BVH holds at most {} primitives ({n} given): use --bvh binary",
@@ -386,6 +441,7 @@ impl GpuLbvh {
         stages: bool,
         count: usize,
     ) -> Result<Vec<(&'static str, f64)>> {
+        self.reserve_wide(opts.wide)?;
         let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
         let r = (|| {
             cmds.begin()?;

@@ -424,6 +424,11 @@ impl GpuRenderer {
     /// timestamp `begin`, then transform and build, `trace`, `display`. The samples count
     /// as accumulated from here on.
     pub fn record(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<()> {
+        // The first wide build makes the builder's buffers again with room for it (binary
+        // builds leave it out): the frame transforms and builds anew.
+        if self.lbvh.reserve_wide(self.build.wide)? {
+            self.samples = 0;
+        }
         let still = self.samples > 0;
         // A frame without samples has nothing new to filter (its guides are an earlier
         // frame's): it shows the accumulation.
