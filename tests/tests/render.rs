@@ -76,6 +76,43 @@ fn closest_hit_through_the_bvh_equals_brute_force() {
     assert_no_validation_errors(&gpu);
 }
 
+#[test]
+fn an_image_past_the_devices_binding_limit_is_refused_by_name() {
+    let Some((gpu, mut r)) = renderer("an_image_past_the_devices_binding_limit_is_refused_by_name") else {
+        return;
+    };
+    let limit = gpu.max_binding;
+    if limit > 1 << 30 {
+        eprintln!(
+            "SKIPPED the binding-limit refusal: {} binds up to {} MB, and an image past that would take as much memory",
+            gpu.name,
+            limit >> 20
+        );
+        return;
+    }
+    // One row past the limit: the accumulation image holds 16 bytes a pixel.
+    let p = prepared("cornell", 8, 1, &[]);
+    let (width, height) = (4096, (limit / (16 * 4096) + 1) as u32);
+    let big = Frame {
+        width,
+        height,
+        ..p.frame
+    };
+    let e = r
+        .load(&p.data, &big)
+        .expect_err("an image past the binding limit was taken");
+    let message = format!("{e:#}");
+    assert!(
+        message.contains("accumulation image") && message.contains("maxStorageBufferRange"),
+        "{message}"
+    );
+    // The renderer goes on at a size that fits.
+    r.load(&p.data, &p.frame).expect("a load after the refusal");
+    r.render(1, true).expect("a render after the refusal");
+    assert_eq!(r.samples(), 1);
+    assert_no_validation_errors(&gpu);
+}
+
 /// Closest hits of `rays` on the CPU, through the BVH or by brute force as `frame` says.
 fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<Hit> {
     let w = World {

@@ -37,11 +37,12 @@ pub fn info_command(opts: &GpuOptions) -> Result<()> {
                     Err(e) => format!("unusable: {e:#}"),
                 };
                 println!(
-                    "Vulkan device {}: {} ({}, {}): {line}",
+                    "Vulkan device {}: {} ({}, {}; bindings up to {:.0} MB): {line}",
                     d.index,
                     d.name,
                     d.kind_name(),
-                    d.driver
+                    d.driver,
+                    d.max_binding as f64 / 1e6
                 );
             }
         }

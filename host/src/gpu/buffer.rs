@@ -11,6 +11,8 @@ pub struct Buffer {
     gpu: Arc<Gpu>,
     pub raw: vk::Buffer,
     pub size: u64,
+    /// What it holds (in errors).
+    pub name: String,
     alloc: Option<Allocation>,
 }
 
@@ -59,6 +61,7 @@ impl Buffer {
             gpu: gpu.clone(),
             raw,
             size,
+            name: name.to_string(),
             alloc: Some(alloc),
         };
         bound.with_context(|| format!("binding memory of buffer {name}"))?;

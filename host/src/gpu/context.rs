@@ -38,6 +38,8 @@ pub struct DeviceInfo {
     pub driver: String,
     pub kind: vk::PhysicalDeviceType,
     pub driver_id: vk::DriverId,
+    /// The most bytes one storage-buffer binding may span (`maxStorageBufferRange`).
+    pub max_binding: u64,
 }
 
 impl DeviceInfo {
@@ -90,6 +92,8 @@ pub struct Gpu {
     pub driver_id: vk::DriverId,
     /// Discrete, integrated, virtual or CPU (lavapipe, SwiftShader).
     pub kind: vk::PhysicalDeviceType,
+    /// The most bytes one storage-buffer binding may span (`maxStorageBufferRange`).
+    pub max_binding: u64,
     /// Pipelines capture driver statistics (see `Kernels::statistics`).
     pub kernel_stats: bool,
     /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
@@ -187,6 +191,7 @@ impl Gpu {
                     driver,
                     driver_id,
                     kind,
+                    max_binding,
                     ..
                 } = chosen;
                 // SAFETY: the device was created with this queue family.
@@ -213,6 +218,7 @@ impl Gpu {
                     validation_enabled: validation,
                     driver_id,
                     kind,
+                    max_binding,
                     kernel_stats,
                     swapchain: !opts.window_extensions.is_empty(),
                     allocator: Mutex::new(Some(allocator)),
@@ -294,6 +300,7 @@ impl Gpu {
                 driver: driver.trim().to_string(),
                 kind: props.device_type,
                 driver_id: drv.driver_id,
+                max_binding: props.limits.max_storage_buffer_range as u64,
             });
         }
         Ok(candidates)

@@ -2,7 +2,7 @@
 //! (set 0: the build's `BINDINGS` storage buffers; set 1: the renderer's `RENDER_BINDINGS`;
 //! 16 bytes of push constants: `BuildParams` or `RenderPush`), and descriptor sets.
 use super::{Buffer, Commands, Gpu, SHADER_SPV};
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use ash::vk;
 use gpu_allocator::MemoryLocation;
 use shared::types::{BuildParams, RenderPush, FEATURES_ALL, RENDER_BINDINGS, VARIANT_SPLIT_PRODUCTS};
@@ -357,6 +357,17 @@ pub struct BindingSets {
 impl BindingSets {
     /// Sets of layout `layout` (0: build, 1: render), binding `i` of each naming `buffers[i]`.
     pub fn new(gpu: &Arc<Gpu>, kernels: &Kernels, layout: usize, sets: &[&[&Buffer]]) -> Result<BindingSets> {
+        // A binding past the device's limit is not an error Vulkan reports: kernels would read
+        // wrong data, or nothing.
+        if let Some(b) = sets.iter().flat_map(|s| s.iter()).find(|b| b.size > gpu.max_binding) {
+            bail!(
+                "the {} buffer needs {:.1} MB in one binding, and {} binds at most {:.1} MB (maxStorageBufferRange): the scene or image is too large for this device",
+                b.name,
+                b.size as f64 / 1e6,
+                gpu.name,
+                gpu.max_binding as f64 / 1e6
+            );
+        }
         let d = &gpu.device;
         let sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
