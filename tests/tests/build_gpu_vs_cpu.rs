@@ -166,7 +166,16 @@ fn room_for_the_wide_bvh_is_made_by_the_first_wide_build() {
     };
     let (t, s) = generate(3000, Distribution::Random, true, 11);
     let [binary, _, _, wide, _] = BUILDS;
+    // The renderer's builder (its transform kernel writes the primitives, nothing is captured)
+    // holds no host copy of the primitives: `upload` makes it.
+    lbvh.reserve(t.len(), s.len()).unwrap();
+    let (_, reserved) = lbvh.memory();
     lbvh.upload(&t, &s).unwrap();
+    let (_, uploaded) = lbvh.memory();
+    assert!(
+        uploaded >= reserved + 48 * t.len() as u64,
+        "{reserved} -> {uploaded} bytes: the upload made no staging copy"
+    );
     check_uploaded(&mut lbvh, "room", &t, &s, binary);
     let (nodes, rest) = lbvh.memory();
     let n = (t.len() + s.len()) as u64;

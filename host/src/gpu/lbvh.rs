@@ -33,9 +33,11 @@ struct Buffers {
     wide: Buffer,
     wide_scratch: Buffer,
     has_wide: bool,
-    /// Unsorted Morton codes, copied out when a build is captured for comparison.
-    capture: Buffer,
-    staging: Buffer,
+    /// Unsorted Morton codes, copied out when a build is captured for comparison; and the
+    /// host-visible copy of primitives `upload` writes. Made on first use: the renderer's
+    /// builds need neither (56 bytes a primitive).
+    capture: Option<Buffer>,
+    staging: Option<Buffer>,
     /// Ping-pong sets: set 0 sorts A -> B, set 1 sorts B -> A.
     sets: BindingSets,
     tri_capacity: usize,
@@ -71,9 +73,6 @@ impl Buffers {
         };
         let wide = dev("wide BVH", wide_bytes)?;
         let wide_scratch = dev("wide collapse scratch", scratch_bytes)?;
-        let capture = dev("captured codes", n * 8)?;
-        let staging_bytes = (n_tris * size_of::<Triangle>() + n_spheres * size_of::<Sphere>()) as u64;
-        let staging = Buffer::new(gpu, "staging", staging_bytes, MemoryLocation::CpuToGpu)?;
         let a_to_b: [&Buffer; BINDINGS] = [
             &tris,
             &spheres,
@@ -109,8 +108,8 @@ impl Buffers {
             wide,
             wide_scratch,
             has_wide,
-            capture,
-            staging,
+            capture: None,
+            staging: None,
             sets,
             tri_capacity: n_tris,
             sphere_capacity: n_spheres,
@@ -170,11 +169,13 @@ impl GpuLbvh {
                     &b.totals,
                     &b.parents,
                     &b.visits,
-                    &b.capture,
-                    &b.staging,
                     &b.wide_scratch,
                 ];
-                (b.nodes.size + b.wide.size, all.iter().map(|x| x.size).sum())
+                let made = [&b.capture, &b.staging].map(|x| x.as_ref().map_or(0, |x| x.size));
+                (
+                    b.nodes.size + b.wide.size,
+                    all.iter().map(|x| x.size).sum::<u64>() + made.iter().sum::<u64>(),
+                )
             }
         }
     }
@@ -221,20 +222,22 @@ impl GpuLbvh {
             // Freed before the new ones are made: a scene near the memory's size fits once.
             self.bufs = None;
         }
-        let b = Buffers::new(&self.gpu, &self.kernels, n_tris, n_spheres, self.wide)?;
+        let mut b = Buffers::new(&self.gpu, &self.kernels, n_tris, n_spheres, self.wide)?;
         // What every build expects to find and leaves behind (see `record`).
         self.cmds.begin()?;
         Self::empty_bounds(&self.cmds, &b, 0);
         Self::empty_bounds(&self.cmds, &b, 1);
         self.cmds.fill_range(&b.totals, 0, b.totals.size, 0);
         self.cmds.fill_range(&b.table, 0, b.table.size, 0);
-        if let Some(old) = self.bufs.as_ref().filter(|_| keep) {
+        if let Some(old) = self.bufs.as_mut().filter(|_| keep) {
             for (from, to) in [(&old.tris, &b.tris), (&old.spheres, &b.spheres)] {
                 let bytes = from.size.min(to.size);
                 if bytes > 4 {
                     self.cmds.copy_range(from, 0, to, 0, bytes);
                 }
             }
+            // The same capacity: what was made on first use serves the new buffers too.
+            (b.staging, b.capture) = (old.staging.take(), old.capture.take());
         }
         self.cmds.barrier();
         self.cmds.submit_wait().context("clearing the build's buffers")?;
@@ -254,19 +257,25 @@ impl GpuLbvh {
         let tri_bytes = std::mem::size_of_val(tris) as u64;
         let mut data: Vec<u8> = bytemuck::cast_slice(tris).to_vec();
         data.extend_from_slice(bytemuck::cast_slice(spheres));
-        b.staging.write(&data)?;
+        if b.staging.as_ref().is_none_or(|s| s.size < data.len() as u64) {
+            // Room for every primitive the buffers hold, so that it is made once.
+            let room = b.tri_capacity * size_of::<Triangle>() + b.sphere_capacity * size_of::<Sphere>();
+            b.staging = Some(Buffer::new(
+                &self.gpu,
+                "staging",
+                room as u64,
+                MemoryLocation::CpuToGpu,
+            )?);
+        }
+        let staging = b.staging.as_mut().context("staging missing")?;
+        staging.write(&data)?;
         self.cmds.begin()?;
         if tri_bytes > 0 {
-            self.cmds.copy_range(&b.staging, 0, &b.tris, 0, tri_bytes);
+            self.cmds.copy_range(staging, 0, &b.tris, 0, tri_bytes);
         }
         if !spheres.is_empty() {
-            self.cmds.copy_range(
-                &b.staging,
-                tri_bytes,
-                &b.spheres,
-                0,
-                std::mem::size_of_val(spheres) as u64,
-            );
+            self.cmds
+                .copy_range(staging, tri_bytes, &b.spheres, 0, std::mem::size_of_val(spheres) as u64);
         }
         self.cmds.barrier();
         self.cmds.submit_wait().context("uploading primitives")
@@ -352,7 +361,11 @@ impl GpuLbvh {
         }
         cmds.barrier();
         if capture {
-            cmds.copy_range(&b.keys_a, 0, &b.capture, 0, n as u64 * 8);
+            let to = b
+                .capture
+                .as_ref()
+                .context("a captured build without room (run makes it)")?;
+            cmds.copy_range(&b.keys_a, 0, to, 0, n as u64 * 8);
             cmds.barrier();
         }
         stamp(cmds, STAGES[1]);
@@ -442,6 +455,14 @@ impl GpuLbvh {
         count: usize,
     ) -> Result<Vec<(&'static str, f64)>> {
         self.reserve_wide(opts.wide)?;
+        if let Some(b) = self.bufs.as_mut().filter(|b| capture && b.capture.is_none()) {
+            b.capture = Some(Buffer::new(
+                &self.gpu,
+                "captured codes",
+                b.capacity as u64 * 8,
+                MemoryLocation::GpuOnly,
+            )?);
+        }
         let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
         let r = (|| {
             cmds.begin()?;
@@ -470,7 +491,7 @@ impl GpuLbvh {
     }
 
     /// Reads back every stage's output of the last build (run it with `capture` to get the
-    /// unsorted Morton codes).
+    /// unsorted Morton codes; else they are empty).
     pub fn result(&mut self, opts: BuildOptions) -> Result<BuildResult> {
         let bits = opts.bits;
         let n = self.n as usize;
@@ -488,7 +509,11 @@ impl GpuLbvh {
                 .get(1)
                 .copied()
                 .unwrap_or_default(),
-            morton: keys(self, |b| &b.capture)?,
+            morton: if self.bufs.as_ref().is_some_and(|b| b.capture.is_some()) {
+                keys(self, |b| b.capture.as_ref().unwrap_or(&b.keys_a))?
+            } else {
+                Vec::new()
+            },
             sorted_keys: keys(self, |b| &b.keys_a)?,
             sorted_prims: self.download(|b| &b.vals_a, n)?,
             nodes: self.download(|b| &b.nodes, total)?,
