@@ -555,7 +555,7 @@ impl GpuRenderer {
             // Back to RGBA: a picture is the same whatever window it was shown in.
             display.iter_mut().for_each(|p| *p = swap_red_blue(*p));
         }
-        let mut accum: Vec<[f32; 4]> = self.cmds.read_back(&b.accum, pixels)?;
+        let mut accum = self.sums()?;
         if let Some(d) = self.denoiser.as_ref().filter(|_| self.denoised_last) {
             // The denoised frame, as the sums of `samples` samples (ray counts kept).
             let out: Vec<[f32; 4]> = self.cmds.read_back(&d.output, pixels)?;
