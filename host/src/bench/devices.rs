@@ -70,11 +70,11 @@ pub fn run(o: &Options, opts: &GpuOptions) -> Result<Report> {
         devices.len(),
         p.spp
     );
-    // Warm-up: every device opened and its pipelines made once (the driver caches them).
-    let small =
-        SceneArgs::try_parse_from(["raytrace", o.scene.as_str(), "--size", "64x64", "--spp", "1"])?.prepare()?;
+    // Warm-up: every device has rendered the scene once, at the same size, one sample (the
+    // driver caches the pipelines it made).
+    let once = SceneArgs::try_parse_from(["raytrace", o.scene.as_str(), "--size", &size, "--spp", "1"])?.prepare()?;
     for d in &devices {
-        render_devices(&small, 0, 1, std::slice::from_ref(d), opts)?;
+        render_devices(&once, 0, 1, std::slice::from_ref(d), opts)?;
     }
     let mut rows: Vec<Row> = Vec::new();
     let mut one: Option<(Vec<[f32; 3]>, f64)> = None;
@@ -109,7 +109,7 @@ pub fn markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# One render on several devices\n\n- date: {}\n- command: `{}`\n- {} at {}x{}, {} spp: the samples split into equal consecutive shares, one a device, each device on a thread of its own with its own renderer; the sums added in device order\n- wall: the host's clock around the whole render (devices opened, scene uploaded, BVH built, traced, sums read back and added; pipelines made once before); GPU: the slowest device's timestamps\n",
+        "# One render on several devices\n\n- date: {}\n- command: `{}`\n- {} at {}x{}, {} spp: the samples split into equal consecutive shares, one a device, each device on a thread of its own with its own renderer; the sums added in device order\n- wall: the host's clock around the whole render (devices opened, scene uploaded, BVH built, traced, sums read back and added; every device rendered the scene at this size and 1 spp once before); GPU: the slowest device's timestamps\n",
         r.date, r.command, o.scene, o.size.0, o.size.1, o.spp
     );
     let _ = writeln!(
@@ -132,14 +132,14 @@ pub fn markdown(r: &Report) -> String {
     }
     let _ = writeln!(
         s,
-        "\nWhere the wall clock went (host seconds; of the device that took longest): opening the device (instance, device, kernels), loading the scene and tracing until its last submission finished, reading its sums back; then adding the sums and making the display image.\n\n| devices | open | load + trace | read back | add + display |\n|---|---|---|---|---|"
+        "\nWhere the wall clock went (host seconds; of the device that took longest): the instance the devices share and opening the device (of it, instance and device; then kernels and renderer), loading the scene and tracing until its last submission finished, reading its sums back; then adding the sums and making the display image while the devices close.\n\n| devices | open | of it: instance + device | load + trace | read back | add + display |\n|---|---|---|---|---|---|"
     );
     for row in &r.rows {
         let t = &row.times;
         let _ = writeln!(
             s,
-            "| {} | {:.3} | {:.3} | {:.3} | {:.3} |",
-            row.devices, t.open_s, t.trace_s, t.read_s, t.merge_s
+            "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+            row.devices, t.open_s, t.device_s, t.trace_s, t.read_s, t.merge_s
         );
     }
     s

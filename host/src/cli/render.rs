@@ -2,7 +2,7 @@
 //! backend `auto` picks, the summary line.
 use super::scene::{Prepared, SceneArgs};
 use crate::cpu::{render_cpu_samples, CpuDenoiser, CpuRender};
-use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Kernels};
+use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Instance, Kernels};
 use crate::picture::Picture;
 use crate::render::{self, Backend};
 use crate::shard::{self, Shard};
@@ -177,12 +177,15 @@ pub struct DevicesTimes {
     pub names: Vec<String>,
     /// Each device's description and GPU time (timestamps).
     pub gpu_s: Vec<(String, f64)>,
-    /// Host clock of the device that took longest: opening it (instance, device, kernels), loading the
-    /// scene and tracing (until its last submission finished), reading its sums back.
+    /// Host clock: making the instance the devices share, then of the device that took
+    /// longest: opening it (device, kernels, renderer), loading the scene and tracing (until
+    /// its last submission finished), reading its sums back.
     pub open_s: f64,
+    /// Of `open_s`: the instance and the device (the rest: kernels and the renderer).
+    pub device_s: f64,
     pub trace_s: f64,
     pub read_s: f64,
-    /// Adding the devices' sums and making the display image.
+    /// Adding the devices' sums and making the display image (while the devices close).
     pub merge_s: f64,
 }
 
@@ -193,14 +196,27 @@ struct DeviceShare {
     name: String,
     device: String,
     open_s: f64,
+    device_s: f64,
     trace_s: f64,
     read_s: f64,
 }
 
-/// Samples `first..first + count` of `p` on the device `o` names.
-fn render_share(p: &Prepared, first: u32, count: u32, o: &GpuOptions) -> Result<DeviceShare> {
+/// What a device's render holds on to until it is closed.
+type Held = (GpuRenderer, Arc<Kernels>, Arc<Gpu>);
+
+/// Samples `first..first + count` of `p` on the device of `instance` that `o` names; the
+/// device's objects are given back open, to be closed once the sums are handed on.
+fn render_share(
+    p: &Prepared,
+    first: u32,
+    count: u32,
+    instance: &Arc<Instance>,
+    o: &GpuOptions,
+) -> Result<(DeviceShare, Held)> {
     let t = Instant::now();
-    let (gpu, kernels) = open_gpu(o)?;
+    let gpu = Gpu::on(instance, o)?;
+    let device_s = t.elapsed().as_secs_f64();
+    let kernels = Arc::new(Kernels::new(&gpu)?);
     let mut r = GpuRenderer::new(&gpu, &kernels)?;
     let open_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
@@ -209,15 +225,17 @@ fn render_share(p: &Prepared, first: u32, count: u32, o: &GpuOptions) -> Result<
     let t = Instant::now();
     // Only the sums: the display image is made once, from all devices' sums.
     let sums = r.sums()?;
-    Ok(DeviceShare {
+    let share = DeviceShare {
         sums,
         timings,
         name: gpu.name.clone(),
         device: gpu.describe(),
         open_s,
+        device_s,
         trace_s,
         read_s: t.elapsed().as_secs_f64(),
-    })
+    };
+    Ok((share, (r, kernels, gpu)))
 }
 
 /// [`render_devices`], and where its time went.
@@ -233,40 +251,62 @@ pub fn render_devices_each(
         n <= spp,
         "{n} devices for {spp} samples per pixel: each device needs at least one sample"
     );
+    let t = Instant::now();
+    let instance = Instance::new(opts.validation, &opts.window_extensions)?;
+    let instance_s = t.elapsed().as_secs_f64();
+    let mut merge_s = 0.0;
+    let mut picture = None;
     let results: Vec<Result<DeviceShare>> = std::thread::scope(|scope| {
-        let threads: Vec<_> = devices
-            .iter()
-            .enumerate()
-            .map(|(k, device)| {
-                let o = GpuOptions {
-                    device: Some(device.clone()),
-                    ..opts.clone()
-                };
-                // The same split as shards': device k traces shard k of n of these samples.
-                let share = Shard {
-                    index: k as u32,
-                    count: n,
+        let (done, shares) = std::sync::mpsc::channel();
+        for (k, device) in devices.iter().enumerate() {
+            let o = GpuOptions {
+                device: Some(device.clone()),
+                ..opts.clone()
+            };
+            // The same split as shards': device k traces shard k of n of these samples.
+            let share = Shard {
+                index: k as u32,
+                count: n,
+            }
+            .samples(spp);
+            let (done, instance) = (done.clone(), &instance);
+            scope.spawn(move || {
+                let rendered = share.and_then(|(a, count)| {
+                    render_share(p, first + a, count, instance, &o)
+                        .with_context(|| format!("rendering on device {device}"))
+                });
+                // The sums go on to be added while this device closes.
+                match rendered {
+                    Ok((share, held)) => {
+                        let _ = done.send((k, Ok(share)));
+                        drop(held);
+                    }
+                    Err(e) => {
+                        let _ = done.send((k, Err(e)));
+                    }
                 }
-                .samples(spp);
-                scope.spawn(move || -> Result<DeviceShare> {
-                    let (a, count) = share?;
-                    render_share(p, first + a, count, &o).with_context(|| format!("rendering on device {device}"))
-                })
-            })
+            });
+        }
+        drop(done);
+        let mut results: Vec<Result<DeviceShare>> = (0..n)
+            .map(|_| Err(anyhow!("a device's render thread panicked")))
             .collect();
-        threads
-            .into_iter()
-            .map(|t| {
-                t.join()
-                    .unwrap_or_else(|_| Err(anyhow!("a device's render thread panicked")))
-            })
-            .collect()
+        for (k, share) in shares.iter().take(n as usize) {
+            results[k] = share;
+        }
+        if let Ok(parts) = results
+            .iter()
+            .map(|r| r.as_ref().map(|s| s.sums.as_slice()))
+            .collect::<Result<Vec<_>, _>>()
+        {
+            let t = Instant::now();
+            picture = Some(shard::sum_pictures(&parts, spp, &p.frame));
+            merge_s = t.elapsed().as_secs_f64();
+        }
+        results
     });
     let parts = results.into_iter().collect::<Result<Vec<_>>>()?;
-    let t = Instant::now();
-    let sums: Vec<&[[f32; 4]]> = parts.iter().map(|r| r.sums.as_slice()).collect();
-    let picture = shard::sum_pictures(&sums, spp, &p.frame);
-    let merge_s = t.elapsed().as_secs_f64();
+    let picture = picture.context("the devices' sums were not added")?;
     // The devices ran side by side: the stage times of the slowest.
     let total = |r: &DeviceShare| r.timings.iter().map(|t| t.1).sum::<f64>();
     let slowest = parts.iter().max_by(|a, b| total(a).total_cmp(&total(b)));
@@ -275,11 +315,14 @@ pub fn render_devices_each(
     // The host clock of the device that took longest.
     let host = |r: &DeviceShare| r.open_s + r.trace_s + r.read_s;
     let last = parts.iter().max_by(|a, b| host(a).total_cmp(&host(b)));
-    let (open_s, trace_s, read_s) = last.map_or((0.0, 0.0, 0.0), |r| (r.open_s, r.trace_s, r.read_s));
+    let (open_s, device_s, trace_s, read_s) =
+        last.map_or((0.0, 0.0, 0.0, 0.0), |r| (r.open_s, r.device_s, r.trace_s, r.read_s));
+    let (open_s, device_s) = (instance_s + open_s, instance_s + device_s);
     let times = DevicesTimes {
         names: parts.iter().map(|r| r.name.clone()).collect(),
         gpu_s: parts.iter().map(|r| (r.device.clone(), total(r))).collect(),
         open_s,
+        device_s,
         trace_s,
         read_s,
         merge_s,

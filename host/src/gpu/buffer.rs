@@ -88,18 +88,27 @@ impl Buffer {
 
     /// Reads `count` elements from a host-visible buffer.
     pub fn read<T: Pod>(&self, count: usize) -> Result<Vec<T>> {
+        let mut out = vec![T::zeroed(); count];
+        self.read_into(&mut out)?;
+        Ok(out)
+    }
+
+    /// Fills `out` from the start of a host-visible buffer.
+    pub fn read_into<T: Pod>(&self, out: &mut [T]) -> Result<()> {
         let src = self
             .alloc
             .as_ref()
             .and_then(|a| a.mapped_slice())
             .ok_or_else(|| anyhow!("buffer is not host visible"))?;
-        let bytes = count * size_of::<T>();
+        let dst: &mut [u8] = bytemuck::cast_slice_mut(out);
         anyhow::ensure!(
-            bytes <= src.len(),
-            "reading {bytes} bytes from a {}-byte buffer",
+            dst.len() <= src.len(),
+            "reading {} bytes from a {}-byte buffer",
+            dst.len(),
             src.len()
         );
-        Ok(bytemuck::pod_collect_to_vec(&src[..bytes]))
+        dst.copy_from_slice(&src[..dst.len()]);
+        Ok(())
     }
 }
 

@@ -9,6 +9,9 @@ use std::sync::Arc;
 /// Longest a submission may run before [`Commands::wait`] gives up on it.
 pub const GPU_TIMEOUT_NS: u64 = 600_000_000_000;
 
+/// Largest staging buffer [`Commands::read_back`] makes, in bytes.
+pub const READ_BACK_CHUNK: u64 = 32 << 20;
+
 /// Timestamps one command buffer can hold (the query pool's size).
 pub const MAX_TIMESTAMPS: u32 = 64;
 
@@ -105,9 +108,9 @@ impl Commands {
         kernel: Kernel,
         params: &BuildParams,
         groups: u32,
-    ) {
+    ) -> Result<()> {
         let (x, y) = shared::types::grid(groups);
-        self.dispatch_sets(kernels, &[set], kernel, bytemuck::bytes_of(params), x, y);
+        self.dispatch_sets(kernels, &[set], kernel, bytemuck::bytes_of(params), x, y)
     }
 
     /// Dispatches `x * y` workgroups of `kernel` with descriptor sets `sets` (from set 0)
@@ -120,8 +123,9 @@ impl Commands {
         push: &[u8],
         x: u32,
         y: u32,
-    ) {
-        self.dispatch_pipeline(kernels, kernels.pipeline(kernel), sets, push, x, y);
+    ) -> Result<()> {
+        self.dispatch_pipeline(kernels, kernels.pipeline(kernel)?, sets, push, x, y);
+        Ok(())
     }
 
     /// Dispatches like [`Commands::dispatch_sets`] with `pipeline`, one of `kernels`' (such
@@ -190,17 +194,36 @@ impl Commands {
     }
 
     /// Copies `count` values of type `T` from the start of `src` back to the host (records,
-    /// submits and waits: the command buffer must not be recording).
+    /// submits and waits: the command buffer must not be recording). Large buffers come back
+    /// through one staging buffer of at most [`READ_BACK_CHUNK`] bytes, a chunk at a time: a
+    /// host-visible copy of the whole (133 MB for a 4K accumulation image) costs more to
+    /// allocate and map than the copies themselves.
     pub fn read_back<T: bytemuck::Pod>(&mut self, src: &Buffer, count: usize) -> Result<Vec<T>> {
-        let bytes = (count * size_of::<T>()) as u64;
-        if bytes == 0 {
+        let size = size_of::<T>();
+        if count == 0 || size == 0 {
             return Ok(Vec::new());
         }
-        let readback = Buffer::new(&self.gpu, "readback", bytes, gpu_allocator::MemoryLocation::GpuToCpu)?;
-        self.begin()?;
-        self.copy_range(src, 0, &readback, 0, bytes);
-        self.submit_wait().context("reading back GPU results")?;
-        readback.read(count)
+        let per_chunk = (READ_BACK_CHUNK as usize / size).clamp(1, count);
+        let staging = Buffer::new(
+            &self.gpu,
+            "readback",
+            (per_chunk * size) as u64,
+            gpu_allocator::MemoryLocation::GpuToCpu,
+        )?;
+        let mut out = vec![T::zeroed(); count];
+        for (k, part) in out.chunks_mut(per_chunk).enumerate() {
+            self.begin()?;
+            self.copy_range(
+                src,
+                (k * per_chunk * size) as u64,
+                &staging,
+                0,
+                std::mem::size_of_val(part) as u64,
+            );
+            self.submit_wait().context("reading back GPU results")?;
+            staging.read_into(part)?;
+        }
+        Ok(out)
     }
 
     /// Ends recording, submits, and waits for the GPU to finish.

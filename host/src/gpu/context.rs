@@ -76,10 +76,22 @@ pub struct ValidationLog {
     errors: Mutex<Vec<String>>,
 }
 
+/// A Vulkan instance (with the validation layer's messenger where asked for), shared by the
+/// devices opened from it ([`Gpu::on`]) and destroyed with the last of them.
+pub struct Instance {
+    entry: ash::Entry,
+    instance: ash::Instance,
+    validation: bool,
+    debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    log: Arc<ValidationLog>,
+}
+
 /// An open Vulkan device with one compute queue.
 pub struct Gpu {
     pub entry: ash::Entry,
     pub instance: ash::Instance,
+    /// What `entry` and `instance` belong to (kept alive while the device is).
+    shared: Arc<Instance>,
     pub physical: vk::PhysicalDevice,
     pub device: ash::Device,
     pub queue: vk::Queue,
@@ -99,8 +111,6 @@ pub struct Gpu {
     /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
     pub swapchain: bool,
     pub allocator: Mutex<Option<Allocator>>,
-    debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
-    log: Arc<ValidationLog>,
 }
 
 unsafe extern "system" fn on_message(
@@ -129,10 +139,11 @@ unsafe extern "system" fn on_message(
     vk::FALSE
 }
 
-impl Gpu {
-    /// Opens the best (or the chosen) Vulkan device. Fails with one clear message when no
-    /// Vulkan loader or device exists.
-    pub fn new(opts: &GpuOptions) -> Result<Arc<Gpu>> {
+impl Instance {
+    /// Loads the Vulkan loader and makes an instance: with the Khronos validation layer if
+    /// `validation` and the layer is installed, with the instance extensions a window needs.
+    /// Fails with one clear message when no Vulkan loader exists.
+    pub fn new(validation: bool, window_extensions: &[&'static CStr]) -> Result<Arc<Instance>> {
         // SAFETY: loading the system Vulkan loader; its entry points are trusted.
         let entry = unsafe { ash::Entry::load() }
             .context("no Vulkan loader found (install libvulkan1 and a driver, e.g. mesa-vulkan-drivers)")?;
@@ -141,7 +152,7 @@ impl Gpu {
         let has_layer = layers
             .iter()
             .any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER));
-        let validation = opts.validation && has_layer;
+        let validation = validation && has_layer;
         let app = vk::ApplicationInfo::default()
             .application_name(c"raytrace")
             .api_version(vk::API_VERSION_1_2);
@@ -150,7 +161,7 @@ impl Gpu {
         } else {
             vec![]
         };
-        let mut ext_ptrs: Vec<_> = opts.window_extensions.iter().map(|e| e.as_ptr()).collect();
+        let mut ext_ptrs: Vec<_> = window_extensions.iter().map(|e| e.as_ptr()).collect();
         if validation {
             ext_ptrs.push(ash::ext::debug_utils::NAME.as_ptr());
         }
@@ -180,63 +191,88 @@ impl Gpu {
         } else {
             None
         };
-        // From here on, a failure must destroy what exists: build the rest in a helper.
-        match Self::open_device(&instance, opts) {
-            Ok((chosen, device, kernel_stats)) => {
-                let DeviceInfo {
-                    physical,
-                    queue_family,
-                    timestamp_period,
-                    name,
-                    driver,
-                    driver_id,
-                    kind,
-                    max_binding,
-                    ..
-                } = chosen;
-                // SAFETY: the device was created with this queue family.
-                let queue = unsafe { device.get_device_queue(queue_family, 0) };
-                let allocator = Allocator::new(&AllocatorCreateDesc {
-                    instance: instance.clone(),
-                    device: device.clone(),
-                    physical_device: physical,
-                    debug_settings: Default::default(),
-                    buffer_device_address: false,
-                    allocation_sizes: Default::default(),
-                })
-                .map_err(|e| anyhow!("creating the GPU memory allocator: {e}"))?;
-                Ok(Arc::new(Gpu {
-                    entry,
-                    instance,
-                    physical,
-                    device,
-                    queue,
-                    queue_family,
-                    timestamp_period,
-                    name,
-                    driver,
-                    validation_enabled: validation,
-                    driver_id,
-                    kind,
-                    max_binding,
-                    kernel_stats,
-                    swapchain: !opts.window_extensions.is_empty(),
-                    allocator: Mutex::new(Some(allocator)),
-                    debug,
-                    log,
-                }))
+        Ok(Arc::new(Instance {
+            entry,
+            instance,
+            validation,
+            debug,
+            log,
+        }))
+    }
+}
+
+impl Drop for Instance {
+    fn drop(&mut self) {
+        // SAFETY: every device made from the instance holds an `Arc` of it, so none is left.
+        unsafe {
+            if let Some((du, m)) = self.debug.take() {
+                du.destroy_debug_utils_messenger(m, None);
             }
-            Err(e) => {
-                // SAFETY: nothing else uses these objects.
-                unsafe {
-                    if let Some((du, m)) = debug {
-                        du.destroy_debug_utils_messenger(m, None);
-                    }
-                    instance.destroy_instance(None);
-                }
-                Err(e)
-            }
+            self.instance.destroy_instance(None);
         }
+    }
+}
+
+impl Gpu {
+    /// Opens the best (or the chosen) Vulkan device. Fails with one clear message when no
+    /// Vulkan loader or device exists.
+    pub fn new(opts: &GpuOptions) -> Result<Arc<Gpu>> {
+        Self::on(&Instance::new(opts.validation, &opts.window_extensions)?, opts)
+    }
+
+    /// Opens the best (or the chosen) device of `shared` (several devices of one host share
+    /// an instance: made once, and the driver loaded once).
+    pub fn on(shared: &Arc<Instance>, opts: &GpuOptions) -> Result<Arc<Gpu>> {
+        let instance = shared.instance.clone();
+        let (chosen, device, kernel_stats) = Self::open_device(&instance, opts)?;
+        let DeviceInfo {
+            physical,
+            queue_family,
+            timestamp_period,
+            name,
+            driver,
+            driver_id,
+            kind,
+            max_binding,
+            ..
+        } = chosen;
+        // SAFETY: the device was created with this queue family.
+        let queue = unsafe { device.get_device_queue(queue_family, 0) };
+        let allocator = Allocator::new(&AllocatorCreateDesc {
+            instance: instance.clone(),
+            device: device.clone(),
+            physical_device: physical,
+            debug_settings: Default::default(),
+            buffer_device_address: false,
+            allocation_sizes: Default::default(),
+        });
+        let allocator = match allocator {
+            Ok(a) => a,
+            Err(e) => {
+                // SAFETY: nothing was made on the device yet.
+                unsafe { device.destroy_device(None) };
+                bail!("creating the GPU memory allocator: {e}");
+            }
+        };
+        Ok(Arc::new(Gpu {
+            entry: shared.entry.clone(),
+            instance,
+            shared: shared.clone(),
+            physical,
+            device,
+            queue,
+            queue_family,
+            timestamp_period,
+            name,
+            driver,
+            validation_enabled: shared.validation,
+            driver_id,
+            kind,
+            max_binding,
+            kernel_stats,
+            swapchain: !opts.window_extensions.is_empty(),
+            allocator: Mutex::new(Some(allocator)),
+        }))
     }
 
     /// Every Vulkan device the kernels can run on (Vulkan 1.2, a compute queue with
@@ -389,7 +425,7 @@ impl Gpu {
 
     /// Validation errors reported so far (empty when validation is off).
     pub fn validation_errors(&self) -> Vec<String> {
-        self.log.errors.lock().map(|e| e.clone()).unwrap_or_default()
+        self.shared.log.errors.lock().map(|e| e.clone()).unwrap_or_default()
     }
 
     /// Whether the device runs the kernels on the CPU (lavapipe, SwiftShader): the CPU
@@ -431,10 +467,6 @@ impl Drop for Gpu {
                 a.take();
             }
             self.device.destroy_device(None);
-            if let Some((du, m)) = self.debug.take() {
-                du.destroy_debug_utils_messenger(m, None);
-            }
-            self.instance.destroy_instance(None);
         }
     }
 }

@@ -96,7 +96,7 @@ impl GpuDenoiser {
         history: bool,
         still: bool,
         bgra: bool,
-    ) {
+    ) -> Result<()> {
         let flag = |on: bool, f: u32| if on { f } else { 0 };
         let flags = flag(self.parity, DENOISE_PARITY)
             | flag(!(history && self.has_history), DENOISE_NO_HISTORY)
@@ -104,24 +104,26 @@ impl GpuDenoiser {
             | flag(bgra, DENOISE_BGRA);
         let sets = [self.set.sets[0], render_set];
         let (gx, gy) = (self.width.div_ceil(TILE_SIDE), self.height.div_ceil(TILE_SIDE));
-        let mut pass = |kernel: Kernel, level: u32, label: &'static str| {
+        let mut pass = |kernel: Kernel, level: u32, label: &'static str| -> Result<()> {
             let push = DenoisePush {
                 samples,
                 level,
                 flags,
                 _pad: 0,
             };
-            cmds.dispatch_sets(kernels, &sets, kernel, bytemuck::bytes_of(&push), gx, gy);
+            cmds.dispatch_sets(kernels, &sets, kernel, bytemuck::bytes_of(&push), gx, gy)?;
             cmds.barrier();
             cmds.timestamp(label);
+            Ok(())
         };
-        pass(Kernel::DenoiseTemporal, 0, PASSES[0]);
-        pass(Kernel::DenoiseVariance, 0, PASSES[1]);
+        pass(Kernel::DenoiseTemporal, 0, PASSES[0])?;
+        pass(Kernel::DenoiseVariance, 0, PASSES[1])?;
         for level in 0..LEVELS {
-            pass(Kernel::DenoiseAtrous, level, PASSES[2]);
+            pass(Kernel::DenoiseAtrous, level, PASSES[2])?;
         }
         self.parity = !self.parity;
         self.has_history = true;
+        Ok(())
     }
 }
 

@@ -120,9 +120,10 @@ pub struct Kernels {
     /// Layouts of set 0 (build) and set 1 (render).
     pub set_layouts: [vk::DescriptorSetLayout; 2],
     pub layout: vk::PipelineLayout,
-    pipelines: Vec<vk::Pipeline>,
-    /// Pipelines made with a value of specialisation constant 0, made when first asked for.
-    specialised: Mutex<HashMap<(Kernel, u32), vk::Pipeline>>,
+    /// Every pipeline, made when first asked for (a render uses 8 of the module's 26 entry
+    /// points, and each pipeline makes the driver read the whole module), with the value of
+    /// specialisation constant 0 where it is set.
+    pipelines: Mutex<HashMap<(Kernel, Option<u32>), vk::Pipeline>>,
     /// Whether the device's GLSL `Fma` rounds once (see [`Kernels::specialised`]).
     pub fused_fma: bool,
 }
@@ -137,8 +138,7 @@ impl Kernels {
             module: vk::ShaderModule::null(),
             set_layouts: [vk::DescriptorSetLayout::null(); 2],
             layout: vk::PipelineLayout::null(),
-            pipelines: Vec::new(),
-            specialised: Mutex::new(HashMap::new()),
+            pipelines: Mutex::new(HashMap::new()),
             fused_fma: true,
         };
         // SAFETY (all calls below): valid create infos on a live device; objects are owned by
@@ -173,17 +173,6 @@ impl Kernels {
             )
         }
         .context("creating the pipeline layout")?;
-        // The tracers run only specialised (`Self::specialised`, made on first use): their
-        // unspecialised pipelines, the largest by far, would cost lavapipe a minute to compile
-        // and never run.
-        for kernel in Kernel::ALL {
-            let p = if kernel.is_tracer() {
-                vk::Pipeline::null()
-            } else {
-                k.create_pipeline(kernel, None)?
-            };
-            k.pipelines.push(p);
-        }
         k.fused_fma = k.probe_fma().context("probing the device's fma")?;
         Ok(k)
     }
@@ -198,7 +187,7 @@ impl Kernels {
         let set = BindingSets::new(&self.gpu, self, 0, &[&[&io; BINDINGS]])?;
         let mut cmds = Commands::new(&self.gpu)?;
         cmds.begin()?;
-        cmds.dispatch_sets(self, &set.sets, Kernel::FmaProbe, &[0; 16], 1, 1);
+        cmds.dispatch_sets(self, &set.sets, Kernel::FmaProbe, &[0; 16], 1, 1)?;
         cmds.barrier();
         cmds.submit_wait()?;
         let r: Vec<f32> = io.read(4)?;
@@ -247,14 +236,19 @@ impl Kernels {
         } else {
             constant | VARIANT_SPLIT_PRODUCTS
         };
+        self.made(kernel, Some(constant))
+    }
+
+    /// The pipeline of `kernel` with `constant`, made if it is the first ask.
+    fn made(&self, kernel: Kernel, constant: Option<u32>) -> Result<vk::Pipeline> {
         let mut cache = self
-            .specialised
+            .pipelines
             .lock()
             .map_err(|_| anyhow::anyhow!("pipeline cache lock poisoned"))?;
         if let Some(&p) = cache.get(&(kernel, constant)) {
             return Ok(p);
         }
-        let p = self.create_pipeline(kernel, Some(constant))?;
+        let p = self.create_pipeline(kernel, constant)?;
         cache.insert((kernel, constant), p);
         Ok(p)
     }
@@ -266,11 +260,11 @@ impl Kernels {
             return Ok(Vec::new());
         }
         let mut out = Vec::new();
-        for (&kernel, &pipeline) in Kernel::ALL.iter().zip(&self.pipelines) {
+        for kernel in Kernel::ALL {
             let pipeline = if kernel.is_tracer() {
                 self.specialised(kernel, FEATURES_ALL)?
             } else {
-                pipeline
+                self.pipeline(kernel)?
             };
             out.push((kernel.entry(), self.pipeline_statistics(pipeline)?));
         }
@@ -315,10 +309,14 @@ impl Kernels {
             .collect())
     }
 
-    /// The unspecialised pipeline of `k` (not of a tracer: see [`Self::specialised`]).
-    pub fn pipeline(&self, k: Kernel) -> vk::Pipeline {
-        debug_assert!(!k.is_tracer(), "{} runs specialised", k.entry());
-        self.pipelines[Kernel::ALL.iter().position(|&x| x == k).unwrap_or(0)]
+    /// The unspecialised pipeline of `k`, made on first use. Not of a tracer: those run only
+    /// specialised ([`Self::specialised`]), and their unspecialised pipelines, the largest by
+    /// far, would cost lavapipe a minute to compile.
+    pub fn pipeline(&self, k: Kernel) -> Result<vk::Pipeline> {
+        if k.is_tracer() {
+            bail!("{} runs only specialised", k.entry());
+        }
+        self.made(k, None)
     }
 }
 
@@ -327,12 +325,7 @@ impl Drop for Kernels {
         let d = &self.gpu.device;
         // SAFETY: owners wait for GPU work before dropping the kernels.
         unsafe {
-            for &p in &self.pipelines {
-                if p != vk::Pipeline::null() {
-                    d.destroy_pipeline(p, None);
-                }
-            }
-            if let Ok(cache) = self.specialised.lock() {
+            if let Ok(cache) = self.pipelines.lock() {
                 for &p in cache.values() {
                     d.destroy_pipeline(p, None);
                 }

@@ -350,14 +350,14 @@ impl GpuLbvh {
             }
             return Ok(());
         }
-        cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, item_groups(n));
+        cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, item_groups(n))?;
         cmds.barrier();
         stamp(cmds, STAGES[0]);
         // The radix passes take their digit totals from the Morton stage.
         if n > sort::RANK_MAX {
-            cmds.dispatch(k, set_ab, morton_counted, &p, item_groups(n));
+            cmds.dispatch(k, set_ab, morton_counted, &p, item_groups(n))?;
         } else {
-            cmds.dispatch(k, set_ab, morton, &p, items);
+            cmds.dispatch(k, set_ab, morton, &p, items)?;
         }
         cmds.barrier();
         if capture {
@@ -370,24 +370,24 @@ impl GpuLbvh {
         }
         stamp(cmds, STAGES[1]);
         if n <= sort::RANK_MAX {
-            cmds.dispatch(k, set_ab, rank, &p, 1);
+            cmds.dispatch(k, set_ab, rank, &p, 1)?;
             cmds.barrier();
             stamp(cmds, "sort.rank");
         } else {
             for pass in 0..p.passes {
                 p.shift = pass * sort::RADIX_BITS;
                 let set = if pass % 2 == 0 { set_ab } else { set_ba };
-                cmds.dispatch(k, set, scatter, &p, tiles);
+                cmds.dispatch(k, set, scatter, &p, tiles)?;
                 cmds.barrier();
                 stamp(cmds, "sort.scatter");
             }
         }
-        cmds.dispatch(k, set_ab, build, &p, items);
+        cmds.dispatch(k, set_ab, build, &p, items)?;
         cmds.barrier();
         stamp(cmds, STAGES[3]);
         let refit = match self.gpu.refit_kernel(opts.restructures()) {
             (kernel, Some(constant)) => k.specialised(kernel, constant)?,
-            (kernel, None) => k.pipeline(kernel),
+            (kernel, None) => k.pipeline(kernel)?,
         };
         let (x, y) = grid(items);
         cmds.dispatch_pipeline(k, refit, &[set_ab], bytemuck::bytes_of(&p), x, y);
@@ -399,11 +399,11 @@ impl GpuLbvh {
             let (x, y) = grid(items);
             cmds.dispatch_pipeline(k, climb, &[set_ab], bytemuck::bytes_of(&p), x, y);
             cmds.barrier();
-            cmds.dispatch(k, set_ab, Kernel::WideMark, &p, s.groups);
+            cmds.dispatch(k, set_ab, Kernel::WideMark, &p, s.groups)?;
             cmds.barrier();
-            cmds.dispatch(k, set_ab, Kernel::WideScan, &p, 1);
+            cmds.dispatch(k, set_ab, Kernel::WideScan, &p, 1)?;
             cmds.barrier();
-            cmds.dispatch(k, set_ab, Kernel::WideWrite, &p, s.slots.div_ceil(WORKGROUP));
+            cmds.dispatch(k, set_ab, Kernel::WideWrite, &p, s.slots.div_ceil(WORKGROUP))?;
             cmds.barrier();
             cmds.timestamp(if stages { "wide" } else { "build" });
         } else {

@@ -14,7 +14,7 @@ mod swapchain;
 
 pub use buffer::Buffer;
 pub use commands::{Commands, MAX_TIMESTAMPS};
-pub use context::{DeviceInfo, Gpu, GpuOptions};
+pub use context::{DeviceInfo, Gpu, GpuOptions, Instance};
 pub use denoise::{denoise_ms, is_denoise, PASSES as DENOISE_PASSES};
 pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
 pub use lbvh::GpuLbvh;

@@ -462,7 +462,7 @@ impl GpuRenderer {
                 passes: 0,
             };
             let (x, y) = grid(f.n_prims.div_ceil(WORKGROUP));
-            cmds.dispatch_sets(k, &sets, Kernel::Transform, bytemuck::bytes_of(&p), x, y);
+            cmds.dispatch_sets(k, &sets, Kernel::Transform, bytemuck::bytes_of(&p), x, y)?;
             cmds.barrier();
             cmds.timestamp("transform");
             self.lbvh.record(cmds, self.build, false, false)?;
@@ -485,9 +485,9 @@ impl GpuRenderer {
         if let Some(d) = self.denoiser.as_mut().filter(|_| denoise) {
             let bgra = self.display_flags & DISPLAY_BGRA != 0;
             if self.denoise == Denoise::Accumulated {
-                d.record(cmds, k, sets[1], self.samples + samples, false, false, bgra);
+                d.record(cmds, k, sets[1], self.samples + samples, false, false, bgra)?;
             } else {
-                d.record(cmds, k, sets[1], samples, true, still, bgra);
+                d.record(cmds, k, sets[1], samples, true, still, bgra)?;
             }
         } else {
             let push = RenderPush {
@@ -496,7 +496,7 @@ impl GpuRenderer {
                 ..Default::default()
             };
             let (x, y) = grid((f.width * f.height).div_ceil(WORKGROUP));
-            cmds.dispatch_sets(k, &sets, Kernel::DisplayImage, bytemuck::bytes_of(&push), x, y);
+            cmds.dispatch_sets(k, &sets, Kernel::DisplayImage, bytemuck::bytes_of(&push), x, y)?;
             cmds.barrier();
             cmds.timestamp("display");
         }
