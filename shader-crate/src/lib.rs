@@ -7,6 +7,7 @@ use shared::alpha::Coverage;
 use shared::bounds::{self, BoundsState};
 use shared::denoise::{self, DenoisePush};
 use shared::envmap::EnvEntry;
+use shared::instance::Instance;
 use shared::path::{self, World};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
 use shared::refit::{FitState, RefitState};
@@ -336,9 +337,22 @@ pub fn transform(
     xform::transform(i, p, objects, prim_object, model_tris, model_spheres, tris, spheres);
 }
 
+/// The top level's inputs: each instance's world box (`shared::instance::instance_box`) into
+/// set 0's triangles, which the top level's build then reads.
+#[spirv(compute(threads(256)))]
+pub fn instance_boxes(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] boxes: &mut [Triangle],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
+) {
+    shared::instance::instance_box(flat_index(id.x, id.y), p.n, instances, objects, boxes);
+}
+
 /// The scene as the render kernels see it (set 0: world primitives and BVH; set 1: the rest).
 macro_rules! world {
-    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $attrs:ident, $punctual:ident, $env:ident, $textures:ident, $texels:ident, $features:expr) => {
+    ($tris:ident, $spheres:ident, $nodes:ident, $wide:ident, $order:ident, $instances:ident, $objects:ident, $prim_object:ident, $materials:ident, $lights:ident, $frame:ident, $attrs:ident, $punctual:ident, $env:ident, $textures:ident, $texels:ident, $features:expr) => {
         World {
             scene: Scene {
                 tris: $tris,
@@ -348,6 +362,9 @@ macro_rules! world {
                 order: $order,
                 n_tris: $frame.n_tris,
                 n_prims: $frame.n_prims,
+                top: $frame.top_nodes,
+                instances: $instances,
+                n_instances: $frame.n_instances,
                 coverage: Coverage {
                     objects: $objects,
                     prim_object: $prim_object,
@@ -394,6 +411,7 @@ pub fn path_trace(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 16)] guides: &mut [[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
     #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
 ) {
     let w = world!(
@@ -402,6 +420,7 @@ pub fn path_trace(
         nodes,
         wide,
         order,
+        instances,
         objects,
         prim_object,
         materials,
@@ -499,6 +518,7 @@ pub fn cast_rays(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
     #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
 ) {
     let w = world!(
@@ -507,6 +527,7 @@ pub fn cast_rays(
         nodes,
         wide,
         order,
+        instances,
         objects,
         prim_object,
         materials,

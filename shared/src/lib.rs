@@ -16,6 +16,7 @@ mod chi2;
 pub mod denoise;
 pub mod display;
 pub mod envmap;
+pub mod instance;
 pub mod intersect;
 pub mod karras;
 pub mod material;

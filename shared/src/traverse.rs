@@ -5,11 +5,12 @@
 //! hold up to two primitives, hit children are visited nearest first. Rays with a
 //! non-finite origin or direction miss.
 use crate::alpha::{self, Coverage};
+use crate::instance::Instance;
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
 use crate::sync::{at, elem, elem_mut};
 use crate::types::{
-    xyz, Hit, Node, Sphere, Triangle, FEATURE_ALPHA, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID,
+    xyz, Hit, Node, Sphere, Triangle, FEATURE_ALPHA, FEATURE_INSTANCES, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID,
     VARIANT_MOLLER_TRUMBORE, VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
 };
 use crate::wide::{self, WideNode, LEAF};
@@ -36,6 +37,15 @@ pub struct Scene<'a> {
     pub order: &'a [u32],
     pub n_tris: u32,
     pub n_prims: u32,
+    /// With [`FEATURE_INSTANCES`]: the top level's first node in `nodes` (a BVH over
+    /// `instances`' world boxes, numbered from 0; its leaves' `a`: the instance), and the
+    /// instances. `nodes` then holds every mesh's BVH too (each at its instances' `nodes`,
+    /// numbered from 0), `tris` and `spheres` the meshes' model-space primitives, `n_tris` and
+    /// `n_prims` their counts. (One node buffer for both levels: lavapipe binds at most 32
+    /// storage buffers a kernel, and the tracers use 31 without the instances.)
+    pub top: u32,
+    pub instances: &'a [Instance],
+    pub n_instances: u32,
     /// Materials and textures, for the holes of alpha-tested triangles (with
     /// [`FEATURE_ALPHA`]; [`Coverage::NONE`] where every primitive is opaque).
     pub coverage: Coverage<'a>,
@@ -135,7 +145,9 @@ pub fn any_brute(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
 
 /// Closest hit in `(0, t_max)` through the BVH.
 pub fn closest(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
-    if s.features & VARIANT_WIDE_BVH != 0 {
+    if s.features & FEATURE_INSTANCES != 0 {
+        walk_levels::<false>(s, origin, dir, t_max).0
+    } else if s.features & VARIANT_WIDE_BVH != 0 {
         walk_wide::<false>(s, origin, dir, t_max)
     } else {
         walk::<false>(s, origin, dir, t_max)
@@ -144,7 +156,9 @@ pub fn closest(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
 
 /// Whether anything lies in `(0, t_max)`, through the BVH; stops at the first hit.
 pub fn any(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
-    let hit = if s.features & VARIANT_WIDE_BVH != 0 {
+    let hit = if s.features & FEATURE_INSTANCES != 0 {
+        walk_levels::<true>(s, origin, dir, t_max).0
+    } else if s.features & VARIANT_WIDE_BVH != 0 {
         walk_wide::<true>(s, origin, dir, t_max)
     } else {
         walk::<true>(s, origin, dir, t_max)
@@ -327,6 +341,152 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
         } else {
             return best;
         }
+    }
+}
+
+/// Closest hit in `(0, t_max)` of an instanced scene ([`FEATURE_INSTANCES`]) and the
+/// instance hit ([`INVALID`] for a miss): `Hit::prim` is the scene's primitive id.
+pub fn closest_instance(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> (Hit, u32) {
+    walk_levels::<false>(s, origin, dir, t_max)
+}
+
+/// Stack traversal of the two levels ([`FEATURE_INSTANCES`]): [`walk`]'s loop, where a hit
+/// leaf of the top level is an instance to enter rather than a primitive to intersect. Its
+/// box is pushed or taken like an internal node's; taking it moves the ray to the mesh's
+/// model space and makes the mesh's root the next node, and the stack's depth there marks
+/// where the instance ends: popping back to it restores the world ray. One stack, one box
+/// test and one primitive test for both levels.
+fn walk_levels<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> (Hit, u32) {
+    let mut best = Hit::MISS;
+    let mut best_instance = INVALID;
+    let n = s.n_instances;
+    if n == 0 || !usable(origin, dir, t_max) {
+        return (best, best_instance);
+    }
+    let world = TriRay::new(origin, dir);
+    let mut r = world;
+    let mut limit = t_max;
+    if slab(s, &r, at(s.nodes, s.top), limit) == f32::INFINITY {
+        return (best, best_instance);
+    }
+    let top_leaves = n - 1;
+    let mut stack = [MaybeUninit::<u32>::uninit(); STACK];
+    let mut sp = 0usize;
+    // The instance being walked (INVALID: the top level), its mesh and the stack's depth
+    // where it was entered.
+    let mut current = INVALID;
+    let mut mesh = Instance::default();
+    let mut base = 0usize;
+    // Top-level node 0, the root (for one instance, its leaf).
+    let mut node = 0u32;
+    loop {
+        let mut next = INVALID;
+        if current == INVALID && node >= top_leaves {
+            // Enter the instance.
+            current = at(s.nodes, s.top + node).a;
+            mesh = *at(s.instances, current);
+            base = sp;
+            let (o, d) = mesh.ray_to_model(origin, dir);
+            r = TriRay::new(o, d);
+            if mesh.prims() == 1 {
+                let prim = mesh.global(0, s.n_tris);
+                let (t, u, v) = primitive(s, &r, prim, limit);
+                if t < limit {
+                    limit = t;
+                    best = Hit { t, prim, u, v };
+                    best_instance = current;
+                }
+            } else if mesh.prims() > 1 {
+                next = 0;
+            }
+        } else {
+            let top = current == INVALID;
+            let (first_leaf, offset) = if top {
+                (top_leaves, s.top)
+            } else {
+                (mesh.prims() - 1, mesh.nodes)
+            };
+            let inner = *at(s.nodes, offset + node);
+            let at_level = Level {
+                top,
+                offset,
+                first_leaf,
+                mesh: &mesh,
+                instance: current,
+            };
+            let (a, ta) = at_level.visit(s, &r, inner.a, &mut limit, &mut best, &mut best_instance);
+            if ANY && best.prim != INVALID {
+                return (best, best_instance);
+            }
+            let (b, tb) = at_level.visit(s, &r, inner.b, &mut limit, &mut best, &mut best_instance);
+            let (near, far) = if tb < ta { (b, a) } else { (a, b) };
+            if near != INVALID {
+                if far != INVALID && sp < STACK {
+                    elem_mut(&mut stack, sp as u32).write(far);
+                    sp += 1;
+                }
+                next = near;
+            }
+        }
+        if ANY && best.prim != INVALID {
+            return (best, best_instance);
+        }
+        if next != INVALID {
+            node = next;
+        } else {
+            if current != INVALID && sp == base {
+                // The instance is done: back to the top level.
+                current = INVALID;
+                r = world;
+            }
+            if sp == 0 {
+                return (best, best_instance);
+            }
+            sp -= 1;
+            // SAFETY: entry `sp` was written by its push.
+            node = unsafe { elem(&stack, sp as u32).assume_init() };
+        }
+    }
+}
+
+/// Where [`walk_levels`] is: the top level, or an instance's mesh.
+struct Level<'m> {
+    top: bool,
+    /// The level's first node in `Scene::nodes`.
+    offset: u32,
+    first_leaf: u32,
+    mesh: &'m Instance,
+    instance: u32,
+}
+
+impl Level<'_> {
+    /// [`visit`] at this level: a hit leaf of a mesh is intersected at once, a hit internal
+    /// node or instance is returned with its entry distance.
+    fn visit(
+        &self,
+        s: &Scene,
+        r: &TriRay,
+        child: u32,
+        limit: &mut f32,
+        best: &mut Hit,
+        best_instance: &mut u32,
+    ) -> (u32, f32) {
+        let c = *at(s.nodes, self.offset + child);
+        let t_box = slab(s, r, &c, *limit);
+        if t_box == f32::INFINITY {
+            return (INVALID, f32::INFINITY);
+        }
+        if self.top || child < self.first_leaf {
+            return (child, t_box);
+        }
+        let prim = self.mesh.global(c.a, s.n_tris);
+        let (t, u, v) = primitive(s, r, prim, *limit);
+        if t < *limit {
+            *limit = t;
+            *best = Hit { t, prim, u, v };
+            *best_instance = self.instance;
+        }
+        (INVALID, f32::INFINITY)
     }
 }
 

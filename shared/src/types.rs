@@ -262,10 +262,11 @@ pub fn load4<T: Copy>(buf: &[T], first: u32, stride: u32, n: u32) -> [T; 4] {
 // | 14      | `[TextureInfo]` every texture's place and size in binding 15 |
 // | 15      | texels of every texture and mip level, RGBA8 in a `u32`    |
 // | 16      | `[Guide]` the denoiser's guides (`crate::denoise`)         |
+// | 17      | `[Instance]` the instances of an instanced scene (`crate::instance`) |
 // ---------------------------------------------------------------------------------------------
 
 /// Storage buffers of descriptor set 1.
-pub const RENDER_BINDINGS: u32 = 17;
+pub const RENDER_BINDINGS: u32 = 18;
 /// Render kernels run on 8x8 pixel tiles.
 pub const TILE_SIDE: u32 = 8;
 
@@ -458,7 +459,11 @@ pub struct Frame {
     /// Where the objects' previous-frame transforms start in the objects binding: object
     /// `o` was `objects[prev_objects + o]` (0: nothing moved).
     pub prev_objects: u32,
-    pub _pad: u32,
+    /// Instances of an instanced scene (`FEATURE_INSTANCES`; render binding 17), and the
+    /// first node of its top level in the node buffer (`traverse::Scene::top`).
+    pub n_instances: u32,
+    pub top_nodes: u32,
+    pub _pad: [u32; 3],
 }
 
 /// Push constants of the render kernels.
@@ -508,6 +513,10 @@ pub const FEATURE_ALPHA: u32 = 1 << 16;
 /// The path tracer leaves the denoiser's guides (`crate::denoise::Guide`, binding 16). Not
 /// in [`FEATURES_ALL`]: only a denoised frame asks for it.
 pub const FEATURE_GUIDES: u32 = 1 << 17;
+/// Two levels (`crate::instance`): a top-level BVH over instances of meshes, each with its
+/// own BVH in model space (`traverse::Scene::top`). A layout the host sets where the scene
+/// is instanced, as [`VARIANT_WIDE_BVH`] is; not in [`FEATURES_ALL`].
+pub const FEATURE_INSTANCES: u32 = 1 << 18;
 /// Every feature: the kernel that runs any scene. Bits 6-9 are the `VARIANT_*` bits.
 pub const FEATURES_ALL: u32 = ((1 << 6) - 1)
     | FEATURE_SHADING_NORMALS
@@ -579,7 +588,7 @@ const _: () = assert!(size_of::<VertexAttrs>() == 64);
 const _: () = assert!(size_of::<PunctualLight>() == 64);
 const _: () = assert!(size_of::<Material>() == 112);
 const _: () = assert!(size_of::<Camera>() == 96);
-const _: () = assert!(size_of::<Frame>() == 304);
+const _: () = assert!(size_of::<Frame>() == 320);
 const _: () = assert!(size_of::<RenderPush>() == 16);
 const _: () = assert!(size_of::<Ray>() == 32);
 const _: () = assert!(size_of::<Hit>() == 16);

@@ -120,6 +120,9 @@ fn cpu_queries(data: &SceneGpu, frame: &Frame, rays: &[Ray]) -> (Vec<bool>, Vec<
         order: &bvh.sorted_prims,
         n_tris: frame.n_tris,
         n_prims: frame.n_prims,
+        top: 0,
+        instances: &[],
+        n_instances: 0,
         coverage: data.coverage(),
         features: frame.features,
     };

@@ -1,7 +1,9 @@
 //! What a BVH build produces, on either backend, the choice of Morton code width, and the
 //! check that a built BVH is sound (`validate`).
+mod levels;
 mod validate;
 
+pub use levels::{build_levels, inverse_rows, validate_levels, Levels, MeshPrims, Placement};
 pub use validate::{validate, validate_wide, BvhStats, WideStats};
 
 use shared::types::{Node, OrderedBounds};

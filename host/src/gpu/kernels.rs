@@ -36,6 +36,7 @@ pub enum Kernel {
     RefitTreelets,
     RefitTreeletsRelaxed,
     Transform,
+    InstanceBoxes,
     PathTrace,
     DisplayImage,
     CastRays,
@@ -51,7 +52,7 @@ impl Kernel {
         matches!(self, Kernel::PathTrace | Kernel::CastRays)
     }
 
-    pub const ALL: [Kernel; 26] = [
+    pub const ALL: [Kernel; 27] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -71,6 +72,7 @@ impl Kernel {
         Kernel::RefitTreelets,
         Kernel::RefitTreeletsRelaxed,
         Kernel::Transform,
+        Kernel::InstanceBoxes,
         Kernel::PathTrace,
         Kernel::DisplayImage,
         Kernel::CastRays,
@@ -102,6 +104,7 @@ impl Kernel {
             Kernel::RefitTreelets => "refit_treelets",
             Kernel::RefitTreeletsRelaxed => "refit_treelets_relaxed",
             Kernel::Transform => "transform",
+            Kernel::InstanceBoxes => "instance_boxes",
             Kernel::PathTrace => "path_trace",
             Kernel::DisplayImage => "display_image",
             Kernel::CastRays => "cast_rays",
@@ -120,7 +123,7 @@ pub struct Kernels {
     /// Layouts of set 0 (build) and set 1 (render).
     pub set_layouts: [vk::DescriptorSetLayout; 2],
     pub layout: vk::PipelineLayout,
-    /// Every pipeline, made when first asked for (a render uses 8 of the module's 26 entry
+    /// Every pipeline, made when first asked for (a render uses 8 of the module's 27 entry
     /// points, and each pipeline makes the driver read the whole module), with the value of
     /// specialisation constant 0 where it is set.
     pipelines: Mutex<HashMap<(Kernel, Option<u32>), vk::Pipeline>>,

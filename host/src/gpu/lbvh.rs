@@ -281,6 +281,28 @@ impl GpuLbvh {
         self.cmds.submit_wait().context("uploading primitives")
     }
 
+    /// Writes `nodes` at the start of the node buffer: BVHs built elsewhere (the bottom
+    /// level of an instanced scene, `GpuRenderer::load_levels`).
+    pub fn upload_nodes(&mut self, nodes: &[Node]) -> Result<()> {
+        let b = self.bufs.as_ref().context("no primitives reserved")?;
+        let bytes = std::mem::size_of_val(nodes) as u64;
+        anyhow::ensure!(
+            bytes <= b.nodes.size,
+            "{} nodes do not fit the node buffer ({} bytes)",
+            nodes.len(),
+            b.nodes.size
+        );
+        if nodes.is_empty() {
+            return Ok(());
+        }
+        let mut staging = Buffer::new(&self.gpu, "staging", bytes, MemoryLocation::CpuToGpu)?;
+        staging.write(nodes)?;
+        self.cmds.begin()?;
+        self.cmds.copy_range(&staging, 0, &b.nodes, 0, bytes);
+        self.cmds.barrier();
+        self.cmds.submit_wait().context("uploading nodes")
+    }
+
     /// Records a fill of entry `k` of the bounds buffer with [`OrderedBounds::EMPTY`].
     fn empty_bounds(cmds: &Commands, b: &Buffers, k: u64) {
         let at = k * size_of::<OrderedBounds>() as u64;

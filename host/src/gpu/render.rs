@@ -1,19 +1,19 @@
 //! The GPU renderer. One command buffer per frame: transform every primitive to world space,
 //! rebuild the BVH (the LBVH of `GpuLbvh`), trace samples into the float accumulation
 //! image, and run the display pass; a timestamp after each stage.
-use crate::bvh::{BuildOptions, BuildResult, MortonBits};
+use crate::bvh::{BuildOptions, BuildResult, Levels, MortonBits};
 use crate::gpu::denoise::{guide_bytes, GpuDenoiser};
 use crate::gpu::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels};
 use crate::picture::{swap_red_blue, Picture};
 use crate::scene::SceneGpu;
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
 use shared::denoise::GUIDE_PLANES;
 use shared::envmap::EnvEntry;
 use shared::types::{
     grid, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN,
-    DISPLAY_BGRA, FEATURE_GUIDES, TILE_SIDE, WORKGROUP,
+    DISPLAY_BGRA, FEATURE_GUIDES, FEATURE_INSTANCES, FLAG_BVH, TILE_SIDE, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -51,6 +51,9 @@ struct SceneBuffers {
     texels: Buffer,
     /// The denoiser's guides (one guide while not denoising).
     guides: Buffer,
+    /// The instances of an instanced scene (a placeholder: the renderer does not instance
+    /// yet; see [`GpuRenderer::load_levels`]).
+    instances: Buffer,
     /// Set 1 naming the buffers above; made again whenever one of them is replaced.
     set: Option<BindingSets>,
     n_objects: usize,
@@ -77,6 +80,7 @@ impl SceneBuffers {
             &self.textures,
             &self.texels,
             &self.guides,
+            &self.instances,
         ];
         self.set = Some(BindingSets::new(gpu, kernels, 1, &[&buffers])?);
         Ok(())
@@ -312,6 +316,7 @@ impl GpuRenderer {
         let textures = dev("textures", size_of_val(scene.textures.infos.as_slice()))?;
         let texels = dev("texels", size_of_val(scene.textures.texels.as_slice()))?;
         let guides = dev("denoiser guides", guide_bytes(0) as usize)?;
+        let instances = dev("instances", size_of::<shared::instance::Instance>())?;
         self.upload(&model_tris, &scene.model_tris)?;
         self.upload(&model_spheres, &scene.model_spheres)?;
         self.upload(&prim_object, &scene.prim_object)?;
@@ -340,6 +345,7 @@ impl GpuRenderer {
             textures,
             texels,
             guides,
+            instances,
             set: None,
             n_objects: scene.objects.len(),
         });
@@ -366,6 +372,36 @@ impl GpuRenderer {
         self.cmds.begin()?;
         self.cmds.copy_range(&staging, 0, dst, 0, bytes);
         self.cmds.submit_wait().context("uploading scene data")
+    }
+
+    /// Takes the two levels `l` (`bvh::build_levels`) as what ray casts walk: the meshes'
+    /// primitives and both levels' nodes in the builder's buffers, the instances in render
+    /// binding 17, the frame's counts, [`FLAG_BVH`] and [`FEATURE_INSTANCES`]. The loaded
+    /// scene's objects stay (the renderer's frames do not instance yet: a render transforms
+    /// and builds the loaded scene again).
+    pub fn load_levels(&mut self, l: &Levels) -> Result<()> {
+        ensure!(!l.instances.is_empty(), "a scene of no instances");
+        self.lbvh.upload(&l.tris, &l.spheres)?;
+        self.lbvh.upload_nodes(&l.nodes)?;
+        let gpu = self.gpu.clone();
+        let instances = Buffer::new(
+            &gpu,
+            "instances",
+            size_of_val(l.instances.as_slice()) as u64,
+            MemoryLocation::GpuOnly,
+        )?;
+        self.upload(&instances, &l.instances)?;
+        let b = self.bufs.as_mut().context("no scene loaded")?;
+        b.instances = instances;
+        b.bind(&gpu, &self.kernels)?;
+        let mut f = self.frame;
+        f.n_tris = l.tris.len() as u32;
+        f.n_prims = (l.tris.len() + l.spheres.len()) as u32;
+        f.n_instances = l.instances.len() as u32;
+        f.top_nodes = l.top;
+        f.features |= FEATURE_INSTANCES;
+        f.flags |= FLAG_BVH;
+        self.set_frame(&f)
     }
 
     /// New camera, settings or image size (same scene); accumulation starts again.

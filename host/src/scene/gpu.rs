@@ -235,7 +235,9 @@ impl Scene {
             // A pixel's angular size at the image centre.
             pixel_spread: (viewport_h / s.height as f32).atan(),
             prev_objects: 0,
-            _pad: 0,
+            n_instances: 0,
+            top_nodes: 0,
+            _pad: [0; 3],
         }
     }
 }

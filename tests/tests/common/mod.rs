@@ -66,6 +66,9 @@ impl World {
             order: &self.order,
             n_tris: self.tris.len() as u32,
             n_prims: (self.tris.len() + self.spheres.len()) as u32,
+            top: 0,
+            instances: &[],
+            n_instances: 0,
             coverage: shared::alpha::Coverage::NONE,
             features: raytrace::render::tracer_features(FEATURES_ALL, World::build()),
         }
@@ -199,6 +202,19 @@ impl GpuWorld {
             assert_eq!(bvh.wide, w.wide, "the GPU's wide BVH differs from the CPU executor's");
         }
         self.frame = frame;
+    }
+
+    /// Loads the two levels `l` (built by the CPU executor): the ray casts walk them.
+    pub fn load_levels(&mut self, l: &raytrace::bvh::Levels) {
+        let scene = raytrace::inputs::hard_cases::scene_of(&l.tris, &l.spheres);
+        let data = scene.gpu_data(0.0);
+        let mut frame = scene.frame(&data);
+        frame.features = FEATURES_ALL;
+        let r = &mut self.renderer;
+        r.set_build(World::build());
+        r.load(&data, &frame).expect("load");
+        r.load_levels(l).expect("load the levels");
+        self.frame = *r.frame();
     }
 
     /// Queries through the BVH (`bvh`) or by brute force, with `variants` (`VARIANT_*`).

@@ -1,0 +1,210 @@
+//! Two-level BVHs (instancing, `shared::instance`): every mesh's own BVH in its model space
+//! (the bottom level), and a top-level BVH over the instances' world boxes, both made by the
+//! one builder. The CPU executor builds them here; `validate_levels` checks both.
+use super::{validate, BuildOptions};
+use shared::glam::{DMat3, DVec3, Vec3};
+use shared::instance::{instance_box, Instance};
+use shared::traverse::Scene;
+use shared::types::{prim_box, Node, Object, Sphere, Triangle, FEATURE_INSTANCES, INVALID};
+
+/// A mesh's primitives in its model space.
+#[derive(Clone, Debug, Default)]
+pub struct MeshPrims {
+    pub tris: Vec<Triangle>,
+    pub spheres: Vec<Sphere>,
+}
+
+/// An instance: which mesh, placed by which transform (model to world, 3x4 row-major).
+/// Instance `k` shows object `k`.
+#[derive(Copy, Clone, Debug)]
+pub struct Placement {
+    pub mesh: usize,
+    pub rows: [[f32; 4]; 3],
+}
+
+/// Both levels: the meshes' primitives and BVHs one after another (bottom level), the
+/// instances and the BVH over their world boxes (top level).
+#[derive(Clone, Debug, Default)]
+pub struct Levels {
+    pub tris: Vec<Triangle>,
+    pub spheres: Vec<Sphere>,
+    /// Every mesh's BVH, each numbered from 0, at its instances' `nodes`, then the top
+    /// level's from `top`.
+    pub nodes: Vec<Node>,
+    pub top: u32,
+    pub instances: Vec<Instance>,
+    /// The objects the instances show (here only their transforms, what the top level's
+    /// boxes are made from).
+    pub objects: Vec<Object>,
+    /// The top level's inputs: each instance's world box as a degenerate triangle.
+    pub boxes: Vec<Triangle>,
+    pub top_parents: Vec<u32>,
+    /// Each mesh's first node, and the parents of its BVH (for the validator).
+    pub mesh_nodes: Vec<u32>,
+    pub mesh_parents: Vec<Vec<u32>>,
+}
+
+impl Levels {
+    /// The top level's nodes.
+    pub fn top_nodes(&self) -> &[Node] {
+        &self.nodes[self.top as usize..]
+    }
+
+    /// The scene the traversal walks, with `features` (plus [`FEATURE_INSTANCES`]).
+    pub fn scene(&self, features: u32) -> Scene<'_> {
+        Scene {
+            tris: &self.tris,
+            spheres: &self.spheres,
+            nodes: &self.nodes,
+            wide: &[],
+            order: &[],
+            n_tris: self.tris.len() as u32,
+            n_prims: (self.tris.len() + self.spheres.len()) as u32,
+            top: self.top,
+            instances: &self.instances,
+            n_instances: self.instances.len() as u32,
+            coverage: shared::alpha::Coverage::NONE,
+            features: features | FEATURE_INSTANCES,
+        }
+    }
+}
+
+/// The inverse of the affine transform `rows` (3x4, row-major), computed in f64 and rounded;
+/// an error names what makes it unusable (a non-finite entry, a singular matrix).
+pub fn inverse_rows(rows: &[[f32; 4]; 3]) -> Result<[[f32; 4]; 3], String> {
+    if rows.iter().flatten().any(|x| !x.is_finite()) {
+        return Err(format!("its transform has a non-finite entry: {rows:?}"));
+    }
+    let col = |c: usize| DVec3::new(rows[0][c] as f64, rows[1][c] as f64, rows[2][c] as f64);
+    let m = DMat3::from_cols(col(0), col(1), col(2));
+    let det = m.determinant();
+    // Singular relative to the matrix's scale (a zero scale, two equal axes).
+    let scale = col(0).length() * col(1).length() * col(2).length();
+    if det.abs() <= 1e-12 * scale || scale == 0.0 {
+        return Err(format!("its transform is singular (determinant {det:e}): {rows:?}"));
+    }
+    let inv = m.inverse();
+    let t = -(inv * col(3));
+    let mut out = [[0f32; 4]; 3];
+    for (r, row) in out.iter_mut().enumerate() {
+        let v = inv.row(r);
+        *row = [v.x as f32, v.y as f32, v.z as f32, t[r] as f32];
+    }
+    Ok(out)
+}
+
+/// The box of primitives `prims` of a mesh.
+fn mesh_box(m: &MeshPrims) -> (Vec3, Vec3) {
+    let n_tris = m.tris.len() as u32;
+    (0..n_tris + m.spheres.len() as u32).fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), i| {
+        let (a, b) = prim_box(i, n_tris, &m.tris, &m.spheres);
+        (lo.min(a), hi.max(b))
+    })
+}
+
+/// Builds both levels on the CPU executor with `opts` (binary trees: the two-level walk
+/// does not read the wide layout). Errors name the instance and its problem: a mesh that
+/// does not exist or is empty, a transform that cannot be inverted.
+pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildOptions) -> Result<Levels, String> {
+    let mut l = Levels::default();
+    let opts = BuildOptions { wide: false, ..opts };
+    let mut firsts = Vec::with_capacity(meshes.len());
+    let mut boxes = Vec::with_capacity(meshes.len());
+    for m in meshes {
+        firsts.push((l.nodes.len() as u32, l.tris.len() as u32, l.spheres.len() as u32));
+        boxes.push(mesh_box(m));
+        if m.tris.is_empty() && m.spheres.is_empty() {
+            l.mesh_nodes.push(INVALID);
+            l.mesh_parents.push(Vec::new());
+            continue;
+        }
+        let r = crate::cpu::build(&m.tris, &m.spheres, opts).0;
+        l.mesh_nodes.push(l.nodes.len() as u32);
+        l.nodes.extend_from_slice(&r.nodes);
+        l.mesh_parents.push(r.parents);
+        l.tris.extend_from_slice(&m.tris);
+        l.spheres.extend_from_slice(&m.spheres);
+    }
+    for (k, p) in placements.iter().enumerate() {
+        let Some(m) = meshes.get(p.mesh) else {
+            return Err(format!(
+                "instance {k} shows mesh {}, and there are {} meshes",
+                p.mesh,
+                meshes.len()
+            ));
+        };
+        if m.tris.is_empty() && m.spheres.is_empty() {
+            return Err(format!("instance {k} shows mesh {}, which has no primitives", p.mesh));
+        }
+        let to_model = inverse_rows(&p.rows).map_err(|e| format!("instance {k}: {e}"))?;
+        let (nodes, tri0, sphere0) = firsts[p.mesh];
+        let (lo, hi) = boxes[p.mesh];
+        l.instances.push(Instance {
+            to_model,
+            lo: lo.to_array(),
+            object: k as u32,
+            hi: hi.to_array(),
+            nodes,
+            tri0,
+            n_tris: m.tris.len() as u32,
+            sphere0,
+            n_spheres: m.spheres.len() as u32,
+        });
+        l.objects.push(Object {
+            rows: p.rows,
+            ..Default::default()
+        });
+    }
+    // The top level's inputs, by the kernel the GPU runs.
+    let n = l.instances.len() as u32;
+    l.boxes = vec![Triangle::default(); l.instances.len()];
+    for i in 0..n {
+        instance_box(i, n, &l.instances, &l.objects, &mut l.boxes);
+    }
+    l.top = l.nodes.len() as u32;
+    if !l.boxes.is_empty() {
+        let r = crate::cpu::build(&l.boxes, &[], opts).0;
+        l.nodes.extend_from_slice(&r.nodes);
+        l.top_parents = r.parents;
+    }
+    Ok(l)
+}
+
+/// Checks both levels: every mesh's BVH and the top level (the validator's checks: every
+/// box holds its subtree, every primitive in one leaf), and that every instance's world box
+/// holds its mesh's vertices taken to world space.
+pub fn validate_levels(l: &Levels, meshes: &[MeshPrims], placements: &[Placement]) -> Result<(), String> {
+    for (m, mesh) in meshes.iter().enumerate() {
+        let first = l.mesh_nodes[m];
+        if first == INVALID {
+            continue;
+        }
+        let n = mesh.tris.len() + mesh.spheres.len();
+        let nodes = &l.nodes[first as usize..first as usize + 2 * n - 1];
+        validate(nodes, &l.mesh_parents[m], &mesh.tris, &mesh.spheres).map_err(|e| format!("mesh {m}'s BVH: {e}"))?;
+    }
+    if !l.boxes.is_empty() {
+        validate(l.top_nodes(), &l.top_parents, &l.boxes, &[]).map_err(|e| format!("the top level: {e}"))?;
+    }
+    for (k, (p, b)) in placements.iter().zip(&l.boxes).enumerate() {
+        let (lo, hi) = shared::instance::triangle_box(b);
+        let mesh = &meshes[p.mesh];
+        let corners = mesh
+            .tris
+            .iter()
+            .flat_map(|t| [t.v0, t.v1, t.v2])
+            .map(|v| Vec3::new(v[0], v[1], v[2]));
+        for c in corners {
+            let w = DVec3::from_array(std::array::from_fn(|r| {
+                let q = p.rows[r];
+                q[0] as f64 * c.x as f64 + q[1] as f64 * c.y as f64 + q[2] as f64 * c.z as f64 + q[3] as f64
+            }));
+            if w.cmplt(lo.as_dvec3()).any() || w.cmpgt(hi.as_dvec3()).any() {
+                return Err(format!(
+                    "instance {k}'s world box [{lo}, {hi}] does not hold its vertex at {w}"
+                ));
+            }
+        }
+    }
+    Ok(())
+}
