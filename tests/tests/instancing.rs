@@ -450,3 +450,85 @@ fn gpu_queries_through_instances_equal_the_cpu_and_stay_closed() {
     }
     g.assert_no_validation_errors();
 }
+
+#[test]
+fn gpu_builds_both_levels_as_the_cpu_executor_does() {
+    let Some(gpu) = integration_tests::gpu("gpu_builds_both_levels_as_the_cpu_executor_does") else {
+        return;
+    };
+    let kernels = std::sync::Arc::new(raytrace::gpu::Kernels::new(&gpu).expect("kernels"));
+    for (run, offset) in [Vec3::ZERO, Vec3::new(1e5, -1e5, 1e5)].into_iter().enumerate() {
+        let (meshes, placements, _) = instanced(offset, 40, 21 + run as u32);
+        let cpu = levels(&meshes, &placements);
+        let mut g = raytrace::gpu::GpuLevels::new(&gpu, &kernels, &meshes, &placements, opts()).expect("GPU levels");
+        assert_eq!(
+            g.boxes().expect("boxes"),
+            cpu.boxes,
+            "offset {offset}: the instances' world boxes"
+        );
+        assert_eq!(
+            g.nodes().expect("nodes"),
+            cpu.nodes,
+            "offset {offset}: both levels' nodes"
+        );
+        // The instances move: the top level built again equals the CPU's of the moved scene.
+        let moved: Vec<Placement> = placements
+            .iter()
+            .enumerate()
+            .map(|(k, p)| {
+                let turn = rows(Vec3::Y, 0.1 * k as f32, Vec3::ONE, Vec3::new(0.5, 0.0, -0.25));
+                let m = |a: &[[f32; 4]; 3]| {
+                    shared::glam::Affine3A::from_cols_array_2d(&std::array::from_fn(|c| {
+                        std::array::from_fn(|r| a[r][c])
+                    }))
+                };
+                let c = m(&turn) * m(&p.rows);
+                let cols = c.to_cols_array_2d();
+                Placement {
+                    rows: std::array::from_fn(|r| [cols[0][r], cols[1][r], cols[2][r], cols[3][r]]),
+                    ..*p
+                }
+            })
+            .collect();
+        let rows_of = |ps: &[Placement]| ps.iter().map(|p| p.rows).collect::<Vec<_>>();
+        g.set_transforms(&rows_of(&moved)).expect("new transforms");
+        g.rebuild_top().expect("top level");
+        let cpu = levels(&meshes, &moved);
+        assert_eq!(
+            g.nodes().expect("nodes"),
+            cpu.nodes,
+            "offset {offset}: the moved scene's levels"
+        );
+        // A singular transform is refused by its instance's number, and nothing changes.
+        let mut bad = rows_of(&moved);
+        bad[3][1] = [0.0; 4];
+        let e = g.set_transforms(&bad).expect_err("a singular transform").to_string();
+        assert!(e.contains("instance 3") && e.contains("singular"), "{e}");
+        g.rebuild_top().expect("top level");
+        assert_eq!(
+            g.nodes().expect("nodes"),
+            cpu.nodes,
+            "offset {offset}: a refused move changed the levels"
+        );
+    }
+    integration_tests::assert_no_validation_errors(&gpu);
+}
+
+#[test]
+fn bench_levels_measures_the_top_level_and_checks_it_against_the_cpu() {
+    let Some(gpu) = integration_tests::gpu("bench_levels_measures_the_top_level_and_checks_it_against_the_cpu") else {
+        return;
+    };
+    let o = raytrace::bench::levels::Options { instances: 60, runs: 3 };
+    let r = raytrace::bench::levels::run(&gpu, &o).expect("bench levels");
+    assert!(r.matches_cpu);
+    assert!(
+        r.top_p10_us > 0.0 && r.top_p10_us <= r.top_us && r.top_us <= r.top_p90_us,
+        "{}",
+        raytrace::bench::levels::markdown(&r)
+    );
+    // 60 instances, each mesh in turn: 20 of each.
+    assert_eq!(r.instanced_primitives, 20 * r.distinct_primitives as u64);
+    assert!(r.bytes_per_instance > 96.0 && r.bytes_per_distinct_primitive > 48.0);
+    assert!(raytrace::bench::levels::markdown(&r).contains("| yes |"));
+}

@@ -102,28 +102,43 @@ fn mesh_box(m: &MeshPrims) -> (Vec3, Vec3) {
     })
 }
 
-/// Builds both levels on the CPU executor with `opts` (binary trees: the two-level walk
-/// does not read the wide layout). Errors name the instance and its problem: a mesh that
-/// does not exist or is empty, a transform that cannot be inverted.
-pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildOptions) -> Result<Levels, String> {
-    let mut l = Levels::default();
-    let opts = BuildOptions { wide: false, ..opts };
-    let mut firsts = Vec::with_capacity(meshes.len());
+/// Where an instanced scene's data goes, whichever backend builds it: each mesh's first
+/// node (a mesh of `m` primitives has `2m - 1`; [`INVALID`] for an empty mesh), triangle
+/// and sphere in the bottom level's buffers, the instances and the objects they show
+/// (their transforms), and the top level's first node (after every mesh's).
+#[derive(Clone, Debug, Default)]
+pub struct LevelsLayout {
+    pub mesh_nodes: Vec<u32>,
+    pub mesh_tris: Vec<u32>,
+    pub mesh_spheres: Vec<u32>,
+    pub instances: Vec<Instance>,
+    pub objects: Vec<Object>,
+    pub top: u32,
+    pub n_tris: u32,
+    pub n_spheres: u32,
+}
+
+impl LevelsLayout {
+    /// Nodes of both levels.
+    pub fn nodes(&self) -> u32 {
+        self.top + (2 * self.instances.len() as u32).saturating_sub(1)
+    }
+}
+
+/// The [`LevelsLayout`] of `placements` of `meshes`. Errors name the instance and its problem: a
+/// mesh that does not exist or is empty, a transform that cannot be inverted.
+pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLayout, String> {
+    let mut l = LevelsLayout::default();
     let mut boxes = Vec::with_capacity(meshes.len());
     for m in meshes {
-        firsts.push((l.nodes.len() as u32, l.tris.len() as u32, l.spheres.len() as u32));
+        let n = (m.tris.len() + m.spheres.len()) as u32;
+        l.mesh_nodes.push(if n == 0 { INVALID } else { l.top });
+        l.mesh_tris.push(l.n_tris);
+        l.mesh_spheres.push(l.n_spheres);
         boxes.push(mesh_box(m));
-        if m.tris.is_empty() && m.spheres.is_empty() {
-            l.mesh_nodes.push(INVALID);
-            l.mesh_parents.push(Vec::new());
-            continue;
-        }
-        let r = crate::cpu::build(&m.tris, &m.spheres, opts).0;
-        l.mesh_nodes.push(l.nodes.len() as u32);
-        l.nodes.extend_from_slice(&r.nodes);
-        l.mesh_parents.push(r.parents);
-        l.tris.extend_from_slice(&m.tris);
-        l.spheres.extend_from_slice(&m.spheres);
+        l.top += (2 * n).saturating_sub(1);
+        l.n_tris += m.tris.len() as u32;
+        l.n_spheres += m.spheres.len() as u32;
     }
     for (k, p) in placements.iter().enumerate() {
         let Some(m) = meshes.get(p.mesh) else {
@@ -137,17 +152,16 @@ pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildO
             return Err(format!("instance {k} shows mesh {}, which has no primitives", p.mesh));
         }
         let to_model = inverse_rows(&p.rows).map_err(|e| format!("instance {k}: {e}"))?;
-        let (nodes, tri0, sphere0) = firsts[p.mesh];
         let (lo, hi) = boxes[p.mesh];
         l.instances.push(Instance {
             to_model,
             lo: lo.to_array(),
             object: k as u32,
             hi: hi.to_array(),
-            nodes,
-            tri0,
+            nodes: l.mesh_nodes[p.mesh],
+            tri0: l.mesh_tris[p.mesh],
             n_tris: m.tris.len() as u32,
-            sphere0,
+            sphere0: l.mesh_spheres[p.mesh],
             n_spheres: m.spheres.len() as u32,
         });
         l.objects.push(Object {
@@ -155,13 +169,39 @@ pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildO
             ..Default::default()
         });
     }
+    Ok(l)
+}
+
+/// Builds both levels on the CPU executor with `opts` (binary trees: the two-level walk
+/// does not read the wide layout), in the [`layout`] of `placements`, whose errors it returns.
+pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildOptions) -> Result<Levels, String> {
+    let layout = layout(meshes, placements)?;
+    let opts = BuildOptions { wide: false, ..opts };
+    let mut l = Levels {
+        mesh_nodes: layout.mesh_nodes.clone(),
+        top: layout.top,
+        instances: layout.instances,
+        objects: layout.objects,
+        ..Default::default()
+    };
+    for m in meshes {
+        if m.tris.is_empty() && m.spheres.is_empty() {
+            l.mesh_parents.push(Vec::new());
+            continue;
+        }
+        let r = crate::cpu::build(&m.tris, &m.spheres, opts).0;
+        l.nodes.extend_from_slice(&r.nodes);
+        l.mesh_parents.push(r.parents);
+        l.tris.extend_from_slice(&m.tris);
+        l.spheres.extend_from_slice(&m.spheres);
+    }
+    debug_assert_eq!(l.nodes.len() as u32, l.top);
     // The top level's inputs, by the kernel the GPU runs.
     let n = l.instances.len() as u32;
     l.boxes = vec![Triangle::default(); l.instances.len()];
     for i in 0..n {
         instance_box(i, n, &l.instances, &l.objects, &mut l.boxes);
     }
-    l.top = l.nodes.len() as u32;
     if !l.boxes.is_empty() {
         let r = crate::cpu::build(&l.boxes, &[], opts).0;
         l.nodes.extend_from_slice(&r.nodes);

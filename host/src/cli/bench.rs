@@ -101,6 +101,14 @@ pub(super) enum Bench {
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
+    /// Instancing's two levels: the meshes' builds, the top level rebuilt for moving
+    /// instances, memory per instance and per distinct primitive, GPU = CPU.
+    Levels {
+        #[command(flatten)]
+        options: bench::levels::Options,
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
     /// BVH build: per-stage GPU time, throughput, memory, CPU executor time.
     Build {
         /// Timed runs per input (after warm-up).
@@ -142,6 +150,11 @@ fn publish(
 /// Runs the benchmark `what` on the GPU `opts` pick (`readme` only reads results).
 pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
     match what {
+        Bench::Levels { options, out } => {
+            let gpu = Gpu::new(opts)?;
+            let r = bench::levels::run(&gpu, &options)?;
+            publish(&out, "levels", &r.date, &gpu, bench::levels::markdown(&r), &r)?;
+        }
         Bench::Features {
             scenes,
             size,

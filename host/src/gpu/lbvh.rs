@@ -281,6 +281,12 @@ impl GpuLbvh {
         self.cmds.submit_wait().context("uploading primitives")
     }
 
+    /// The buffers of the primitives (triangles, spheres) and of the nodes.
+    pub fn buffers(&self) -> Result<(&Buffer, &Buffer, &Buffer)> {
+        let b = self.bufs.as_ref().context("no primitives reserved")?;
+        Ok((&b.tris, &b.spheres, &b.nodes))
+    }
+
     /// Writes `nodes` at the start of the node buffer: BVHs built elsewhere (the bottom
     /// level of an instanced scene, `GpuRenderer::load_levels`).
     pub fn upload_nodes(&mut self, nodes: &[Node]) -> Result<()> {

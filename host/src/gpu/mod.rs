@@ -9,6 +9,7 @@ mod context;
 mod denoise;
 mod kernels;
 mod lbvh;
+mod levels;
 mod render;
 mod swapchain;
 
@@ -18,6 +19,7 @@ pub use context::{DeviceInfo, Gpu, GpuOptions, Instance};
 pub use denoise::{denoise_ms, is_denoise, PASSES as DENOISE_PASSES};
 pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
 pub use lbvh::GpuLbvh;
+pub use levels::GpuLevels;
 pub use render::{frame_timings, stage_ms, Denoise, GpuRenderer};
 pub use swapchain::Swapchain;
 

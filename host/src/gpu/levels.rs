@@ -1,0 +1,242 @@
+//! Both levels of an instanced scene on the GPU (`shared::instance`): every mesh's BVH built
+//! once by the builder ([`GpuLbvh`]) and kept, with the meshes' model-space primitives, in
+//! the buffers the tracers read (set 0's triangles, spheres and nodes); the top level built
+//! again whenever instances move, by the same builder over the instances' world boxes (the
+//! `instance_boxes` kernel), its nodes copied after the meshes'. The same [`LevelsLayout`] as the
+//! CPU executor's (`bvh::build_levels`), and the same bits.
+use super::{frame_timings, stage_ms, BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels, BINDINGS};
+use crate::bvh::{inverse_rows, layout, BuildOptions, LevelsLayout, MeshPrims, Placement};
+use anyhow::{anyhow, ensure, Context, Result};
+use gpu_allocator::MemoryLocation;
+use shared::instance::Instance;
+use shared::types::{grid, BuildParams, Node, Object, Sphere, Triangle, RENDER_BINDINGS, WORKGROUP};
+use std::sync::Arc;
+
+pub struct GpuLevels {
+    gpu: Arc<Gpu>,
+    kernels: Arc<Kernels>,
+    cmds: Commands,
+    /// The top level's builder (its primitives: the instances' box triangles).
+    top: GpuLbvh,
+    layout: LevelsLayout,
+    opts: BuildOptions,
+    tris: Buffer,
+    spheres: Buffer,
+    /// Both levels' nodes: every mesh's, then the top level's from `layout.top`.
+    nodes: Buffer,
+    /// Host-visible, rewritten when instances move.
+    objects: Buffer,
+    instances: Buffer,
+    /// Set 0 of the tracers (bindings 0, 1 and 8 the buffers above) and set 1 of
+    /// `instance_boxes` (bindings 0 and 17); every other binding names `_empty`.
+    trace: BindingSets,
+    boxes: BindingSets,
+    _empty: Buffer,
+}
+
+impl GpuLevels {
+    /// Lays out `placements` of `meshes` (errors name the instance, as `bvh::layout`'s),
+    /// builds every mesh's BVH and the top level with `opts` (binary: the walk does not read
+    /// the wide layout).
+    pub fn new(
+        gpu: &Arc<Gpu>,
+        kernels: &Arc<Kernels>,
+        meshes: &[MeshPrims],
+        placements: &[Placement],
+        opts: BuildOptions,
+    ) -> Result<GpuLevels> {
+        let layout = layout(meshes, placements).map_err(|e| anyhow!(e))?;
+        ensure!(!layout.instances.is_empty(), "an instanced scene of no instances");
+        let opts = BuildOptions { wide: false, ..opts };
+        let dev = |name: &str, bytes: u64| Buffer::new(gpu, name, bytes, MemoryLocation::GpuOnly);
+        let host = |name: &str, bytes: u64| Buffer::new(gpu, name, bytes, MemoryLocation::CpuToGpu);
+        let tris = dev("mesh triangles", layout.n_tris as u64 * size_of::<Triangle>() as u64)?;
+        let spheres = dev("mesh spheres", layout.n_spheres as u64 * size_of::<Sphere>() as u64)?;
+        let nodes = dev("both levels' nodes", layout.nodes() as u64 * size_of::<Node>() as u64)?;
+        let objects = host("instanced objects", (layout.objects.len() * size_of::<Object>()) as u64)?;
+        let instances = host("instances", (layout.instances.len() * size_of::<Instance>()) as u64)?;
+        let empty = dev("empty binding", 16)?;
+        let mut set0: Vec<&Buffer> = vec![&empty; BINDINGS];
+        (set0[0], set0[1], set0[8]) = (&tris, &spheres, &nodes);
+        let trace = BindingSets::new(gpu, kernels, 0, &[&set0])?;
+        let mut set1: Vec<&Buffer> = vec![&empty; RENDER_BINDINGS as usize];
+        (set1[0], set1[17]) = (&objects, &instances);
+        let boxes = BindingSets::new(gpu, kernels, 1, &[&set1])?;
+        let mut top = GpuLbvh::new(gpu, kernels)?;
+        top.reserve(layout.instances.len(), 0)?;
+        let mut l = GpuLevels {
+            gpu: gpu.clone(),
+            kernels: kernels.clone(),
+            cmds: Commands::new(gpu)?,
+            top,
+            layout,
+            opts,
+            tris,
+            spheres,
+            nodes,
+            objects,
+            instances,
+            trace,
+            boxes,
+            _empty: empty,
+        };
+        l.objects.write(&l.layout.objects)?;
+        l.instances.write(&l.layout.instances)?;
+        l.build_meshes(meshes)?;
+        l.rebuild_top()?;
+        Ok(l)
+    }
+
+    /// Every mesh's primitives and BVH into the bottom level, one build each.
+    fn build_meshes(&mut self, meshes: &[MeshPrims]) -> Result<()> {
+        let mut builder = GpuLbvh::new(&self.gpu, &self.kernels)?;
+        for (m, mesh) in meshes.iter().enumerate() {
+            let n = mesh.tris.len() + mesh.spheres.len();
+            if n == 0 {
+                continue;
+            }
+            builder.upload(&mesh.tris, &mesh.spheres)?;
+            builder.build(self.opts, false)?;
+            let (b_tris, b_spheres, b_nodes) = builder.buffers()?;
+            let (tri, sphere) = (size_of::<Triangle>() as u64, size_of::<Sphere>() as u64);
+            let node = size_of::<Node>() as u64;
+            self.cmds.begin()?;
+            let c = &self.cmds;
+            c.copy_range(
+                b_tris,
+                0,
+                &self.tris,
+                self.layout.mesh_tris[m] as u64 * tri,
+                mesh.tris.len() as u64 * tri,
+            );
+            c.copy_range(
+                b_spheres,
+                0,
+                &self.spheres,
+                self.layout.mesh_spheres[m] as u64 * sphere,
+                mesh.spheres.len() as u64 * sphere,
+            );
+            c.copy_range(
+                b_nodes,
+                0,
+                &self.nodes,
+                self.layout.mesh_nodes[m] as u64 * node,
+                (2 * n as u64 - 1) * node,
+            );
+            c.barrier();
+            self.cmds.submit_wait().context("copying a mesh's BVH")?;
+        }
+        Ok(())
+    }
+
+    /// New transforms of the instances (model to world, 3x4 row-major, instance `k` the
+    /// `k`-th); the top level is built again by the next [`Self::record_top`]. A transform
+    /// that cannot be inverted is refused by the instance's number, and nothing changes.
+    pub fn set_transforms(&mut self, rows: &[[[f32; 4]; 3]]) -> Result<()> {
+        ensure!(
+            rows.len() == self.layout.instances.len(),
+            "{} transforms for {} instances",
+            rows.len(),
+            self.layout.instances.len()
+        );
+        let inverses = rows
+            .iter()
+            .enumerate()
+            .map(|(k, r)| inverse_rows(r).map_err(|e| anyhow!("instance {k}: {e}")))
+            .collect::<Result<Vec<_>>>()?;
+        for ((inst, obj), (r, inv)) in self
+            .layout
+            .instances
+            .iter_mut()
+            .zip(&mut self.layout.objects)
+            .zip(rows.iter().zip(inverses))
+        {
+            inst.to_model = inv;
+            obj.rows = *r;
+        }
+        self.objects.write(&self.layout.objects)?;
+        self.instances.write(&self.layout.instances)
+    }
+
+    /// Records the top level's build into `cmds` (which must be recording): the instances'
+    /// world boxes, the build over them, its nodes copied after the meshes'.
+    pub fn record_top(&self, cmds: &mut Commands) -> Result<()> {
+        let n = self.layout.instances.len() as u32;
+        let p = BuildParams {
+            n_tris: n,
+            n,
+            ..Default::default()
+        };
+        let sets = [self.top.set()?, self.boxes.sets[0]];
+        let (x, y) = grid(n.div_ceil(WORKGROUP));
+        cmds.dispatch_sets(
+            &self.kernels,
+            &sets,
+            Kernel::InstanceBoxes,
+            bytemuck::bytes_of(&p),
+            x,
+            y,
+        )?;
+        cmds.barrier();
+        self.top.record(cmds, self.opts, false, false)?;
+        let (_, _, top_nodes) = self.top.buffers()?;
+        let node = size_of::<Node>() as u64;
+        cmds.copy_range(
+            top_nodes,
+            0,
+            &self.nodes,
+            self.layout.top as u64 * node,
+            (2 * n as u64 - 1) * node,
+        );
+        cmds.barrier();
+        cmds.timestamp("top level");
+        Ok(())
+    }
+
+    /// Builds the top level again; returns its GPU milliseconds (boxes, build and copy).
+    pub fn rebuild_top(&mut self) -> Result<f64> {
+        let mut cmds = Commands::new(&self.gpu)?;
+        cmds.begin()?;
+        cmds.timestamp("start");
+        self.record_top(&mut cmds)?;
+        cmds.submit_wait().context("building the top level")?;
+        Ok(stage_ms(&frame_timings(&cmds)?, "top level"))
+    }
+
+    /// Both levels' nodes (every mesh's, then the top level's from `layout().top`).
+    pub fn nodes(&mut self) -> Result<Vec<Node>> {
+        self.cmds.read_back(&self.nodes, self.layout.nodes() as usize)
+    }
+
+    /// The top level's inputs: each instance's world box as a box triangle.
+    pub fn boxes(&mut self) -> Result<Vec<Triangle>> {
+        Ok(self.top.primitives()?.0)
+    }
+
+    pub fn layout(&self) -> &LevelsLayout {
+        &self.layout
+    }
+
+    /// Set 0 of the tracers: the meshes' primitives and both levels' nodes.
+    pub fn trace_set(&self) -> ash::vk::DescriptorSet {
+        self.trace.sets[0]
+    }
+
+    /// The instances (render binding 17).
+    pub fn instances(&self) -> &Buffer {
+        &self.instances
+    }
+
+    /// Device bytes of both levels: the meshes' primitives and nodes, the instances and the
+    /// top level's builder.
+    pub fn memory(&self) -> u64 {
+        let (top_nodes, top_rest) = self.top.memory();
+        self.tris.size
+            + self.spheres.size
+            + self.nodes.size
+            + self.objects.size
+            + self.instances.size
+            + top_nodes
+            + top_rest
+    }
+}
