@@ -153,7 +153,8 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
         Bench::Levels { options, out } => {
             let gpu = Gpu::new(opts)?;
             let r = bench::levels::run(&gpu, &options)?;
-            publish(&out, "levels", &r.date, &gpu, bench::levels::markdown(&r), &r)?;
+            let kind = format!("levels-{}", options.instances);
+            publish(&out, &kind, &r.date, &gpu, bench::levels::markdown(&r), &r)?;
         }
         Bench::Features {
             scenes,
