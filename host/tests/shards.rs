@@ -181,6 +181,38 @@ fn devices_split_the_samples_and_add_up_to_the_single_run() {
     let d = max_relative_difference(&linear(&single), &linear(&all));
     assert!(d < 1e-5, "--devices all differs from one device by {d} of the peak");
 
+    // An animation on several devices (kept open from frame to frame): each frame is the
+    // one device's render at its time.
+    let scene = dir.join("orbit.toml");
+    std::fs::write(&scene, ANIMATED).unwrap();
+    let frames = dir.join("f-##.exr");
+    let text = ok(&[
+        "render",
+        s(&scene),
+        "--devices",
+        "0,0",
+        "--frames",
+        "2..4",
+        "--fps",
+        "4",
+        "--out",
+        s(&frames),
+    ]);
+    assert_eq!(text.matches("on 2 devices: ").count(), 2, "{text}");
+    let mut previous = Vec::new();
+    for (k, time) in [(2, "0.5"), (3, "0.75")] {
+        let at = dir.join(format!("at-{k}.exr"));
+        ok(&["render", s(&scene), "--backend", "gpu", "--time", time, "--out", s(&at)]);
+        let frame = linear(&dir.join(format!("f-{k:02}.exr")));
+        let d = max_relative_difference(&linear(&at), &frame);
+        assert!(
+            d < 1e-5,
+            "frame {k} on two devices differs from one device at {time} s by {d}"
+        );
+        assert_ne!(frame, previous, "frame {k} is the frame before");
+        previous = frame;
+    }
+
     // `bench devices` runs the same split for 1, 2, ... devices and reports the agreement.
     let results = dir.join("bench");
     ok(&[

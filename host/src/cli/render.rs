@@ -201,90 +201,131 @@ struct DeviceShare {
     read_s: f64,
 }
 
-/// What a device's render holds on to until it is closed.
-type Held = (GpuRenderer, Arc<Kernels>, Arc<Gpu>);
+/// Devices opened for a render on several of them, each with its renderer: kept open across
+/// the frames of `render --frames`, so that each frame pays only its trace.
+pub struct OpenDevices {
+    renderers: Vec<GpuRenderer>,
+    /// Host seconds: the shared instance; each device's opening, and of it its device.
+    instance_s: f64,
+    open_s: Vec<(f64, f64)>,
+}
 
-/// Samples `first..first + count` of `p` on the device of `instance` that `o` names; the
-/// device's objects are given back open, to be closed once the sums are handed on.
-fn render_share(
-    p: &Prepared,
-    first: u32,
-    count: u32,
-    instance: &Arc<Instance>,
-    o: &GpuOptions,
-) -> Result<(DeviceShare, Held)> {
+/// Opens `devices` (indices or names, as `--device` takes them) from one instance, each on a
+/// thread of its own.
+pub fn open_devices(devices: &[String], opts: &GpuOptions) -> Result<OpenDevices> {
     let t = Instant::now();
-    let gpu = Gpu::on(instance, o)?;
-    let device_s = t.elapsed().as_secs_f64();
-    let kernels = Arc::new(Kernels::new(&gpu)?);
-    let mut r = GpuRenderer::new(&gpu, &kernels)?;
-    let open_s = t.elapsed().as_secs_f64();
+    let instance = Instance::new(opts.validation, &opts.window_extensions)?;
+    let instance_s = t.elapsed().as_secs_f64();
+    let opened: Vec<Result<(GpuRenderer, (f64, f64))>> = std::thread::scope(|scope| {
+        let threads: Vec<_> = devices
+            .iter()
+            .map(|device| {
+                let o = GpuOptions {
+                    device: Some(device.clone()),
+                    ..opts.clone()
+                };
+                let instance = &instance;
+                scope.spawn(move || -> Result<(GpuRenderer, (f64, f64))> {
+                    let t = Instant::now();
+                    let gpu = Gpu::on(instance, &o).with_context(|| format!("opening device {device}"))?;
+                    let device_s = t.elapsed().as_secs_f64();
+                    let kernels = Arc::new(Kernels::new(&gpu)?);
+                    let r = GpuRenderer::new(&gpu, &kernels)?;
+                    Ok((r, (t.elapsed().as_secs_f64(), device_s)))
+                })
+            })
+            .collect();
+        threads
+            .into_iter()
+            .map(|t| {
+                t.join()
+                    .unwrap_or_else(|_| Err(anyhow!("a device's opening thread panicked")))
+            })
+            .collect()
+    });
+    let (renderers, open_s) = opened.into_iter().collect::<Result<Vec<_>>>()?.into_iter().unzip();
+    Ok(OpenDevices {
+        renderers,
+        instance_s,
+        open_s,
+    })
+}
+
+impl OpenDevices {
+    /// Renders samples `first..first + spp` of `p` on every device at once, each an equal share
+    /// of consecutive samples, and adds their sums in device order (the same image whichever
+    /// device finishes first). The devices stay open.
+    pub fn render(&mut self, p: &Prepared, first: u32, spp: u32) -> Result<(Rendered, DevicesTimes)> {
+        let renderers: Vec<&mut GpuRenderer> = self.renderers.iter_mut().collect();
+        render_shares(renderers, p, first, spp, 0.0, &[])
+    }
+
+    /// [`Self::render`], closing every device once it has handed on its sums (a render of
+    /// one frame: the closing overlaps the adding). The times include the opening.
+    pub fn render_once(self, p: &Prepared, first: u32, spp: u32) -> Result<(Rendered, DevicesTimes)> {
+        render_shares(self.renderers, p, first, spp, self.instance_s, &self.open_s)
+    }
+}
+
+/// Samples `first..first + count` of `p` on `r`: the sums, stage times and host clock.
+fn render_share(r: &mut GpuRenderer, p: &Prepared, first: u32, count: u32) -> Result<DeviceShare> {
     let t = Instant::now();
-    let timings = render::stage_totals(&trace_gpu_samples(&mut r, p, first, count, true)?);
+    let timings = render::stage_totals(&trace_gpu_samples(r, p, first, count, true)?);
     let trace_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
     // Only the sums: the display image is made once, from all devices' sums.
     let sums = r.sums()?;
-    let share = DeviceShare {
+    let gpu = r.gpu();
+    Ok(DeviceShare {
         sums,
         timings,
         name: gpu.name.clone(),
         device: gpu.describe(),
-        open_s,
-        device_s,
+        open_s: 0.0,
+        device_s: 0.0,
         trace_s,
         read_s: t.elapsed().as_secs_f64(),
-    };
-    Ok((share, (r, kernels, gpu)))
+    })
 }
 
-/// [`render_devices`], and where its time went.
-pub fn render_devices_each(
+/// Renders on every renderer of `renderers` (owned: closed once its sums are handed on;
+/// borrowed: kept), `opened` their opening times (empty where they were open before) after
+/// `instance_s` for the instance.
+fn render_shares<R: std::borrow::BorrowMut<GpuRenderer> + Send>(
+    renderers: Vec<R>,
     p: &Prepared,
     first: u32,
     spp: u32,
-    devices: &[String],
-    opts: &GpuOptions,
+    instance_s: f64,
+    opened: &[(f64, f64)],
 ) -> Result<(Rendered, DevicesTimes)> {
-    let n = devices.len() as u32;
+    let n = renderers.len() as u32;
     ensure!(
         n <= spp,
         "{n} devices for {spp} samples per pixel: each device needs at least one sample"
     );
-    let t = Instant::now();
-    let instance = Instance::new(opts.validation, &opts.window_extensions)?;
-    let instance_s = t.elapsed().as_secs_f64();
     let mut merge_s = 0.0;
     let mut picture = None;
     let results: Vec<Result<DeviceShare>> = std::thread::scope(|scope| {
         let (done, shares) = std::sync::mpsc::channel();
-        for (k, device) in devices.iter().enumerate() {
-            let o = GpuOptions {
-                device: Some(device.clone()),
-                ..opts.clone()
-            };
+        for (k, mut r) in renderers.into_iter().enumerate() {
             // The same split as shards': device k traces shard k of n of these samples.
             let share = Shard {
                 index: k as u32,
                 count: n,
             }
             .samples(spp);
-            let (done, instance) = (done.clone(), &instance);
+            let done = done.clone();
+            let (open_s, device_s) = opened.get(k).copied().unwrap_or_default();
             scope.spawn(move || {
                 let rendered = share.and_then(|(a, count)| {
-                    render_share(p, first + a, count, instance, &o)
-                        .with_context(|| format!("rendering on device {device}"))
+                    let name = r.borrow_mut().gpu().name.clone();
+                    render_share(r.borrow_mut(), p, first + a, count)
+                        .with_context(|| format!("rendering on device {k} ({name})"))
                 });
-                // The sums go on to be added while this device closes.
-                match rendered {
-                    Ok((share, held)) => {
-                        let _ = done.send((k, Ok(share)));
-                        drop(held);
-                    }
-                    Err(e) => {
-                        let _ = done.send((k, Err(e)));
-                    }
-                }
+                // The sums go on to be added while this device closes (if it is owned here).
+                let _ = done.send((k, rendered.map(|s| DeviceShare { open_s, device_s, ..s })));
+                drop(r);
             });
         }
         drop(done);
@@ -333,6 +374,22 @@ pub fn render_devices_each(
         device: format!("{n} devices: {}", names.join(", ")),
     };
     Ok((rendered, times))
+}
+
+/// [`render_devices`], and where its time went: the devices opened, rendered on and closed.
+pub fn render_devices_each(
+    p: &Prepared,
+    first: u32,
+    spp: u32,
+    devices: &[String],
+    opts: &GpuOptions,
+) -> Result<(Rendered, DevicesTimes)> {
+    let n = devices.len() as u32;
+    ensure!(
+        n <= spp,
+        "{n} devices for {spp} samples per pixel: each device needs at least one sample"
+    );
+    open_devices(devices, opts)?.render_once(p, first, spp)
 }
 
 /// The devices `--devices` names: `all` (every Vulkan device), or indices or names separated
@@ -397,7 +454,8 @@ pub fn frame_path(pattern: &Path, frame: u32) -> Result<PathBuf> {
 /// How `render` traces: one GPU, several, or the CPU executor.
 enum Engine {
     Gpu(Box<GpuRenderer>),
-    Devices(Vec<String>),
+    /// The devices, opened by the first frame and kept for the rest.
+    Devices(Vec<String>, Option<OpenDevices>),
     Cpu,
 }
 
@@ -502,7 +560,7 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         b => b,
     };
     let mut engine = match (backend, devices) {
-        (_, Some(list)) => Engine::Devices(list),
+        (_, Some(list)) => Engine::Devices(list, None),
         (Backend::Gpu | Backend::Auto, None) => match open_gpu(opts) {
             Ok((gpu, kernels)) => Engine::Gpu(Box::new(GpuRenderer::new(&gpu, &kernels)?)),
             Err(e) => {
@@ -518,7 +576,19 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         }
         let wall = Instant::now();
         let rendered = match &mut engine {
-            Engine::Devices(list) => render_devices(&p, first, spp, list, opts)?,
+            // One frame: each device closes while the sums are added. Several: they stay open.
+            Engine::Devices(list, _) if outputs.len() == 1 => render_devices(&p, first, spp, list, opts)?,
+            Engine::Devices(list, open) => {
+                if open.is_none() {
+                    ensure!(
+                        list.len() as u32 <= spp,
+                        "{} devices for {spp} samples per pixel: each device needs at least one sample",
+                        list.len()
+                    );
+                    *open = Some(open_devices(list, opts)?);
+                }
+                open.as_mut().context("devices not open")?.render(&p, first, spp)?.0
+            }
             Engine::Gpu(r) => render_gpu_samples(r, &p, first, spp, false)?,
             Engine::Cpu => render_on_cpu_samples(&p, first, spp, false).0,
         };
