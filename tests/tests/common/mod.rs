@@ -175,16 +175,22 @@ impl GpuWorld {
         })
     }
 
-    /// Loads `w`'s primitives and builds their BVH on the GPU, which must pass the validator;
-    /// queries go through the BVH.
-    pub fn load(&mut self, w: &World) {
-        let scene = raytrace::inputs::hard_cases::scene_of(&w.tris, &w.spheres);
+    /// Loads the primitives as a scene (`hard_cases::scene_of`) with every feature; its frame.
+    fn load_primitives(&mut self, tris: &[Triangle], spheres: &[Sphere]) -> shared::types::Frame {
+        let scene = raytrace::inputs::hard_cases::scene_of(tris, spheres);
         let data = scene.gpu_data(0.0);
         let mut frame = scene.frame(&data);
         frame.features = FEATURES_ALL;
+        self.renderer.set_build(World::build());
+        self.renderer.load(&data, &frame).expect("load");
+        frame
+    }
+
+    /// Loads `w`'s primitives and builds their BVH on the GPU, which must pass the validator;
+    /// queries go through the BVH.
+    pub fn load(&mut self, w: &World) {
+        let frame = self.load_primitives(&w.tris, &w.spheres);
         let r = &mut self.renderer;
-        r.set_build(World::build());
-        r.load(&data, &frame).expect("load");
         r.render(0, true).expect("transform and build");
         let (tris, spheres) = r.world().expect("world-space primitives");
         assert!(
@@ -206,13 +212,8 @@ impl GpuWorld {
 
     /// Loads the two levels `l` (built by the CPU executor): the ray casts walk them.
     pub fn load_levels(&mut self, l: &raytrace::bvh::Levels) {
-        let scene = raytrace::inputs::hard_cases::scene_of(&l.tris, &l.spheres);
-        let data = scene.gpu_data(0.0);
-        let mut frame = scene.frame(&data);
-        frame.features = FEATURES_ALL;
+        self.load_primitives(&l.tris, &l.spheres);
         let r = &mut self.renderer;
-        r.set_build(World::build());
-        r.load(&data, &frame).expect("load");
         r.load_levels(l).expect("load the levels");
         self.frame = *r.frame();
     }
