@@ -205,35 +205,32 @@ struct DeviceShare {
 /// the frames of `render --frames`, so that each frame pays only its trace.
 pub struct OpenDevices {
     renderers: Vec<GpuRenderer>,
-    /// Host seconds: the shared instance; each device's opening, and of it its device.
-    instance_s: f64,
-    open_s: Vec<(f64, f64)>,
+}
+
+/// Opens `device` (an index or a name, as `--device` takes it) of `instance` with its kernels
+/// and renderer; also returns the seconds that took, and of them the device's.
+fn open_device(instance: &Arc<Instance>, device: &str, opts: &GpuOptions) -> Result<(GpuRenderer, (f64, f64))> {
+    let o = GpuOptions {
+        device: Some(device.to_string()),
+        ..opts.clone()
+    };
+    let t = Instant::now();
+    let gpu = Gpu::on(instance, &o).with_context(|| format!("opening device {device}"))?;
+    let device_s = t.elapsed().as_secs_f64();
+    let kernels = Arc::new(Kernels::new(&gpu)?);
+    let r = GpuRenderer::new(&gpu, &kernels)?;
+    Ok((r, (t.elapsed().as_secs_f64(), device_s)))
 }
 
 /// Opens `devices` (indices or names, as `--device` takes them) from one instance, each on a
 /// thread of its own.
 pub fn open_devices(devices: &[String], opts: &GpuOptions) -> Result<OpenDevices> {
-    let t = Instant::now();
     let instance = Instance::new(opts.validation, &opts.window_extensions)?;
-    let instance_s = t.elapsed().as_secs_f64();
     let opened: Vec<Result<(GpuRenderer, (f64, f64))>> = std::thread::scope(|scope| {
+        let instance = &instance;
         let threads: Vec<_> = devices
             .iter()
-            .map(|device| {
-                let o = GpuOptions {
-                    device: Some(device.clone()),
-                    ..opts.clone()
-                };
-                let instance = &instance;
-                scope.spawn(move || -> Result<(GpuRenderer, (f64, f64))> {
-                    let t = Instant::now();
-                    let gpu = Gpu::on(instance, &o).with_context(|| format!("opening device {device}"))?;
-                    let device_s = t.elapsed().as_secs_f64();
-                    let kernels = Arc::new(Kernels::new(&gpu)?);
-                    let r = GpuRenderer::new(&gpu, &kernels)?;
-                    Ok((r, (t.elapsed().as_secs_f64(), device_s)))
-                })
-            })
+            .map(|device| scope.spawn(move || open_device(instance, device, opts)))
             .collect();
         threads
             .into_iter()
@@ -243,12 +240,11 @@ pub fn open_devices(devices: &[String], opts: &GpuOptions) -> Result<OpenDevices
             })
             .collect()
     });
-    let (renderers, open_s) = opened.into_iter().collect::<Result<Vec<_>>>()?.into_iter().unzip();
-    Ok(OpenDevices {
-        renderers,
-        instance_s,
-        open_s,
-    })
+    let renderers = opened
+        .into_iter()
+        .map(|o| o.map(|(r, _)| r))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(OpenDevices { renderers })
 }
 
 impl OpenDevices {
@@ -257,13 +253,7 @@ impl OpenDevices {
     /// device finishes first). The devices stay open.
     pub fn render(&mut self, p: &Prepared, first: u32, spp: u32) -> Result<(Rendered, DevicesTimes)> {
         let renderers: Vec<&mut GpuRenderer> = self.renderers.iter_mut().collect();
-        render_shares(renderers, p, first, spp, 0.0, &[])
-    }
-
-    /// [`Self::render`], closing every device once it has handed on its sums (a render of
-    /// one frame: the closing overlaps the adding). The times include the opening.
-    pub fn render_once(self, p: &Prepared, first: u32, spp: u32) -> Result<(Rendered, DevicesTimes)> {
-        render_shares(self.renderers, p, first, spp, self.instance_s, &self.open_s)
+        render_shares(renderers, &|r| Ok((r, (0.0, 0.0))), p, first, spp, 0.0)
     }
 }
 
@@ -288,18 +278,19 @@ fn render_share(r: &mut GpuRenderer, p: &Prepared, first: u32, count: u32) -> Re
     })
 }
 
-/// Renders on every renderer of `renderers` (owned: closed once its sums are handed on;
-/// borrowed: kept), `opened` their opening times (empty where they were open before) after
-/// `instance_s` for the instance.
-fn render_shares<R: std::borrow::BorrowMut<GpuRenderer> + Send>(
-    renderers: Vec<R>,
+/// Renders on a renderer for every item of `items`, each on a thread of its own that gets
+/// its renderer from `open` (a device opened there, owned and closed once its sums are handed
+/// on; or one open before, borrowed and kept) with the seconds that took and of them the
+/// device's; `instance_s` the instance's before.
+fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer>>(
+    items: Vec<T>,
+    open: &(dyn Fn(T) -> Result<(R, (f64, f64))> + Sync),
     p: &Prepared,
     first: u32,
     spp: u32,
     instance_s: f64,
-    opened: &[(f64, f64)],
 ) -> Result<(Rendered, DevicesTimes)> {
-    let n = renderers.len() as u32;
+    let n = items.len() as u32;
     ensure!(
         n <= spp,
         "{n} devices for {spp} samples per pixel: each device needs at least one sample"
@@ -308,7 +299,7 @@ fn render_shares<R: std::borrow::BorrowMut<GpuRenderer> + Send>(
     let mut picture = None;
     let results: Vec<Result<DeviceShare>> = std::thread::scope(|scope| {
         let (done, shares) = std::sync::mpsc::channel();
-        for (k, mut r) in renderers.into_iter().enumerate() {
+        for (k, item) in items.into_iter().enumerate() {
             // The same split as shards': device k traces shard k of n of these samples.
             let share = Shard {
                 index: k as u32,
@@ -316,16 +307,19 @@ fn render_shares<R: std::borrow::BorrowMut<GpuRenderer> + Send>(
             }
             .samples(spp);
             let done = done.clone();
-            let (open_s, device_s) = opened.get(k).copied().unwrap_or_default();
             scope.spawn(move || {
+                let mut held = None;
                 let rendered = share.and_then(|(a, count)| {
-                    let name = r.borrow_mut().gpu().name.clone();
-                    render_share(r.borrow_mut(), p, first + a, count)
-                        .with_context(|| format!("rendering on device {k} ({name})"))
+                    let (r, (open_s, device_s)) = open(item)?;
+                    let r = held.insert(r).borrow_mut();
+                    let name = r.gpu().name.clone();
+                    let s = render_share(r, p, first + a, count)
+                        .with_context(|| format!("rendering on device {k} ({name})"))?;
+                    Ok(DeviceShare { open_s, device_s, ..s })
                 });
                 // The sums go on to be added while this device closes (if it is owned here).
-                let _ = done.send((k, rendered.map(|s| DeviceShare { open_s, device_s, ..s })));
-                drop(r);
+                let _ = done.send((k, rendered));
+                drop(held);
             });
         }
         drop(done);
@@ -389,7 +383,19 @@ pub fn render_devices_each(
         n <= spp,
         "{n} devices for {spp} samples per pixel: each device needs at least one sample"
     );
-    open_devices(devices, opts)?.render_once(p, first, spp)
+    // Each device opened on the thread that renders on it: none waits for the others to open.
+    let t = Instant::now();
+    let instance = Instance::new(opts.validation, &opts.window_extensions)?;
+    let instance_s = t.elapsed().as_secs_f64();
+    let items: Vec<&str> = devices.iter().map(String::as_str).collect();
+    render_shares(
+        items,
+        &|device| open_device(&instance, device, opts),
+        p,
+        first,
+        spp,
+        instance_s,
+    )
 }
 
 /// The devices `--devices` names: `all` (every Vulkan device), or indices or names separated
