@@ -307,6 +307,12 @@ fn the_validator_checks_both_levels() {
     bad.boxes[5].v1[0] -= 0.5;
     let e = validate_levels(&bad, &meshes, &placements).expect_err("a shrunk instance box");
     assert!(e.contains("instance 5") || e.contains("top level"), "{e}");
+    // The same for an instance of the spheres' mesh (instance 3: mesh 3).
+    assert_eq!(placements[3].mesh, 3);
+    let mut bad = l.clone();
+    bad.boxes[3].v1[1] = (bad.boxes[3].v0[1] + bad.boxes[3].v1[1]) / 2.0;
+    let e = validate_levels(&bad, &meshes, &placements).expect_err("a shrunk box of spheres");
+    assert!(e.contains("instance 3"), "{e}");
     // A mesh's node box that misses its primitives.
     let mut bad = l.clone();
     let first = bad.mesh_nodes[1] as usize;

@@ -212,7 +212,7 @@ pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildO
 
 /// Checks both levels: every mesh's BVH and the top level (the validator's checks: every
 /// box holds its subtree, every primitive in one leaf), and that every instance's world box
-/// holds its mesh's vertices taken to world space.
+/// holds its mesh's vertices (and its spheres' boxes) taken to world space.
 pub fn validate_levels(l: &Levels, meshes: &[MeshPrims], placements: &[Placement]) -> Result<(), String> {
     for (m, mesh) in meshes.iter().enumerate() {
         let first = l.mesh_nodes[m];
@@ -229,19 +229,26 @@ pub fn validate_levels(l: &Levels, meshes: &[MeshPrims], placements: &[Placement
     for (k, (p, b)) in placements.iter().zip(&l.boxes).enumerate() {
         let (lo, hi) = shared::instance::triangle_box(b);
         let mesh = &meshes[p.mesh];
-        let corners = mesh
+        // Triangles' vertices, and the corners of spheres' boxes (which hold the sphere under
+        // any transform).
+        let vertices = mesh
             .tris
             .iter()
             .flat_map(|t| [t.v0, t.v1, t.v2])
             .map(|v| Vec3::new(v[0], v[1], v[2]));
-        for c in corners {
+        let n_tris = mesh.tris.len() as u32;
+        let sphere_corners = (0..mesh.spheres.len() as u32).flat_map(|i| {
+            let (a, b) = prim_box(n_tris + i, n_tris, &mesh.tris, &mesh.spheres);
+            (0..8).map(move |c| Vec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), b, a))
+        });
+        for c in vertices.chain(sphere_corners) {
             let w = DVec3::from_array(std::array::from_fn(|r| {
                 let q = p.rows[r];
                 q[0] as f64 * c.x as f64 + q[1] as f64 * c.y as f64 + q[2] as f64 * c.z as f64 + q[3] as f64
             }));
             if w.cmplt(lo.as_dvec3()).any() || w.cmpgt(hi.as_dvec3()).any() {
                 return Err(format!(
-                    "instance {k}'s world box [{lo}, {hi}] does not hold its vertex at {w}"
+                    "instance {k}'s world box [{lo}, {hi}] does not hold its point at {w}"
                 ));
             }
         }
