@@ -11,7 +11,8 @@
 //! and one model-space ray, so a closed mesh stays closed whatever its transform.
 use crate::math::fma;
 use crate::sync::{at, at_mut};
-use crate::types::{xyz, Object, Triangle};
+use crate::transform::row;
+use crate::types::{Object, Triangle};
 use bytemuck::{Pod, Zeroable};
 use spirv_std::glam::Vec3;
 
@@ -60,7 +61,8 @@ impl Instance {
     /// The world ray `origin + t dir` in model space, with the same `t` along it.
     pub fn ray_to_model(&self, origin: Vec3, dir: Vec3) -> (Vec3, Vec3) {
         let m = &self.to_model;
-        let p = |r: [f32; 4]| fma(r[0], origin.x, fma(r[1], origin.y, fma(r[2], origin.z, r[3])));
+        let o = [origin.x, origin.y, origin.z, 1.0];
+        let p = |r: [f32; 4]| row(r, o);
         let d = |r: [f32; 4]| fma(r[0], dir.x, fma(r[1], dir.y, r[2] * dir.z));
         (
             Vec3::new(p(m[0]), p(m[1]), p(m[2])),
@@ -113,11 +115,6 @@ pub fn box_triangle(lo: Vec3, hi: Vec3) -> Triangle {
         v1: v(hi),
         v2: v(lo),
     }
-}
-
-/// The box of a [`box_triangle`].
-pub fn triangle_box(t: &Triangle) -> (Vec3, Vec3) {
-    (xyz(t.v0), xyz(t.v1))
 }
 
 #[cfg(test)]
@@ -180,7 +177,6 @@ mod tests {
     fn a_box_triangle_has_the_box() {
         let (lo, hi) = (Vec3::new(-1.0, 2.0, -3.0), Vec3::new(4.0, 5.0, 6.0));
         let t = box_triangle(lo, hi);
-        assert_eq!(triangle_box(&t), (lo, hi));
         assert_eq!(crate::types::prim_box(0, 1, &[t], &[]), (lo, hi));
     }
 

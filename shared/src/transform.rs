@@ -10,7 +10,8 @@ fn apply(o: &Object, v: [f32; 4]) -> [f32; 4] {
     [row(o.rows[0], v), row(o.rows[1], v), row(o.rows[2], v), 0.0]
 }
 
-fn row(r: [f32; 4], v: [f32; 4]) -> f32 {
+/// `r . [v.xyz, 1]` by the explicit `fma` chain every transform of a point uses.
+pub fn row(r: [f32; 4], v: [f32; 4]) -> f32 {
     fma(r[0], v[0], fma(r[1], v[1], fma(r[2], v[2], r[3])))
 }
 

@@ -227,7 +227,7 @@ pub fn validate_levels(l: &Levels, meshes: &[MeshPrims], placements: &[Placement
         validate(l.top_nodes(), &l.top_parents, &l.boxes, &[]).map_err(|e| format!("the top level: {e}"))?;
     }
     for (k, (p, b)) in placements.iter().zip(&l.boxes).enumerate() {
-        let (lo, hi) = shared::instance::triangle_box(b);
+        let (lo, hi) = prim_box(0, 1, std::slice::from_ref(b), &[]);
         let mesh = &meshes[p.mesh];
         // Triangles' vertices, and the corners of spheres' boxes (which hold the sphere under
         // any transform).
