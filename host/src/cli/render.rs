@@ -257,6 +257,16 @@ impl OpenDevices {
     }
 }
 
+/// Refuses `n` devices for `spp` samples per pixel where a device would get none (checked
+/// before any device is opened).
+fn ensure_shares(n: u32, spp: u32) -> Result<()> {
+    ensure!(
+        n <= spp,
+        "{n} devices for {spp} samples per pixel: each device needs at least one sample"
+    );
+    Ok(())
+}
+
 /// Samples `first..first + count` of `p` on `r`: the sums, stage times and host clock.
 fn render_share(r: &mut GpuRenderer, p: &Prepared, first: u32, count: u32) -> Result<DeviceShare> {
     let t = Instant::now();
@@ -291,10 +301,7 @@ fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer>>(
     instance_s: f64,
 ) -> Result<(Rendered, DevicesTimes)> {
     let n = items.len() as u32;
-    ensure!(
-        n <= spp,
-        "{n} devices for {spp} samples per pixel: each device needs at least one sample"
-    );
+    ensure_shares(n, spp)?;
     let mut merge_s = 0.0;
     let mut picture = None;
     let results: Vec<Result<DeviceShare>> = std::thread::scope(|scope| {
@@ -378,11 +385,7 @@ pub fn render_devices_each(
     devices: &[String],
     opts: &GpuOptions,
 ) -> Result<(Rendered, DevicesTimes)> {
-    let n = devices.len() as u32;
-    ensure!(
-        n <= spp,
-        "{n} devices for {spp} samples per pixel: each device needs at least one sample"
-    );
+    ensure_shares(devices.len() as u32, spp)?;
     // Each device opened on the thread that renders on it: none waits for the others to open.
     let t = Instant::now();
     let instance = Instance::new(opts.validation, &opts.window_extensions)?;
@@ -586,11 +589,7 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
             Engine::Devices(list, _) if outputs.len() == 1 => render_devices(&p, first, spp, list, opts)?,
             Engine::Devices(list, open) => {
                 if open.is_none() {
-                    ensure!(
-                        list.len() as u32 <= spp,
-                        "{} devices for {spp} samples per pixel: each device needs at least one sample",
-                        list.len()
-                    );
+                    ensure_shares(list.len() as u32, spp)?;
                     *open = Some(open_devices(list, opts)?);
                 }
                 open.as_mut().context("devices not open")?.render(&p, first, spp)?.0
