@@ -8,7 +8,7 @@ use crate::scene::SceneGpu;
 use anyhow::{bail, Result};
 use shared::types::{
     Frame, MaterialKind, ALPHA_BLEND, ALPHA_MASK, FEATURES_ALL, FEATURE_ALPHA, FEATURE_DIELECTRIC, FEATURE_ENVMAP,
-    FEATURE_GUIDES, FEATURE_METAL, FEATURE_NEE, FEATURE_NORMAL_MAPS, FEATURE_PBR, FEATURE_PUNCTUAL,
+    FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_METAL, FEATURE_NEE, FEATURE_NORMAL_MAPS, FEATURE_PBR, FEATURE_PUNCTUAL,
     FEATURE_SHADING_NORMALS, FEATURE_SPHERES, FEATURE_TEXTURES, FEATURE_THIN_LENS, FEATURE_TRIANGLES, FLAG_DENOISE,
     FLAG_NEE, INVALID, TEX_NORMAL,
 };
@@ -305,6 +305,18 @@ pub fn derive(data: &SceneGpu, frame: &Frame, forced: &Forced) -> Result<Feature
     };
     contains(FEATURE_TRIANGLES, n_tris, "triangles")?;
     contains(FEATURE_SPHERES, n_spheres, "spheres")?;
+    // The layout's, not a feature: not forced by `--features`, not in the all-features kernel.
+    let instanced = data.instancing.is_some();
+    if instanced {
+        bits |= FEATURE_INSTANCES;
+    }
+    if !data.instancing_why.is_empty() {
+        decisions.push(Decision {
+            feature: "instances".into(),
+            state: (if instanced { "on" } else { "off" }).into(),
+            why: data.instancing_why.clone(),
+        });
+    }
     // Not a scene's feature but the frame's: not forced by `--features`, and not part of
     // the all-features kernel.
     let denoise = frame.flags & FLAG_DENOISE != 0;

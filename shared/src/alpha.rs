@@ -12,7 +12,9 @@ use crate::rng::pcg_hash;
 use crate::shading::{transformed_uv, uv_at};
 use crate::sync::at;
 use crate::texture::{self, TextureInfo};
-use crate::types::{Material, Object, VertexAttrs, ALPHA_MASK, ALPHA_OPAQUE, FEATURE_TEXTURES, TEX_BASE_COLOR};
+use crate::types::{
+    Material, Object, VertexAttrs, ALPHA_MASK, ALPHA_OPAQUE, FEATURE_TEXTURES, INVALID, TEX_BASE_COLOR,
+};
 use spirv_std::glam::Vec3;
 
 /// What coverage depends on: each primitive's object and material, the meshes' texture
@@ -39,20 +41,27 @@ impl Coverage<'_> {
     };
 }
 
-/// Whether the hit `(b1, b2)` of the ray `origin + t dir` on triangle `prim` counts: false
-/// where the triangle's material leaves a hole there.
-pub fn covers(c: &Coverage, prim: u32, b1: f32, b2: f32, origin: Vec3, dir: Vec3, features: u32) -> bool {
+/// Whether the hit `(b1, b2)` of the ray `origin + t dir` on triangle `prim`, shown by
+/// `object` ([`INVALID`]: its own, `prim_object`'s), counts: false where the object's
+/// material leaves a hole there.
+#[allow(clippy::too_many_arguments)]
+pub fn covers(c: &Coverage, prim: u32, object: u32, b1: f32, b2: f32, origin: Vec3, dir: Vec3, features: u32) -> bool {
     if prim >= c.prim_object.len() as u32 {
         return true;
     }
-    let m = at(c.materials, at(c.objects, *at(c.prim_object, prim)).material);
+    let object = if object == INVALID {
+        *at(c.prim_object, prim)
+    } else {
+        object
+    };
+    let m = at(c.materials, at(c.objects, object).material);
     if m.alpha_mode == ALPHA_OPAQUE {
         return true;
     }
     let mut a = m.alpha;
     let slot = m.textures[TEX_BASE_COLOR];
     if features & FEATURE_TEXTURES != 0 && slot != 0 {
-        let uv = transformed_uv(m, uv_at(c.objects, c.prim_object, c.attrs, prim, b1, b2));
+        let uv = transformed_uv(m, uv_at(c.objects, c.attrs, object, prim, b1, b2));
         a *= texture::alpha(at(c.textures, slot - 1), c.texels, uv);
     }
     if m.alpha_mode == ALPHA_MASK {
@@ -78,7 +87,7 @@ pub fn blend_threshold(origin: Vec3, dir: Vec3, prim: u32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::types::{ALPHA_BLEND, INVALID};
+    use crate::types::ALPHA_BLEND;
 
     fn world(mode: u32, alpha: f32, cutoff: f32) -> ([Object; 1], [u32; 1], [Material; 1]) {
         let object = Object {
@@ -102,7 +111,7 @@ mod tests {
             materials: &materials,
             ..Coverage::NONE
         };
-        covers(&c, 0, 0.25, 0.25, origin, Vec3::NEG_Z, FEATURE_TEXTURES)
+        covers(&c, 0, INVALID, 0.25, 0.25, origin, Vec3::NEG_Z, FEATURE_TEXTURES)
     }
 
     #[test]
@@ -112,7 +121,7 @@ mod tests {
         assert!(covered(ALPHA_OPAQUE, 0.0, 0.5, Vec3::ZERO));
         // Without materials (bare primitives) everything is covered.
         let c = Coverage::NONE;
-        assert!(covers(&c, 7, 0.1, 0.1, Vec3::ZERO, Vec3::X, FEATURE_TEXTURES));
+        assert!(covers(&c, 7, INVALID, 0.1, 0.1, Vec3::ZERO, Vec3::X, FEATURE_TEXTURES));
     }
 
     #[test]

@@ -12,9 +12,50 @@
 use crate::math::fma;
 use crate::sync::{at, at_mut};
 use crate::transform::row;
-use crate::types::{Object, Triangle};
+use crate::types::{Object, Triangle, INVALID};
 use bytemuck::{Pod, Zeroable};
 use spirv_std::glam::Vec3;
+
+/// A primitive as shading meets it: the object that shows it, and whether the primitive is
+/// stored in that object's model space (a mesh of an instance, taken to world space by the
+/// object's transform where it is shaded) or already in world space (a flattened scene, or
+/// the world-space group of an instanced one).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Placed {
+    pub prim: u32,
+    pub object: u32,
+    pub model: bool,
+}
+
+impl Placed {
+    /// Primitive `prim` of the world-space primitives: its object from `prim_object`.
+    pub fn world(prim_object: &[u32], prim: u32) -> Placed {
+        Placed {
+            prim,
+            object: *at(prim_object, prim),
+            model: false,
+        }
+    }
+
+    /// Primitive `prim` hit through instance `instance` of `instances` ([`INVALID`]: not
+    /// through an instance, a flattened scene).
+    pub fn hit(instances: &[Instance], prim_object: &[u32], instance: u32, prim: u32) -> Placed {
+        let object = if instance == INVALID {
+            INVALID
+        } else {
+            at(instances, instance).object
+        };
+        if object == INVALID {
+            Placed::world(prim_object, prim)
+        } else {
+            Placed {
+                prim,
+                object,
+                model: true,
+            }
+        }
+    }
+}
 
 /// One instance of a mesh (96 bytes). Its bottom level is the mesh's BVH, nodes
 /// `nodes..nodes + 2 n - 1` of the bottom-level node buffer (each mesh's tree numbered from
@@ -29,7 +70,9 @@ pub struct Instance {
     /// The mesh's box in model space (its BVH's root box).
     pub lo: [f32; 3],
     /// The object it shows: its transform to world (`Object::rows`, what [`instance_box`]
-    /// reads), material and vertex attributes.
+    /// reads), material and vertex attributes. [`INVALID`] for the world-space group: the
+    /// primitives the renderer keeps in world space (flattened), under an identity
+    /// transform, each primitive's object from `prim_object`.
     pub object: u32,
     pub hi: [f32; 3],
     /// The mesh's first node in the bottom-level node buffer.
@@ -71,6 +114,9 @@ impl Instance {
     }
 }
 
+/// The identity transform (3x4, row-major): the world-space group's.
+pub const IDENTITY: [[f32; 4]; 3] = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
+
 /// `2^-21`: four units of roundoff, the relative margin [`world_box`] adds.
 const MARGIN: f32 = 1.0 / 2_097_152.0;
 
@@ -101,7 +147,11 @@ pub fn instance_box(i: u32, n: u32, instances: &[Instance], objects: &[Object], 
         return;
     }
     let inst = at(instances, i);
-    let rows = at(objects, inst.object).rows;
+    let rows = if inst.object == INVALID {
+        IDENTITY
+    } else {
+        at(objects, inst.object).rows
+    };
     let (lo, hi) = world_box(&rows, Vec3::from(inst.lo), Vec3::from(inst.hi));
     *at_mut(out, i) = box_triangle(lo, hi);
 }

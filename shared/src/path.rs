@@ -6,6 +6,7 @@
 //! One invocation per pixel adds its samples' radiance into the accumulation image.
 use crate::denoise::{self, Guide};
 use crate::envmap::{Env, EnvEntry};
+use crate::instance::Placed;
 use crate::intersect::{self, offset_origin};
 use crate::material;
 use crate::math::{finite3, max3};
@@ -17,8 +18,8 @@ use crate::texture::TextureInfo;
 use crate::traverse::{self, Scene};
 use crate::types::{
     xyz, Camera, Frame, Hit, Material, MaterialKind, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY,
-    CAST_SPAWN, FEATURE_ENVMAP, FEATURE_GUIDES, FEATURE_NEE, FEATURE_PUNCTUAL, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS,
-    FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
+    CAST_OBJECT, CAST_SPAWN, FEATURE_ENVMAP, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FEATURE_PUNCTUAL,
+    FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -46,10 +47,49 @@ pub struct World<'a> {
     pub texels: &'a [u32],
 }
 
+/// A closest hit and where its primitive is ([`Placed::prim`] is `hit.prim`).
+#[derive(Copy, Clone)]
+pub struct Found {
+    pub hit: Hit,
+    pub at: Placed,
+}
+
+impl Found {
+    pub const MISS: Found = Found {
+        hit: Hit::MISS,
+        at: Placed {
+            prim: INVALID,
+            object: INVALID,
+            model: false,
+        },
+    };
+}
+
 impl World<'_> {
-    pub fn material(&self, prim: u32) -> Material {
-        let object = sync::at(self.objects, *sync::at(self.prim_object, prim));
-        *sync::at(self.materials, object.material)
+    /// The material of the object showing `p`.
+    pub fn material(&self, p: Placed) -> Material {
+        *sync::at(self.materials, sync::at(self.objects, p.object).material)
+    }
+
+    /// Light `k` of `lights` (`k < frame.n_lights`): the emissive primitive, and with
+    /// [`FEATURE_INSTANCES`] the object showing it in model space at `lights[n_lights + k]`
+    /// ([`INVALID`] for a world-space primitive).
+    fn light(&self, k: u32) -> Placed {
+        let prim = *sync::at(self.lights, k);
+        let object = if self.scene.features & FEATURE_INSTANCES != 0 {
+            *sync::at(self.lights, self.frame.n_lights + k)
+        } else {
+            INVALID
+        };
+        if object == INVALID {
+            Placed::world(self.prim_object, prim)
+        } else {
+            Placed {
+                prim,
+                object,
+                model: true,
+            }
+        }
     }
 
     fn bvh(&self) -> bool {
@@ -64,6 +104,23 @@ impl World<'_> {
         }
     }
 
+    /// [`World::closest`] and where the primitive hit is: through which instance's object
+    /// with [`FEATURE_INSTANCES`].
+    pub fn found(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Found {
+        let (hit, instance) = if self.scene.features & FEATURE_INSTANCES != 0 && self.bvh() {
+            traverse::closest_instance(&self.scene, origin, dir, t_max)
+        } else {
+            (self.closest(origin, dir, t_max), INVALID)
+        };
+        if hit.prim == INVALID {
+            return Found::MISS;
+        }
+        Found {
+            hit,
+            at: Placed::hit(self.scene.instances, self.prim_object, instance, hit.prim),
+        }
+    }
+
     pub fn any(&self, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
         if self.bvh() {
             traverse::any(&self.scene, origin, dir, t_max)
@@ -72,23 +129,23 @@ impl World<'_> {
         }
     }
 
-    /// Surface area of primitive `prim`.
-    pub fn area(&self, prim: u32) -> f32 {
+    /// Surface area of primitive `p` in world space.
+    pub fn area(&self, p: Placed) -> f32 {
         let s = &self.scene;
-        if s.is_triangle(prim) {
-            0.5 * intersect::triangle_normal(&s.tris[prim as usize]).length()
+        if s.is_triangle(p.prim) {
+            0.5 * intersect::triangle_normal(&traverse::triangle_at(s, self.objects, p)).length()
         } else {
-            let r = s.spheres[(prim - s.n_tris) as usize].center_radius[3];
+            let r = traverse::sphere_at(s, self.objects, p).center_radius[3];
             4.0 * PI * r * r
         }
     }
 
     /// A uniform point on primitive `prim`: (point, unit normal, the primitive's scale for
     /// [`offset_origin`]).
-    fn sample_point(&self, prim: u32, u1: f32, u2: f32) -> (Vec3, Vec3, f32) {
+    fn sample_point(&self, p: Placed, u1: f32, u2: f32) -> (Vec3, Vec3, f32) {
         let s = &self.scene;
-        if s.is_triangle(prim) {
-            let t = &s.tris[prim as usize];
+        if s.is_triangle(p.prim) {
+            let t = &traverse::triangle_at(s, self.objects, p);
             let (b1, b2) = sampling::uniform_triangle(u1, u2);
             (
                 intersect::triangle_point(t, b1, b2),
@@ -96,7 +153,7 @@ impl World<'_> {
                 intersect::triangle_scale(t),
             )
         } else {
-            let sphere = &s.spheres[(prim - s.n_tris) as usize];
+            let sphere = &traverse::sphere_at(s, self.objects, p);
             let sp = sphere.center_radius;
             let n = sampling::uniform_sphere(u1, u2);
             (xyz(sp) + n * sp[3].abs(), n, intersect::sphere_scale(sphere))
@@ -145,8 +202,8 @@ impl World<'_> {
 
     /// Solid-angle density with which next-event estimation picks the direction to a point
     /// at distance `dist` on light `prim`, seen at `cos_light` from its normal.
-    fn light_pdf(&self, prim: u32, dist: f32, cos_light: f32) -> f32 {
-        (1.0 - self.env_prob()) * dist * dist / (cos_light * self.area(prim) * self.light_count() as f32)
+    fn light_pdf(&self, p: Placed, dist: f32, cos_light: f32) -> f32 {
+        (1.0 - self.env_prob()) * dist * dist / (cos_light * self.area(p) * self.light_count() as f32)
     }
 
     /// Cosine between a light's normal and the direction `to_light` from a point toward it;
@@ -270,7 +327,7 @@ fn emitter_light(
     rng: &mut Rng,
 ) -> LightSample {
     let features = w.scene.features;
-    let light = w.lights[pick as usize];
+    let light = w.light(pick);
     let (u1, u2) = (rng.next_f32(), rng.next_f32());
     let (q, nl, light_scale) = w.sample_point(light, u1, u2);
     let to = q - p;
@@ -291,9 +348,9 @@ fn emitter_light(
     } else {
         1.0
     };
-    let le = if w.scene.is_triangle(light) {
+    let le = if w.scene.is_triangle(light.prim) {
         let (b1, b2) = sampling::uniform_triangle(u1, u2);
-        let uv = shading::uv_at(w.objects, w.prim_object, w.attrs, light, b1, b2);
+        let uv = shading::uv_at(w.objects, w.attrs, light.object, light.prim, b1, b2);
         shading::emission_at(&w.material(light), uv, w.textures, w.texels, features)
     } else {
         xyz(w.material(light).emission)
@@ -448,10 +505,11 @@ impl Path {
 /// One segment of path `q` (which has `q.depth < max_depth`): trace it, add what it sees,
 /// scatter. Returns whether the path goes on. With `capture` (the first segment of a
 /// pixel's first sample, with [`FEATURE_GUIDES`]) its hit goes to `first`.
-fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, first: &mut Hit) -> bool {
+fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, first: &mut Found) -> bool {
     let f = w.frame;
     let (o, d) = (q.origin, q.dir);
-    let hit = w.closest(o, d, f32::INFINITY);
+    let found = w.found(o, d, f32::INFINITY);
+    let hit = found.hit;
     q.rays += 1;
     if hit.prim == INVALID {
         // Paths that next-event estimation also reaches toward the map count with their MIS
@@ -470,10 +528,10 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, fir
         }
         return false;
     }
-    let mut sp = shading::surface_point(&w.scene, w.objects, w.prim_object, w.attrs, o, d, &hit);
+    let mut sp = shading::surface_point(&w.scene, w.objects, w.attrs, found.at, o, d, &hit);
     let cone_width = q.cone_width + q.cone_spread * hit.t;
     let m = shading::textured(
-        &w.material(hit.prim),
+        &w.material(found.at),
         &mut sp,
         d,
         cone_width,
@@ -489,7 +547,7 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, fir
         let weight = if !(q.prev_diffuse && mode.nee) {
             1.0
         } else if mode.mis {
-            sampling::power_heuristic(q.prev_pdf, w.light_pdf(hit.prim, hit.t, cos_l))
+            sampling::power_heuristic(q.prev_pdf, w.light_pdf(found.at, hit.t, cos_l))
         } else {
             0.0
         };
@@ -498,7 +556,7 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, fir
     if q.depth == 0 {
         q.emitted = q.l;
         if capture {
-            *first = hit;
+            *first = found;
         }
     }
     let s = material::scatter(&m, d, ng, sp.ns, w.scene.features, rng);
@@ -580,7 +638,7 @@ pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32;
     let f = w.frame;
     let guides = w.scene.features & FEATURE_GUIDES != 0;
     // Only the first sample's first hit is kept in the loop; its guide is made after it.
-    let mut first = Hit::MISS;
+    let mut first = Found::MISS;
     let mut emission = Vec3::ZERO;
     let mode = Mode::of(w);
     let pixel = y * f.width + x;
@@ -630,16 +688,17 @@ pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32;
 /// The denoiser's guide of the first hit `h` of pixel `(x, y)`'s first sample (its camera
 /// ray drawn again from the sample's stream): albedo, normal, distance, object and where
 /// the point was in the previous frame; [`Guide::NONE`] where the ray left the scene.
-fn first_hit_guide(x: u32, y: u32, p: &RenderPush, w: &World, h: &Hit) -> Guide {
+fn first_hit_guide(x: u32, y: u32, p: &RenderPush, w: &World, first: &Found) -> Guide {
     let f = w.frame;
+    let h = &first.hit;
     if h.prim == INVALID {
         return Guide::NONE;
     }
     let mut rng = Rng::new(y * f.width + x, p.sample_base, f.seed);
     let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
-    let mut sp = shading::surface_point(&w.scene, w.objects, w.prim_object, w.attrs, o, d, h);
+    let mut sp = shading::surface_point(&w.scene, w.objects, w.attrs, first.at, o, d, h);
     let m = shading::textured(
-        &w.material(h.prim),
+        &w.material(first.at),
         &mut sp,
         d,
         f.pixel_spread * h.t,
@@ -647,7 +706,7 @@ fn first_hit_guide(x: u32, y: u32, p: &RenderPush, w: &World, h: &Hit) -> Guide 
         w.texels,
         w.scene.features,
     );
-    let object = *sync::at(w.prim_object, h.prim);
+    let object = first.at.object;
     let (px, py, pd) = denoise::motion(f, w.objects, object, sp.p);
     Guide {
         color: [0.0; 3],
@@ -664,7 +723,7 @@ fn first_hit_guide(x: u32, y: u32, p: &RenderPush, w: &World, h: &Hit) -> Guide 
 }
 
 /// Closest hit of ray `i` of `rays` (origin `w`: unused, direction `w`: largest distance).
-/// With [`CAST_ANY`] an any-hit query; with [`CAST_SPAWN`] query `i` is the pair of rays
+/// With [`CAST_ANY`] an any-hit query; with [`CAST_OBJECT`] the hit names its object; with [`CAST_SPAWN`] query `i` is the pair of rays
 /// `2 i`, `2 i + 1`: see there.
 pub fn cast(i: u32, p: &RenderPush, w: &World, rays: &[Ray], hits: &mut [Hit]) {
     if i >= p.count {
@@ -673,7 +732,13 @@ pub fn cast(i: u32, p: &RenderPush, w: &World, rays: &[Ray], hits: &mut [Hit]) {
     if p.flags & CAST_SPAWN == 0 {
         let r = rays[i as usize];
         let (o, d) = (xyz(r.origin), xyz(r.dir));
-        hits[i as usize] = if p.flags & CAST_ANY == 0 {
+        hits[i as usize] = if p.flags & CAST_OBJECT != 0 {
+            let found = w.found(o, d, r.dir[3]);
+            Hit {
+                prim: found.at.object,
+                ..found.hit
+            }
+        } else if p.flags & CAST_ANY == 0 {
             w.closest(o, d, r.dir[3])
         } else if w.any(o, d, r.dir[3]) {
             Hit {
@@ -689,12 +754,13 @@ pub fn cast(i: u32, p: &RenderPush, w: &World, rays: &[Ray], hits: &mut [Hit]) {
     }
     let (first, second) = (rays[2 * i as usize], rays[2 * i as usize + 1]);
     let (o, d) = (xyz(first.origin), xyz(first.dir));
-    let h = w.closest(o, d, first.dir[3]);
+    let found = w.found(o, d, first.dir[3]);
+    let h = found.hit;
     hits[2 * i as usize] = h;
     hits[2 * i as usize + 1] = if h.prim == INVALID {
         Hit::MISS
     } else {
-        let (q, ng, scale) = traverse::surface(&w.scene, h.prim, o, d, &h);
+        let (q, ng, scale) = traverse::surface_at(&w.scene, w.objects, found.at, o, d, &h);
         let d2 = xyz(second.dir);
         w.closest(leave(q, ng, scale, d2), d2, second.dir[3])
     };

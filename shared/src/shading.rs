@@ -13,6 +13,7 @@
 //! 2. A reflected direction (scattered or sampled toward a light) must leave on the
 //!    geometric side the ray came from, a refracted one on the other; anything else is
 //!    absorbed (`material::scatter`) or carries no light (`path`'s next-event estimation).
+use crate::instance::Placed;
 use crate::math::finite3;
 use crate::math::sqrt;
 use crate::sync::at;
@@ -48,18 +49,18 @@ pub struct SurfacePoint {
     pub scale: f32,
 }
 
-/// The surface at hit `h` of the ray `(origin, dir)` on primitive `h.prim` of object
-/// `objects[prim_object[h.prim]]`, with vertex attributes from `attrs`.
+/// The surface at hit `h` of the ray `(origin, dir)` on primitive `at.prim` as `at` places
+/// it (object `objects[at.object]`), with vertex attributes from `attrs`.
 pub fn surface_point(
     s: &Scene,
     objects: &[Object],
-    prim_object: &[u32],
     attrs: &[VertexAttrs],
+    at_: Placed,
     origin: Vec3,
     dir: Vec3,
     h: &Hit,
 ) -> SurfacePoint {
-    let (p, ng, scale) = traverse::surface(s, h.prim, origin, dir, h);
+    let (p, ng, scale) = traverse::surface_at(s, objects, at_, origin, dir, h);
     let mut sp = SurfacePoint {
         p,
         ng,
@@ -69,20 +70,20 @@ pub fn surface_point(
         dpdu: Vec3::ZERO,
         scale,
     };
-    if s.features & (FEATURE_SHADING_NORMALS | FEATURE_TEXTURES) == 0 || !s.is_triangle(h.prim) {
+    if s.features & (FEATURE_SHADING_NORMALS | FEATURE_TEXTURES) == 0 || !s.is_triangle(at_.prim) {
         return sp;
     }
-    let o = at(objects, *at(prim_object, h.prim));
+    let o = at(objects, at_.object);
     if o.attrs == INVALID {
         return sp;
     }
-    let a = at(attrs, o.attrs + (h.prim - o.first_prim));
+    let a = at(attrs, o.attrs + (at_.prim - o.first_prim));
     let b = Vec3::new(1.0 - h.u - h.v, h.u, h.v);
     if s.features & FEATURE_TEXTURES != 0 {
         let uv = |k: usize| Vec2::new(a.normal_u[k][3], a.v[k]);
         let (uv0, uv1, uv2) = (uv(0), uv(1), uv(2));
         sp.uv = uv0 * b.x + uv1 * b.y + uv2 * b.z;
-        let t = at(s.tris, h.prim);
+        let t = traverse::triangle_at(s, objects, at_);
         let (p0, p1, p2) = (xyz(t.v0), xyz(t.v1), xyz(t.v2));
         sp.lod_constant = texture::triangle_lod_constant(uv0, uv1, uv2, p0, p1, p2, 1, 1);
         // dp/du from the edges: solve [dp1 dp2] = [dpdu dpdv] [duv1 duv2].
@@ -208,10 +209,10 @@ fn mapped_normal(ns: Vec3, ng: Vec3, dpdu: Vec3, c: Vec4, scale: f32) -> Vec3 {
     }
 }
 
-/// Texture coordinates of barycentric point `(b1, b2)` of triangle `prim` (zero where its
-/// mesh has none).
-pub fn uv_at(objects: &[Object], prim_object: &[u32], attrs: &[VertexAttrs], prim: u32, b1: f32, b2: f32) -> Vec2 {
-    let o = at(objects, *at(prim_object, prim));
+/// Texture coordinates of barycentric point `(b1, b2)` of triangle `prim` shown by `object`
+/// (zero where its mesh has none).
+pub fn uv_at(objects: &[Object], attrs: &[VertexAttrs], object: u32, prim: u32, b1: f32, b2: f32) -> Vec2 {
+    let o = at(objects, object);
     if o.attrs == INVALID {
         return Vec2::ZERO;
     }

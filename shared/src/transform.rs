@@ -6,7 +6,7 @@ use crate::math::fma;
 use crate::types::{BuildParams, Object, Sphere, Triangle};
 
 /// `rows * [v, 1]`; `w` of the result is 0.
-fn apply(o: &Object, v: [f32; 4]) -> [f32; 4] {
+pub fn apply(o: &Object, v: [f32; 4]) -> [f32; 4] {
     [row(o.rows[0], v), row(o.rows[1], v), row(o.rows[2], v), 0.0]
 }
 
@@ -32,18 +32,28 @@ pub fn transform(
     }
     let o = objects[prim_object[i as usize] as usize];
     if i < p.n_tris {
-        let t = model_tris[i as usize];
-        tris[i as usize] = Triangle {
-            v0: apply(&o, t.v0),
-            v1: apply(&o, t.v1),
-            v2: apply(&o, t.v2),
-        };
+        tris[i as usize] = world_triangle(&o, &model_tris[i as usize]);
     } else {
         let k = (i - p.n_tris) as usize;
-        let s = model_spheres[k].center_radius;
-        let c = apply(&o, s);
-        spheres[k] = Sphere {
-            center_radius: [c[0], c[1], c[2], s[3] * o.radius_scale],
-        };
+        spheres[k] = world_sphere(&o, &model_spheres[k]);
+    }
+}
+
+/// Model-space triangle `t` of object `o` in world space (the same bits wherever it is
+/// computed: the transform stage, or the shading of an instance's hit).
+pub fn world_triangle(o: &Object, t: &Triangle) -> Triangle {
+    Triangle {
+        v0: apply(o, t.v0),
+        v1: apply(o, t.v1),
+        v2: apply(o, t.v2),
+    }
+}
+
+/// Model-space sphere `s` of object `o` in world space: its centre moved, its radius scaled
+/// by the transform's largest scale.
+pub fn world_sphere(o: &Object, s: &Sphere) -> Sphere {
+    let c = apply(o, s.center_radius);
+    Sphere {
+        center_radius: [c[0], c[1], c[2], s.center_radius[3] * o.radius_scale],
     }
 }

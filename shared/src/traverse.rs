@@ -5,13 +5,14 @@
 //! hold up to two primitives, hit children are visited nearest first. Rays with a
 //! non-finite origin or direction miss.
 use crate::alpha::{self, Coverage};
-use crate::instance::Instance;
+use crate::instance::{Instance, Placed};
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
 use crate::sync::{at, elem, elem_mut};
+use crate::transform;
 use crate::types::{
-    xyz, Hit, Node, Sphere, Triangle, FEATURE_ALPHA, FEATURE_INSTANCES, FEATURE_SPHERES, FEATURE_TRIANGLES, INVALID,
-    VARIANT_MOLLER_TRUMBORE, VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
+    xyz, Hit, Node, Object, Sphere, Triangle, FEATURE_ALPHA, FEATURE_INSTANCES, FEATURE_SPHERES, FEATURE_TRIANGLES,
+    INVALID, VARIANT_MOLLER_TRUMBORE, VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
 };
 use crate::wide::{self, WideNode, LEAF};
 use core::mem::MaybeUninit;
@@ -72,6 +73,12 @@ impl Scene<'_> {
 /// Intersects primitive `prim`; returns `(t, b1, b2)` with `t = INFINITY` for a miss (and
 /// for a hit on a hole of an alpha-tested triangle).
 pub fn primitive(s: &Scene, r: &TriRay, prim: u32, t_max: f32) -> (f32, f32, f32) {
+    primitive_of(s, r, prim, INVALID, t_max)
+}
+
+/// [`primitive`] shown by `object` (its material decides an alpha-tested triangle's holes;
+/// [`INVALID`]: the primitive's own object, `prim_object`).
+fn primitive_of(s: &Scene, r: &TriRay, prim: u32, object: u32, t_max: f32) -> (f32, f32, f32) {
     if prim < s.n_tris {
         if s.features & FEATURE_TRIANGLES == 0 {
             return (f32::INFINITY, 0.0, 0.0);
@@ -84,7 +91,7 @@ pub fn primitive(s: &Scene, r: &TriRay, prim: u32, t_max: f32) -> (f32, f32, f32
         };
         if s.features & FEATURE_ALPHA != 0
             && hit.0 < t_max
-            && !alpha::covers(&s.coverage, prim, hit.1, hit.2, r.origin, r.dir, s.features)
+            && !alpha::covers(&s.coverage, prim, object, hit.1, hit.2, r.origin, r.dir, s.features)
         {
             return (f32::INFINITY, 0.0, 0.0);
         }
@@ -390,7 +397,7 @@ fn walk_levels<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) 
             r = TriRay::new(o, d);
             if mesh.prims() == 1 {
                 let prim = mesh.global(0, s.n_tris);
-                let (t, u, v) = primitive(s, &r, prim, limit);
+                let (t, u, v) = primitive_of(s, &r, prim, mesh.object, limit);
                 if t < limit {
                     limit = t;
                     best = Hit { t, prim, u, v };
@@ -480,7 +487,7 @@ impl Level<'_> {
             return (child, t_box);
         }
         let prim = self.mesh.global(c.a, s.n_tris);
-        let (t, u, v) = primitive(s, r, prim, *limit);
+        let (t, u, v) = primitive_of(s, r, prim, self.mesh.object, *limit);
         if t < *limit {
             *limit = t;
             *best = Hit { t, prim, u, v };
@@ -524,18 +531,52 @@ fn visit(s: &Scene, r: &TriRay, child: u32, first_leaf: u32, limit: &mut f32, be
     (INVALID, f32::INFINITY)
 }
 
-/// The hit point of the hit `(t, b1, b2)` of `origin + t dir` on primitive `prim`, the unit
-/// geometric normal there, and the primitive's scale for [`intersect::offset_origin`].
+/// The hit point of the hit `(t, b1, b2)` of `origin + t dir` on primitive `prim` of a
+/// flattened scene, the unit geometric normal there, and the primitive's scale for
+/// [`intersect::offset_origin`].
 pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3, f32) {
-    if s.is_triangle(prim) {
-        let t = at(s.tris, prim);
+    let world = Placed {
+        prim,
+        object: INVALID,
+        model: false,
+    };
+    surface_at(s, &[], world, origin, dir, h)
+}
+
+/// Primitive `p.prim` as a world-space triangle: as stored, or taken from its object's model
+/// space by the object's transform (the transform stage's arithmetic: the same bits a
+/// flattened scene holds).
+pub fn triangle_at(s: &Scene, objects: &[Object], p: Placed) -> Triangle {
+    let t = at(s.tris, p.prim);
+    if p.model {
+        transform::world_triangle(at(objects, p.object), t)
+    } else {
+        *t
+    }
+}
+
+/// Primitive `p.prim` (a sphere) in world space (see [`triangle_at`]).
+pub fn sphere_at(s: &Scene, objects: &[Object], p: Placed) -> Sphere {
+    let sphere = at(s.spheres, p.prim - s.n_tris);
+    if p.model {
+        transform::world_sphere(at(objects, p.object), sphere)
+    } else {
+        *sphere
+    }
+}
+
+/// [`surface`] of primitive `p.prim` as `p` places it (`objects`: the scene's objects, read
+/// for a primitive in model space).
+pub fn surface_at(s: &Scene, objects: &[Object], p: Placed, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3, f32) {
+    if s.is_triangle(p.prim) {
+        let t = &triangle_at(s, objects, p);
         (
             intersect::triangle_point(t, h.u, h.v),
             intersect::triangle_normal(t).normalize(),
             intersect::triangle_scale(t),
         )
     } else {
-        let sphere = at(s.spheres, prim - s.n_tris);
+        let sphere = &sphere_at(s, objects, p);
         let sp = sphere.center_radius;
         let c = xyz(sp);
         let n = (origin + h.t * dir - c).normalize();

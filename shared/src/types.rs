@@ -551,6 +551,9 @@ pub const VARIANT_SPLIT_PRODUCTS: u32 = 1 << 8;
 pub const CAST_SPAWN: u32 = 1;
 /// Ray casts: any-hit queries (shadow rays); a hit is `t = 0`, primitive 0.
 pub const CAST_ANY: u32 = 2;
+/// Ray casts: closest hits whose `prim` names the object hit instead (through an instance,
+/// the instance's object): what picking asks.
+pub const CAST_OBJECT: u32 = 4;
 
 /// Display pass: pack pixels as B, G, R, A bytes (for BGRA swapchain images).
 pub const DISPLAY_BGRA: u32 = 1;

@@ -239,7 +239,7 @@ fn path(p: &mut Prepared, frames: usize, sweep_deg: f32) -> Vec<Step> {
                 prev_camera: camera,
                 ..p.frame
             },
-            objects: p.scene.objects_at(k as f32 / 60.0),
+            objects: p.scene.objects_in(&p.data, k as f32 / 60.0),
         });
     }
     p.scene.camera = spec;

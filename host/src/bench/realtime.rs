@@ -44,6 +44,11 @@ pub struct Row {
     pub nee: bool,
     /// The BVH built and traced.
     pub bvh: crate::bvh::Layout,
+    /// Objects as instances of their meshes: two levels, the top level rebuilt every frame
+    /// instead of the whole scene.
+    pub instanced: bool,
+    /// Primitives the GPU holds: each mesh once where instanced.
+    pub distinct: u64,
     /// GPU time of a whole frame (timestamps, first to last), ms.
     pub gpu_ms: Percentiles,
     /// Transform + BVH rebuild, ms.
@@ -117,6 +122,9 @@ pub struct Options {
     /// Skip the second run of every scene with the real-time denoiser.
     #[arg(long)]
     pub no_denoise: bool,
+    /// Objects as instances of their meshes, or flattened (see `raytrace render --help`).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub instancing: crate::scene::InstancingMode,
 }
 
 /// Runs every scene of `o` and returns the report.
@@ -130,7 +138,17 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
         for nee in if o.both_nee { vec![false, true] } else { vec![false] } {
             let size = format!("{}x{}", o.size.0, o.size.1);
             let depth = o.depth.to_string();
-            let mut args = vec!["raytrace", scene, "--size", &size, "--depth", &depth];
+            let instancing = format!("{:?}", o.instancing).to_lowercase();
+            let mut args = vec![
+                "raytrace",
+                scene,
+                "--size",
+                &size,
+                "--depth",
+                &depth,
+                "--instancing",
+                &instancing,
+            ];
             if !nee {
                 args.push("--no-nee");
             }
@@ -139,7 +157,7 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             p.layout = o.bvh;
             let mut r = GpuRenderer::new(gpu, &kernels)?;
             r.set_build(p.build(o.spf));
-            let mut live = LiveScene::new(p.scene);
+            let mut live = LiveScene::with_instancing(p.scene, o.instancing);
             rows.push(run_scene(gpu, &mut r, &mut live, o, nee).with_context(|| format!("scene {scene}"))?);
             eprintln!("{}", row_line(rows.last().context("no row")?));
         }
@@ -224,6 +242,7 @@ fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Opti
         })
     };
     let (tris, spheres) = live.scene.counts();
+    let data = live.data();
     let gpu_ms = Percentiles::of(plain.total);
     Ok(Row {
         scene: live.scene.name.clone(),
@@ -236,6 +255,8 @@ fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Opti
         } else {
             crate::bvh::Layout::Binary
         },
+        instanced: data.instancing.is_some(),
+        distinct: (data.model_tris.len() + data.model_spheres.len()) as u64,
         fps: 1e3 / gpu_ms.p50,
         gpu_ms,
         build_ms: Percentiles::of(plain.build),
@@ -252,12 +273,16 @@ fn row_line(r: &Row) -> String {
         |d| format!("{:.3} | {:.1} | {:.3}", d.gpu_ms.p50, d.fps, d.denoise_ms.p50),
     );
     format!(
-        "| {} | {} | {} | {} | {:?} | {:.3} / {:.3} / {:.3} | {:.1} | {:.3} | {:.3} | {:.3} / {:.3} | {:.2} | {denoised} |",
+        "| {} | {} | {} | {} | {} | {:.3} / {:.3} / {:.3} | {:.1} | {:.3} | {:.3} | {:.3} / {:.3} | {:.2} | {denoised} |",
         r.scene,
         r.triangles + r.spheres,
         if r.animated { "yes" } else { "no" },
         if r.nee { "on" } else { "off" },
-        r.bvh,
+        if r.instanced {
+            format!("two levels ({} distinct)", r.distinct)
+        } else {
+            format!("{:?}", r.bvh)
+        },
         r.gpu_ms.p50,
         r.gpu_ms.p90,
         r.gpu_ms.p99,
@@ -280,7 +305,8 @@ pub fn markdown(r: &Report) -> String {
     let _ = writeln!(
         s,
         "Every frame: objects' transforms uploaded (animation advancing 1/60 s), transform of every \
-         primitive, full BVH rebuild, path tracing into a fresh accumulation image, display pass; one \
+         primitive, full BVH rebuild (two levels, instanced: the top level over the objects rebuilt, \
+         each mesh's BVH kept), path tracing into a fresh accumulation image, display pass; one \
          submission, waited for. GPU times from timestamp queries; wall time is the host's clock around \
          upload, submission and wait. Denoised: the same frames again with the real-time denoiser \
          (SVGF) in place of the display pass, every frame denoised (a still scene's too, past the \

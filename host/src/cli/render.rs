@@ -581,7 +581,7 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
     };
     for (time, path) in &outputs {
         if job.frames.is_some() {
-            p.data.objects = p.scene.objects_at(*time);
+            p.data.objects = p.scene.objects_in(&p.data, *time);
         }
         let wall = Instant::now();
         let rendered = match &mut engine {

@@ -4,7 +4,7 @@
 use crate::bvh::{BuildOptions, Layout, MortonBits};
 use crate::features::{self, Features, Forced};
 use crate::render;
-use crate::scene::{Environment, Scene, SceneGpu};
+use crate::scene::{Environment, InstancingMode, Scene, SceneGpu};
 use anyhow::{bail, Result};
 use glam::Vec3;
 use shared::types::{Frame, FLAG_DENOISE};
@@ -60,6 +60,12 @@ pub struct SceneArgs {
     /// faster trace. `auto` does when a frame has at least 16 samples per pixel.
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: Treelets,
+    /// Objects as instances of their meshes (two-level BVH: each mesh built once, the top
+    /// level over the objects every frame) or flattened into one BVH: auto instances a scene
+    /// whose objects share meshes (flattening would copy at least twice its distinct
+    /// primitives, and half a million more).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub instancing: InstancingMode,
     /// Kernel features beyond what the scene needs: `all`, or +NAME / -NAME for triangles,
     /// spheres, nee, metal, dielectric, thin-lens (comma-separated).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
@@ -228,7 +234,9 @@ impl SceneArgs {
             }
         }
         self.apply_environment(&mut scene)?;
-        let data = scene.gpu_data(self.time);
+        let data = scene
+            .gpu_data_as(self.time, self.instancing)
+            .map_err(anyhow::Error::msg)?;
         let mut frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
         if self.denoise {
             frame.flags |= FLAG_DENOISE;

@@ -1,8 +1,8 @@
 //! The CPU renderer: the transform, BVH build, path tracing and display kernels of `shared`
 //! run by the CPU executor (pixels in parallel with rayon: each writes only its own sum).
-use crate::bvh::{BuildOptions, BuildResult};
+use crate::bvh::{build_levels, inverse_rows, BuildOptions, BuildResult, Levels, Placement};
 use crate::picture::Picture;
-use crate::scene::SceneGpu;
+use crate::scene::{Instancing, SceneGpu};
 use rayon::prelude::*;
 use shared::denoise::Guide;
 use shared::path::{self, World};
@@ -56,6 +56,28 @@ pub fn world_primitives(scene: &SceneGpu) -> (Vec<Triangle>, Vec<Sphere>) {
     (tris, spheres)
 }
 
+/// Both levels of an instanced scene with its objects at `objects` (object `k` is instance
+/// `k`), built by the CPU executor. The layout was checked when the data was made
+/// (`Scene::gpu_data_instanced`); an object moved since to a transform that cannot be
+/// inverted stays where the data put it, with a warning.
+fn levels_at(i: &Instancing, objects: &[Object], build: BuildOptions) -> Levels {
+    let placements: Vec<Placement> = i
+        .placements
+        .iter()
+        .zip(objects)
+        .enumerate()
+        .map(|(k, (p, o))| match inverse_rows(&o.rows) {
+            Ok(_) => Placement { rows: o.rows, ..*p },
+            Err(e) => {
+                eprintln!("warning: object {k} is not moved: {e}");
+                *p
+            }
+        })
+        .collect();
+    // The placements' meshes and transforms were checked by the layout that made `i`.
+    build_levels(&i.meshes, &placements, build).unwrap_or_default()
+}
+
 /// Renders `samples` samples per pixel of `scene` with `frame`; `progress` is called with
 /// the number of rows finished.
 pub fn render_cpu(
@@ -96,14 +118,36 @@ pub fn render_cpu_samples(
     let objects = [scene.objects.as_slice(), previous].concat();
     let mut timings = Vec::new();
     let t = Instant::now();
-    let (tris, spheres) = world_primitives(scene);
+    let (tris, spheres) = match scene.instancing {
+        Some(_) => (Vec::new(), Vec::new()),
+        None => world_primitives(scene),
+    };
     timings.push(("transform", t.elapsed().as_secs_f64()));
-    let (bvh, build_times) = crate::cpu::build(&tris, &spheres, build);
+    let (bvh, build_times) = match scene.instancing {
+        Some(_) => Default::default(),
+        None => crate::cpu::build(&tris, &spheres, build),
+    };
     timings.extend(build_times);
+    // Two levels: every mesh's BVH and the top level over the objects where they are now.
+    let t = Instant::now();
+    let levels = scene.instancing.as_ref().map(|i| levels_at(i, &scene.objects, build));
+    if levels.is_some() {
+        timings.push(("levels", t.elapsed().as_secs_f64()));
+    }
+    // Lights, and with two levels the objects showing them.
+    let lights = match &scene.instancing {
+        Some(i) => [scene.lights.as_slice(), &i.light_objects].concat(),
+        None => scene.lights.clone(),
+    };
 
     let t = Instant::now();
-    let world = World {
-        scene: Scene {
+    let features = crate::render::tracer_features(frame.features, build);
+    let traced = match &levels {
+        Some(l) => Scene {
+            coverage: scene.coverage(),
+            ..l.scene(features)
+        },
+        None => Scene {
             tris: &tris,
             spheres: &spheres,
             nodes: &bvh.nodes,
@@ -115,12 +159,15 @@ pub fn render_cpu_samples(
             instances: &[],
             n_instances: 0,
             coverage: scene.coverage(),
-            features: crate::render::tracer_features(frame.features, build),
+            features,
         },
+    };
+    let world = World {
+        scene: traced,
         objects: &objects,
         prim_object: &scene.prim_object,
         materials: &scene.materials,
-        lights: &scene.lights,
+        lights: &lights,
         frame,
         attrs: &scene.attrs,
         punctual: &scene.punctual,
@@ -153,6 +200,19 @@ pub fn render_cpu_samples(
     let t = Instant::now();
     let display = display_image(&accum, &push, frame);
     timings.push(("display", t.elapsed().as_secs_f64()));
+    // Two levels: both levels' nodes and the meshes' primitives stand for the BVH and the
+    // world (what `GpuRenderer::bvh` and `world` read back then).
+    let (bvh, tris, spheres) = match levels {
+        Some(l) => (
+            BuildResult {
+                nodes: l.nodes,
+                ..Default::default()
+            },
+            l.tris,
+            l.spheres,
+        ),
+        None => (bvh, tris, spheres),
+    };
     CpuRender {
         picture: Picture {
             width: w,

@@ -1,10 +1,10 @@
 //! Both levels of an instanced scene on the GPU (`shared::instance`): every mesh's BVH built
 //! once by the builder ([`GpuLbvh`]) and kept, with the meshes' model-space primitives, in
-//! buffers of their own (what the tracers' set 0 will name once the renderer takes them); the
+//! buffers of their own (what the tracers' set 0 names: [`GpuLevels::trace_set`]); the
 //! top level built again whenever instances move, by the same builder over the instances'
 //! world boxes (the `instance_boxes` kernel), its nodes copied after the meshes'. The same
 //! [`LevelsLayout`] as the CPU executor's (`bvh::build_levels`), and the same bits.
-use super::{frame_timings, stage_ms, BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels};
+use super::{frame_timings, stage_ms, BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels, BINDINGS};
 use crate::bvh::{inverse_rows, layout, BuildOptions, LevelsLayout, MeshPrims, Placement};
 use anyhow::{anyhow, ensure, Context, Result};
 use gpu_allocator::MemoryLocation;
@@ -27,7 +27,9 @@ pub struct GpuLevels {
     /// Host-visible, rewritten when instances move.
     objects: Buffer,
     instances: Buffer,
-    /// Set 1 of `instance_boxes` (bindings 0 and 17); every other binding names `_empty`.
+    /// Set 0 of the tracers (bindings 0, 1 and 8 the buffers above) and set 1 of
+    /// `instance_boxes` (bindings 0 and 17); every other binding names `_empty`.
+    trace: BindingSets,
     boxes: BindingSets,
     _empty: Buffer,
 }
@@ -54,6 +56,9 @@ impl GpuLevels {
         let objects = host("instanced objects", (layout.objects.len() * size_of::<Object>()) as u64)?;
         let instances = host("instances", (layout.instances.len() * size_of::<Instance>()) as u64)?;
         let empty = dev("empty binding", 16)?;
+        let mut set0: Vec<&Buffer> = vec![&empty; BINDINGS];
+        (set0[0], set0[1], set0[8]) = (&tris, &spheres, &nodes);
+        let trace = BindingSets::new(gpu, kernels, 0, &[&set0])?;
         let mut set1: Vec<&Buffer> = vec![&empty; RENDER_BINDINGS as usize];
         (set1[0], set1[17]) = (&objects, &instances);
         let boxes = BindingSets::new(gpu, kernels, 1, &[&set1])?;
@@ -71,6 +76,7 @@ impl GpuLevels {
             nodes,
             objects,
             instances,
+            trace,
             boxes,
             _empty: empty,
         };
@@ -202,6 +208,15 @@ impl GpuLevels {
         self.cmds.read_back(&self.nodes, self.layout.nodes() as usize)
     }
 
+    /// The meshes' model-space primitives.
+    pub fn primitives(&mut self) -> Result<(Vec<Triangle>, Vec<Sphere>)> {
+        let (t, s) = (self.layout.n_tris as usize, self.layout.n_spheres as usize);
+        Ok((
+            self.cmds.read_back(&self.tris, t)?,
+            self.cmds.read_back(&self.spheres, s)?,
+        ))
+    }
+
     /// The top level's inputs: each instance's world box as a box triangle.
     pub fn boxes(&mut self) -> Result<Vec<Triangle>> {
         Ok(self.top.primitives()?.0)
@@ -209,6 +224,16 @@ impl GpuLevels {
 
     pub fn layout(&self) -> &LevelsLayout {
         &self.layout
+    }
+
+    /// Set 0 of the tracers: the meshes' primitives and both levels' nodes.
+    pub fn trace_set(&self) -> ash::vk::DescriptorSet {
+        self.trace.sets[0]
+    }
+
+    /// The instances (render binding 17), rewritten by [`Self::set_transforms`].
+    pub fn instances(&self) -> &Buffer {
+        &self.instances
     }
 
     /// Device bytes of both levels: the meshes' primitives and nodes, the instances and the

@@ -1,9 +1,9 @@
 //! The GPU renderer. One command buffer per frame: transform every primitive to world space,
 //! rebuild the BVH (the LBVH of `GpuLbvh`), trace samples into the float accumulation
 //! image, and run the display pass; a timestamp after each stage.
-use crate::bvh::{BuildOptions, BuildResult, Levels, MortonBits};
+use crate::bvh::{BuildOptions, BuildResult, Levels, MortonBits, Placement};
 use crate::gpu::denoise::{guide_bytes, GpuDenoiser};
-use crate::gpu::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels};
+use crate::gpu::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, GpuLevels, Kernel, Kernels};
 use crate::picture::{swap_red_blue, Picture};
 use crate::scene::SceneGpu;
 use anyhow::{bail, ensure, Context, Result};
@@ -12,8 +12,8 @@ use gpu_allocator::MemoryLocation;
 use shared::denoise::GUIDE_PLANES;
 use shared::envmap::EnvEntry;
 use shared::types::{
-    grid, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_SPAWN,
-    DISPLAY_BGRA, FEATURE_GUIDES, FEATURE_INSTANCES, FLAG_BVH, TILE_SIDE, WORKGROUP,
+    grid, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_OBJECT,
+    CAST_SPAWN, DISPLAY_BGRA, FEATURE_GUIDES, FEATURE_INSTANCES, FLAG_BVH, TILE_SIDE, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -51,8 +51,8 @@ struct SceneBuffers {
     texels: Buffer,
     /// The denoiser's guides (one guide while not denoising).
     guides: Buffer,
-    /// The instances of an instanced scene (a placeholder: the renderer does not instance
-    /// yet; see [`GpuRenderer::load_levels`]).
+    /// The instances of a scene loaded by [`GpuRenderer::load_levels`] (a placeholder
+    /// otherwise; an instanced scene's are its [`GpuLevels`]').
     instances: Buffer,
     /// Set 1 naming the buffers above; made again whenever one of them is replaced.
     set: Option<BindingSets>,
@@ -60,7 +60,8 @@ struct SceneBuffers {
 }
 
 impl SceneBuffers {
-    fn bind(&mut self, gpu: &Arc<Gpu>, kernels: &Kernels) -> Result<()> {
+    /// Makes set 1; binding 17 names `levels`' instances where there are levels.
+    fn bind(&mut self, gpu: &Arc<Gpu>, kernels: &Kernels, levels: Option<&GpuLevels>) -> Result<()> {
         self.set = None;
         let buffers = [
             &self.objects,
@@ -80,7 +81,7 @@ impl SceneBuffers {
             &self.textures,
             &self.texels,
             &self.guides,
-            &self.instances,
+            levels.map_or(&self.instances, |l| l.instances()),
         ];
         self.set = Some(BindingSets::new(gpu, kernels, 1, &[&buffers])?);
         Ok(())
@@ -123,6 +124,9 @@ pub struct GpuRenderer {
     gpu: Arc<Gpu>,
     kernels: Arc<Kernels>,
     lbvh: GpuLbvh,
+    /// An instanced scene's two levels (`SceneGpu::instancing`): the tracers walk them, and
+    /// a frame builds the top level again instead of transforming and building the world.
+    levels: Option<GpuLevels>,
     cmds: Commands,
     bufs: Option<SceneBuffers>,
     frame: Frame,
@@ -157,6 +161,7 @@ impl GpuRenderer {
             gpu: gpu.clone(),
             kernels: kernels.clone(),
             lbvh: GpuLbvh::new(gpu, kernels)?,
+            levels: None,
             cmds: Commands::new(gpu)?,
             bufs: None,
             frame: Frame::default(),
@@ -232,7 +237,7 @@ impl GpuRenderer {
         if b.guides.size < bytes {
             b.set = None;
             b.guides = Buffer::new(&self.gpu, "denoiser guides", bytes, MemoryLocation::GpuOnly)?;
-            b.bind(&self.gpu, &self.kernels)?;
+            b.bind(&self.gpu, &self.kernels, self.levels.as_ref())?;
         }
         self.denoiser = Some(GpuDenoiser::new(&self.gpu, &self.kernels, &b.guides, w, h)?);
         Ok(())
@@ -293,6 +298,7 @@ impl GpuRenderer {
     /// Uploads a scene and its frame; accumulation starts again.
     pub fn load(&mut self, scene: &SceneGpu, frame: &Frame) -> Result<()> {
         self.bufs = None;
+        self.levels = None;
         let gpu = &self.gpu.clone();
         let dev = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::GpuOnly);
         let host = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::CpuToGpu);
@@ -303,7 +309,12 @@ impl GpuRenderer {
         let model_spheres = dev("model spheres", size_of_val(scene.model_spheres.as_slice()))?;
         let prim_object = dev("object of each primitive", size_of_val(scene.prim_object.as_slice()))?;
         let materials = dev("materials", size_of_val(scene.materials.as_slice()))?;
-        let lights = dev("lights", size_of_val(scene.lights.as_slice()))?;
+        // With two levels the lights' objects follow them (`path::World::light`).
+        let light_words = match &scene.instancing {
+            Some(i) => [scene.lights.as_slice(), &i.light_objects].concat(),
+            None => scene.lights.clone(),
+        };
+        let lights = dev("lights", size_of_val(light_words.as_slice()))?;
         let frame_buf = host("frame", size_of::<Frame>())?;
         let accum = dev("accumulation image", pixels * 16)?;
         let image = dev("display image", pixels * 4)?;
@@ -321,7 +332,7 @@ impl GpuRenderer {
         self.upload(&model_spheres, &scene.model_spheres)?;
         self.upload(&prim_object, &scene.prim_object)?;
         self.upload(&materials, &scene.materials)?;
-        self.upload(&lights, &scene.lights)?;
+        self.upload(&lights, &light_words)?;
         self.upload(&attrs, &scene.attrs)?;
         self.upload(&punctual, &scene.punctual)?;
         self.upload(&env, env_entries)?;
@@ -350,15 +361,37 @@ impl GpuRenderer {
             n_objects: scene.objects.len(),
         });
         self.objects = scene.objects.clone();
-        if let Some(b) = self.bufs.as_mut() {
-            b.bind(gpu, &self.kernels)?;
+        if let Some(i) = &scene.instancing {
+            let placements: Vec<Placement> = i
+                .placements
+                .iter()
+                .zip(&scene.objects)
+                .map(|(p, o)| Placement { rows: o.rows, ..*p })
+                .collect();
+            let opts = BuildOptions {
+                wide: false,
+                ..self.build
+            };
+            self.levels = Some(GpuLevels::new(gpu, &self.kernels, &i.meshes, &placements, opts)?);
+        } else {
+            self.lbvh.reserve(scene.model_tris.len(), scene.model_spheres.len())?;
         }
-        self.lbvh.reserve(scene.model_tris.len(), scene.model_spheres.len())?;
+        if let Some(b) = self.bufs.as_mut() {
+            b.bind(gpu, &self.kernels, self.levels.as_ref())?;
+        }
         self.set_frame(frame)?;
         if self.denoise != Denoise::Off {
             self.make_denoiser()?;
         }
         Ok(())
+    }
+
+    /// Set 0 of the tracers: the two levels' buffers, or the builder's.
+    fn trace_set(&self) -> Result<ash::vk::DescriptorSet> {
+        match &self.levels {
+            Some(l) => Ok(l.trace_set()),
+            None => self.lbvh.set(),
+        }
     }
 
     /// Copies `data` into the device-local `dst` through a staging buffer.
@@ -393,7 +426,8 @@ impl GpuRenderer {
         self.upload(&instances, &l.instances)?;
         let b = self.bufs.as_mut().context("no scene loaded")?;
         b.instances = instances;
-        b.bind(&gpu, &self.kernels)?;
+        self.levels = None;
+        b.bind(&gpu, &self.kernels, None)?;
         let mut f = self.frame;
         f.n_tris = l.tris.len() as u32;
         f.n_prims = (l.tris.len() + l.spheres.len()) as u32;
@@ -407,7 +441,11 @@ impl GpuRenderer {
     /// New camera, settings or image size (same scene); accumulation starts again.
     pub fn set_frame(&mut self, frame: &Frame) -> Result<()> {
         let b = self.bufs.as_mut().context("no scene loaded")?;
-        if frame.n_prims != self.lbvh.len() {
+        let prims = match &self.levels {
+            Some(l) => l.layout().n_tris + l.layout().n_spheres,
+            None => self.lbvh.len(),
+        };
+        if frame.n_prims != prims {
             bail!("the frame does not fit the loaded scene (primitive count changed): load it again");
         }
         let pixels = (frame.width * frame.height) as u64;
@@ -415,7 +453,7 @@ impl GpuRenderer {
             b.set = None;
             b.accum = Buffer::new(&self.gpu, "accumulation image", pixels * 16, MemoryLocation::GpuOnly)?;
             b.image = Buffer::new(&self.gpu, "display image", pixels * 4, MemoryLocation::GpuOnly)?;
-            b.bind(&self.gpu, &self.kernels)?;
+            b.bind(&self.gpu, &self.kernels, self.levels.as_ref())?;
         }
         b.frame.write(std::slice::from_ref(frame))?;
         self.frame = *frame;
@@ -430,11 +468,18 @@ impl GpuRenderer {
         Ok(())
     }
 
-    /// New object transforms (same objects); accumulation starts again.
+    /// New object transforms (same objects); accumulation starts again. With two levels a
+    /// transform that cannot be inverted is refused by the object's number, and nothing
+    /// changes.
     pub fn set_objects(&mut self, objects: &[Object]) -> Result<()> {
         let b = self.bufs.as_mut().context("no scene loaded")?;
         if objects.len() != b.n_objects {
             bail!("{} objects given, {} loaded", objects.len(), b.n_objects);
+        }
+        if let Some(l) = self.levels.as_mut() {
+            let rows: Vec<_> = objects.iter().map(|o| o.rows).collect();
+            l.set_transforms(&rows)
+                .map_err(|e| anyhow::anyhow!("{}", e.to_string().replacen("instance", "object", 1)))?;
         }
         b.objects.write(objects)?;
         self.objects = objects.to_vec();
@@ -462,7 +507,7 @@ impl GpuRenderer {
     pub fn record(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<()> {
         // The first wide build makes the builder's buffers again with room for it (binary
         // builds leave it out): the frame transforms and builds anew.
-        if self.lbvh.reserve_wide(self.build.wide)? {
+        if self.levels.is_none() && self.lbvh.reserve_wide(self.build.wide)? {
             self.samples = 0;
         }
         let still = self.samples > 0;
@@ -484,13 +529,15 @@ impl GpuRenderer {
         let b = self.bufs.as_ref().context("no scene loaded")?;
         let k = &self.kernels;
         let f = self.frame;
-        let sets = [self.lbvh.set()?, b.set()?];
+        let sets = [self.trace_set()?, b.set()?];
         cmds.timestamp("begin");
         if self.samples == 0 {
             cmds.fill_range(&b.accum, 0, b.accum.size, 0);
             cmds.barrier();
         }
-        if rebuild || self.samples == 0 {
+        if let Some(l) = self.levels.as_ref().filter(|_| rebuild || self.samples == 0) {
+            l.record_top(cmds)?;
+        } else if rebuild || self.samples == 0 {
             let p = BuildParams {
                 n_tris: f.n_tris,
                 n: f.n_prims,
@@ -629,12 +676,23 @@ impl GpuRenderer {
 
     /// The BVH of the last build, every stage's output.
     pub fn bvh(&mut self) -> Result<BuildResult> {
-        self.lbvh.result(self.build)
+        match self.levels.as_mut() {
+            // Two levels: both levels' nodes (every mesh's, then the top level's).
+            Some(l) => Ok(BuildResult {
+                nodes: l.nodes()?,
+                ..Default::default()
+            }),
+            None => self.lbvh.result(self.build),
+        }
     }
 
-    /// World-space primitives of the last transform stage.
+    /// World-space primitives of the last transform stage (with two levels: the meshes'
+    /// model-space primitives).
     pub fn world(&mut self) -> Result<(Vec<Triangle>, Vec<Sphere>)> {
-        self.lbvh.primitives()
+        match self.levels.as_mut() {
+            Some(l) => l.primitives(),
+            None => self.lbvh.primitives(),
+        }
     }
 
     /// GPU seconds of the last cast's dispatch ([`Self::cast`], [`Self::cast_any`], ...).
@@ -646,6 +704,12 @@ impl GpuRenderer {
     /// with the frame's `FEATURE_*` and `VARIANT_*` bits.
     pub fn cast(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
         self.cast_flags(rays, rays.len(), 0)
+    }
+
+    /// Closest hits of `rays` whose `prim` names the object hit (through an instance, its
+    /// object; [`CAST_OBJECT`]): picking.
+    pub fn cast_objects(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
+        self.cast_flags(rays, rays.len(), CAST_OBJECT)
     }
 
     /// Whether anything lies along each of `rays` (the shadow-ray query), as hits with `t = 0`
@@ -700,7 +764,7 @@ impl GpuRenderer {
                 (rays.len() * size_of::<Hit>()) as u64,
                 MemoryLocation::GpuOnly,
             )?;
-            b.bind(&self.gpu, &self.kernels)?;
+            b.bind(&self.gpu, &self.kernels, self.levels.as_ref())?;
         }
         self.upload(&b.rays, rays)?;
         let push = RenderPush {
@@ -708,7 +772,7 @@ impl GpuRenderer {
             flags,
             ..Default::default()
         };
-        let sets = [self.lbvh.set()?, b.set()?];
+        let sets = [self.trace_set()?, b.set()?];
         let (x, y) = grid((count as u32).div_ceil(WORKGROUP));
         let cast = self.kernels.specialised(Kernel::CastRays, self.tracer_constant())?;
         self.cmds.begin()?;

@@ -1,7 +1,8 @@
 //! The built-in scenes ([`Scene::BUILTINS`]): the Cornell box with its two blocks, the box
 //! holding Suzanne or the Stanford bunny, Ray Tracing in One Weekend's final scene of spheres,
-//! a 4x4 grid of spinning bunnies of over a million triangles, and a 12x12 herd of ten million. Walls and blocks are objects
-//! made of the built-in quad and cube, so they can be moved like any other.
+//! a 4x4 grid of spinning bunnies of over a million triangles, a 12x12 herd of ten million,
+//! and a forest of 24,578 objects and 1.24 billion triangles (instanced). Walls and blocks are
+//! objects made of the built-in quad and cube, so they can be moved like any other.
 use super::{
     material, shapes, validate, Animation, Bob, CameraSpec, Mesh, Scene, SceneError, SceneObject, Settings, Shape,
     Transform,
@@ -22,6 +23,7 @@ pub(super) fn build(name: &str) -> Result<Scene, SceneError> {
         "spheres" => spheres(),
         "instances" => instances(&label)?,
         "herd" => herd(&label)?,
+        "forest" => forest(&label)?,
         _ => return Err(SceneError::UnknownBuiltin { name: name.to_string() }),
     };
     validate::check(&scene, &label)?;
@@ -321,9 +323,188 @@ fn herd(label: &str) -> Result<Scene, SceneError> {
     Ok(b.scene)
 }
 
+/// A canopy: an icosphere of unit radius subdivided `levels` times (20 * 4^levels
+/// triangles, counter-clockwise seen from outside), its vertices pushed in and out by a few
+/// fixed waves so that it reads as foliage rather than a ball.
+fn canopy(levels: u32) -> Vec<Triangle> {
+    let t = (1.0 + 5f32.sqrt()) / 2.0;
+    let mut v: Vec<Vec3> = [
+        (-1.0, t, 0.0),
+        (1.0, t, 0.0),
+        (-1.0, -t, 0.0),
+        (1.0, -t, 0.0),
+        (0.0, -1.0, t),
+        (0.0, 1.0, t),
+        (0.0, -1.0, -t),
+        (0.0, 1.0, -t),
+        (t, 0.0, -1.0),
+        (t, 0.0, 1.0),
+        (-t, 0.0, -1.0),
+        (-t, 0.0, 1.0),
+    ]
+    .iter()
+    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
+    .collect();
+    let mut faces: Vec<[usize; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..levels {
+        let mut middle = std::collections::HashMap::new();
+        let mut mid = |a: usize, b: usize, v: &mut Vec<Vec3>| {
+            *middle.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                v.push(((v[a] + v[b]) / 2.0).normalize());
+                v.len() - 1
+            })
+        };
+        faces = faces
+            .iter()
+            .flat_map(|&[a, b, c]| {
+                let (ab, bc, ca) = (mid(a, b, &mut v), mid(b, c, &mut v), mid(c, a, &mut v));
+                [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
+            })
+            .collect();
+    }
+    let bump = |p: Vec3| {
+        let w = (7.0 * p.x).sin() * (5.0 * p.y).cos() + (9.0 * p.z + 2.0 * p.x).sin() * 0.6 + (13.0 * p.y).sin() * 0.3;
+        p * (1.0 + 0.08 * w)
+    };
+    let v: Vec<Vec3> = v.into_iter().map(bump).collect();
+    let p = |i: usize| [v[i].x, v[i].y, v[i].z, 0.0];
+    faces
+        .iter()
+        .map(|&[a, b, c]| Triangle {
+            v0: p(a),
+            v1: p(b),
+            v2: p(c),
+        })
+        .collect()
+}
+
+/// A closed cylinder of unit radius from y = 0 to y = 1, `sides` sides (4 * sides triangles,
+/// facing out).
+fn trunk(sides: u32) -> Vec<Triangle> {
+    let ring = |k: u32, y: f32| {
+        let a = std::f32::consts::TAU * k as f32 / sides as f32;
+        [a.cos(), y, a.sin(), 0.0]
+    };
+    let (bottom, top) = ([0.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]);
+    (0..sides)
+        .flat_map(|k| {
+            let (a0, a1, b0, b1) = (ring(k, 0.0), ring(k + 1, 0.0), ring(k, 1.0), ring(k + 1, 1.0));
+            [
+                Triangle { v0: a0, v1: b1, v2: a1 },
+                Triangle { v0: a0, v1: b0, v2: b1 },
+                Triangle {
+                    v0: bottom,
+                    v1: a0,
+                    v2: a1,
+                },
+                Triangle {
+                    v0: top,
+                    v1: b1,
+                    v2: b0,
+                },
+            ]
+        })
+        .collect()
+}
+
+/// A forest of 16,384 cells, 128 on a side: every other cell a tree (a trunk and a canopy of
+/// 81,920 triangles: two instances), the rest Stanford bunnies in the real-time looks, an
+/// eighth of them spinning and some bobbing; 24,578 objects and 1.24 billion triangles,
+/// 151,718 distinct. Rendered through two levels (instanced); flattened it would need
+/// hundreds of gigabytes.
+fn forest(label: &str) -> Result<Scene, SceneError> {
+    let camera = CameraSpec {
+        position: Vec3::new(0.0, 45.0, -215.0),
+        look_at: Vec3::new(0.0, 0.0, -60.0),
+        up: Vec3::Y,
+        vfov_deg: 50.0,
+        aperture: 0.0,
+        focus_distance: None,
+    };
+    let mut b = Builder::new("forest", camera, outdoor());
+    let (looks, bunny, place, light) = bunny_field(&mut b, label, 420.0)?;
+    let bark = b.material("bark", material::diffuse([0.30, 0.20, 0.12]));
+    let leaves = [
+        b.material("leaves", material::diffuse([0.16, 0.42, 0.12])),
+        b.material("dark leaves", material::diffuse([0.08, 0.28, 0.10])),
+        b.material("autumn leaves", material::diffuse([0.62, 0.36, 0.08])),
+    ];
+    let canopy = Shape::Mesh(b.mesh("builtin:canopy", canopy(6)));
+    let trunk = Shape::Mesh(b.mesh("builtin:trunk", trunk(32)));
+    let (side, spacing) = (128, 3.0);
+    let mut rng = Pcg64::seed_from_u64(7);
+    for k in 0..side * side {
+        let (i, j) = (k % side, k / side);
+        let jitter = Vec3::new(rng.random_range(-0.6..0.6), 0.0, rng.random_range(-0.6..0.6));
+        let at = Vec3::new((i as f32 - 63.5) * spacing, 0.0, (j as f32 - 63.5) * spacing) + jitter;
+        let yaw: f32 = rng.random_range(0.0..360.0);
+        let size: f32 = rng.random_range(0.8..1.3);
+        if (i + j) % 2 == 0 {
+            let height = 1.6 * size;
+            let stem = Transform::new(
+                at,
+                Vec3::new(0.0, yaw, 0.0),
+                Vec3::new(0.12 * size, height, 0.12 * size),
+            );
+            b.object(&format!("trunk {k}"), trunk, stem, bark);
+            let crown = Transform::new(
+                at + Vec3::new(0.0, height + 0.9 * size, 0.0),
+                Vec3::new(0.0, yaw, 0.0),
+                Vec3::splat(1.1 * size),
+            );
+            let green = leaves[rng.random_range(0..leaves.len())];
+            b.object(&format!("canopy {k}"), canopy, crown, green);
+        } else {
+            let mut t = place;
+            t.translation += at;
+            t.rotation_deg.y += yaw;
+            let o = b.object(&format!("bunny {k}"), bunny, t, looks[k % 8]);
+            if k % 16 == 1 {
+                let direction = if k % 32 == 1 { 1.0 } else { -1.0 };
+                o.animation.spin_deg_per_s = Vec3::new(0.0, direction * 40.0, 0.0);
+            }
+            if k % 48 == 3 {
+                o.animation.bob = Some(Bob {
+                    amplitude: 0.5,
+                    period_s: 2.0,
+                });
+            }
+        }
+    }
+    b.object(
+        "light",
+        Shape::Sphere { radius: 12.0 },
+        Transform::at(Vec3::new(-60.0, 90.0, -160.0)),
+        light,
+    );
+    Ok(b.scene)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::InstancingMode;
 
     fn world(o: &shared::types::Object, v: [f32; 4]) -> Vec3 {
         let r = o.rows;
@@ -338,8 +519,15 @@ mod tests {
     fn every_builtin_builds_consistent_gpu_data() {
         for name in Scene::BUILTINS {
             let scene = Scene::builtin(name).unwrap_or_else(|e| panic!("{e}"));
-            let gpu = scene.gpu_data(0.5);
-            let (tris, spheres) = scene.counts();
+            // As the renderer lays it out by default: the forest is instanced.
+            let gpu = scene.gpu_data_as(0.5, InstancingMode::Auto).unwrap();
+            let (tris, spheres) = match &gpu.instancing {
+                None => scene.counts(),
+                Some(i) => i
+                    .meshes
+                    .iter()
+                    .fold((0, 0), |(t, s), m| (t + m.tris.len(), s + m.spheres.len())),
+            };
             assert_eq!(gpu.model_tris.len(), tris, "{name}");
             assert_eq!(gpu.model_spheres.len(), spheres, "{name}");
             assert_eq!(gpu.prim_object.len(), tris + spheres, "{name}");
@@ -352,7 +540,10 @@ mod tests {
                 "{name}"
             );
             assert!(!gpu.lights.is_empty(), "{name} has no light");
-            assert!(gpu.lights.windows(2).all(|w| w[0] < w[1]), "{name}");
+            match &gpu.instancing {
+                None => assert!(gpu.lights.windows(2).all(|w| w[0] < w[1]), "{name}"),
+                Some(i) => assert_eq!(i.light_objects.len(), gpu.lights.len(), "{name}"),
+            }
             let finite = |v: &[f32; 4]| v.iter().all(|x| x.is_finite());
             assert!(
                 gpu.model_tris.iter().all(|t| [t.v0, t.v1, t.v2].iter().all(finite)),
@@ -371,6 +562,45 @@ mod tests {
             let frame = scene.frame(&gpu);
             assert_eq!(frame.n_prims as usize, tris + spheres, "{name}");
             assert_eq!(frame.n_lights as usize, gpu.lights.len(), "{name}");
+        }
+    }
+
+    #[test]
+    fn the_forest_is_a_billion_instanced_triangles_that_cannot_be_flattened() {
+        let scene = Scene::builtin("forest").unwrap();
+        let (tris, _) = scene.counts();
+        assert!(
+            scene.objects.len() >= 10_000 && tris >= 1_000_000_000,
+            "{} {tris}",
+            scene.objects.len()
+        );
+        let moving = scene
+            .objects
+            .iter()
+            .filter(|o| o.animation != Animation::default())
+            .count();
+        assert!(moving > 100 && moving < scene.objects.len() / 4, "{moving}");
+        let gpu = scene.gpu_data_as(0.0, InstancingMode::Auto).unwrap();
+        let i = gpu.instancing.as_ref().expect("instanced");
+        let (instanced, distinct) = i.counts();
+        assert_eq!(instanced, tris as u64 + 1);
+        assert!(distinct < 200_000, "{distinct}");
+        // Three meshes and a sphere besides the bunny and the ground's quad.
+        assert!(scene.meshes.len() >= 4);
+        let e = scene.gpu_data_as(0.0, InstancingMode::Off).unwrap_err();
+        assert!(e.contains("instance them") && e.contains("GB"), "{e}");
+        // The canopy and the trunk are closed and face outward (positive signed volume).
+        for m in ["builtin:canopy", "builtin:trunk"] {
+            let mesh = scene.meshes.iter().find(|x| x.name == m).unwrap();
+            let volume: f64 = mesh
+                .tris
+                .iter()
+                .map(|t| {
+                    let v = |p: [f32; 4]| glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                    v(t.v0).dot(v(t.v1).cross(v(t.v2))) / 6.0
+                })
+                .sum();
+            assert!(volume > 0.0, "{m}: {volume}");
         }
     }
 

@@ -6,6 +6,7 @@
 use super::envmap::EnvMap;
 use super::texture::TextureSet;
 use super::{material, Scene, Shape};
+use crate::bvh::{MeshPrims, Placement};
 use glam::Vec3;
 use shared::types::{
     Camera, Frame, Material, Object, PunctualLight, Sphere, Triangle, VertexAttrs, FEATURES_ALL, FLAG_BVH, FLAG_GAMMA2,
@@ -34,6 +35,66 @@ pub struct SceneGpu {
     pub env: Option<Arc<EnvMap>>,
     /// Every texture of the materials and their texels (`Material::textures` index them).
     pub textures: Arc<TextureSet>,
+    /// With two levels ([`Scene::gpu_data_instanced`]): every object an instance of its mesh.
+    /// The primitives above are then the meshes' in model space, each mesh once, in the
+    /// levels' layout; `None`: flattened, every object's primitives copied.
+    pub instancing: Option<Arc<Instancing>>,
+    /// Why the scene is instanced or flattened ([`Scene::gpu_data_as`]; `--explain`).
+    pub instancing_why: String,
+}
+
+/// Whether a scene's objects become instances of their meshes (two levels) or are
+/// flattened into one world-space BVH (`--instancing`).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+pub enum InstancingMode {
+    /// Instanced where objects share meshes: flattening would copy at least [`AUTO_REUSE`]
+    /// times the distinct primitives, and [`AUTO_SAVED`] more.
+    #[default]
+    Auto,
+    On,
+    Off,
+}
+
+/// [`InstancingMode::Auto`] instances a scene whose flattened primitives number at least this
+/// many times its distinct ones, and at least [`AUTO_SAVED`] more.
+pub const AUTO_REUSE: u64 = 2;
+
+/// The most primitives [`Scene::gpu_data_as`] flattens: at [`FLAT_BYTES`] each, a build
+/// of more would not fit an 80 GB GPU.
+pub const MAX_FLATTENED: u64 = 200_000_000;
+
+/// GPU bytes a flattened primitive takes to build and trace: the triangle (48), its BVH
+/// nodes (64) and the builder's scratch (181).
+pub const FLAT_BYTES: u64 = 293;
+
+/// The copies a scene must save to be instanced by [`InstancingMode::Auto`]: below this, a
+/// frame's transform and rebuild of the flattened scene cost less than walking two levels
+/// (a small scene whose walls share one quad stays flattened).
+pub const AUTO_SAVED: u64 = 500_000;
+
+/// An instanced scene's two levels: what `bvh::build_levels` and `gpu::GpuLevels` build, and
+/// what the path tracer's lights need besides (object `k` is instance `k`).
+#[derive(Clone, Debug, Default)]
+pub struct Instancing {
+    /// The meshes the objects show, each once: the scene's meshes (an unused one empty),
+    /// then one mesh of one sphere for each sphere object.
+    pub meshes: Vec<MeshPrims>,
+    /// Every object's mesh and transform at the moment the data was made.
+    pub placements: Vec<Placement>,
+    /// The object showing each of `SceneGpu::lights` (the second half of the light buffer:
+    /// an instance's emitter is a model-space primitive of a shared mesh).
+    pub light_objects: Vec<u32>,
+    /// The top level's first node (after every mesh's).
+    pub top: u32,
+}
+
+impl Instancing {
+    /// Primitives counting every instance's again, and distinct primitives.
+    pub fn counts(&self) -> (u64, u64) {
+        let size = |m: &MeshPrims| (m.tris.len() + m.spheres.len()) as u64;
+        let instanced = self.placements.iter().map(|p| size(&self.meshes[p.mesh])).sum();
+        (instanced, self.meshes.iter().map(size).sum())
+    }
 }
 
 impl SceneGpu {
@@ -97,6 +158,18 @@ impl Scene {
             .collect()
     }
 
+    /// Every object at `time_s` as `data` lays the primitives out (instanced or flattened):
+    /// what `GpuRenderer::set_objects` takes for a moment of an animation.
+    pub fn objects_in(&self, data: &SceneGpu, time_s: f32) -> Vec<Object> {
+        let mut objects = self.objects_at(time_s);
+        if data.instancing.is_some() {
+            for (o, d) in objects.iter_mut().zip(&data.objects) {
+                o.first_prim = d.first_prim;
+            }
+        }
+        objects
+    }
+
     /// For every mesh, the index of its first triangle's attributes in [`SceneGpu::attrs`]
     /// ([`INVALID`] for a mesh without attributes or one no object shows).
     fn attr_bases(&self) -> Vec<u32> {
@@ -155,6 +228,18 @@ impl Scene {
         let lights = (0..prim_object.len() as u32)
             .filter(|&i| emissive[prim_object[i as usize] as usize])
             .collect();
+        SceneGpu {
+            model_tris,
+            model_spheres,
+            prim_object,
+            lights,
+            ..self.gpu_common(time_s)
+        }
+    }
+
+    /// What both layouts share: the objects at `time_s` (as flattened), materials, vertex
+    /// attributes, lights, environment and textures; no primitives.
+    fn gpu_common(&self, time_s: f32) -> SceneGpu {
         let bases = self.attr_bases();
         let mut attrs = Vec::new();
         for (m, base) in self.meshes.iter().zip(bases) {
@@ -163,17 +248,171 @@ impl Scene {
             }
         }
         SceneGpu {
-            model_tris,
-            model_spheres,
-            prim_object,
             objects: self.objects_at(time_s),
             materials: self.materials.iter().map(|(_, m)| *m).collect(),
-            lights,
             attrs,
             punctual: self.punctual.clone(),
             env: self.environment.as_ref().map(|e| e.map.clone()),
             textures: self.textures.clone(),
+            ..Default::default()
         }
+    }
+
+    /// The render buffers at `time_s`, instanced or flattened as `mode` says (see
+    /// [`InstancingMode`]), with the reason in `instancing_why`. `On` fails where the scene
+    /// cannot be instanced (see [`Scene::gpu_data_instanced`]); `Auto` then flattens it.
+    pub fn gpu_data_as(&self, time_s: f32, mode: InstancingMode) -> Result<SceneGpu, String> {
+        let (tris, spheres) = self.counts();
+        let flattened = (tris + spheres) as u64;
+        let mut used = vec![false; self.meshes.len()];
+        for o in &self.objects {
+            if let Shape::Mesh(m) = o.shape {
+                used[m] = true;
+            }
+        }
+        let distinct = spheres as u64
+            + self
+                .meshes
+                .iter()
+                .zip(&used)
+                .filter(|(_, &u)| u)
+                .map(|(m, _)| m.tris.len() as u64)
+                .sum::<u64>();
+        let reuse = format!(
+            "{} objects show {flattened} primitives, {distinct} distinct",
+            self.objects.len()
+        );
+        let instanced = |why: String| {
+            self.gpu_data_instanced(time_s).map(|mut d| {
+                d.instancing_why = why;
+                d
+            })
+        };
+        let too_many = flattened > MAX_FLATTENED;
+        let flat = |why: String| {
+            if too_many {
+                return Err(format!(
+                    "flattened, the scene would hold {flattened} primitives (a GPU needs about {} GB \
+                     to build it); its objects share meshes: instance them (--instancing on)",
+                    flattened * FLAT_BYTES / 1_000_000_000
+                ));
+            }
+            let mut d = self.gpu_data(time_s);
+            d.instancing_why = why;
+            Ok(d)
+        };
+        match mode {
+            InstancingMode::Off => flat(format!("flattened (--instancing off); {reuse}")),
+            InstancingMode::On => instanced(format!("every object an instance (--instancing on); {reuse}")),
+            InstancingMode::Auto if flattened >= AUTO_REUSE * distinct && flattened >= distinct + AUTO_SAVED => {
+                match instanced(format!(
+                    "every object an instance: {reuse} (auto: at least {AUTO_REUSE}x and {AUTO_SAVED} copies saved)"
+                )) {
+                    Ok(d) => Ok(d),
+                    Err(e) => flat(format!("flattened: {e}")),
+                }
+            }
+            InstancingMode::Auto => flat(format!(
+                "flattened: {reuse} (auto instances from {AUTO_REUSE}x and {AUTO_SAVED} copies saved)"
+            )),
+        }
+    }
+
+    /// The render buffers at `time_s` seconds with two levels: every object an instance of
+    /// its mesh (each mesh's primitives once, in model space; a sphere object shows a mesh
+    /// of one sphere). Errors name the object that cannot be instanced: a sphere scaled
+    /// unevenly (an instance's sphere is hit as the ellipsoid its transform makes, a
+    /// flattened one as a sphere of the largest scale), a transform that cannot be inverted.
+    pub fn gpu_data_instanced(&self, time_s: f32) -> Result<SceneGpu, String> {
+        let common = self.gpu_common(time_s);
+        let mut objects = common.objects.clone();
+        let mut meshes: Vec<MeshPrims> = vec![MeshPrims::default(); self.meshes.len()];
+        let mut placements = Vec::with_capacity(self.objects.len());
+        for (k, o) in self.objects.iter().enumerate() {
+            let mesh = match o.shape {
+                Shape::Mesh(m) => {
+                    if meshes[m].tris.is_empty() {
+                        meshes[m].tris = self.meshes[m].tris.to_vec();
+                    }
+                    m
+                }
+                Shape::Sphere { radius } => {
+                    let s = o.transform_at(time_s).scale.abs();
+                    if s.x != s.y || s.y != s.z {
+                        return Err(format!(
+                            "object {k} ({}) is a sphere scaled unevenly ({}): it cannot be instanced",
+                            o.name, o.transform.scale
+                        ));
+                    }
+                    meshes.push(MeshPrims {
+                        tris: Vec::new(),
+                        spheres: vec![Sphere {
+                            center_radius: [0.0, 0.0, 0.0, radius],
+                        }],
+                    });
+                    meshes.len() - 1
+                }
+            };
+            placements.push(Placement {
+                mesh,
+                rows: objects[k].rows,
+            });
+        }
+        let layout = crate::bvh::layout(&meshes, &placements).map_err(|e| {
+            // Instance k is object k: name it.
+            match e.split_once(':') {
+                Some((inst, rest)) if inst.starts_with("instance ") => {
+                    let k: usize = inst["instance ".len()..].parse().unwrap_or(0);
+                    let name = self.objects.get(k).map_or("", |o| o.name.as_str());
+                    format!("object {k} ({name}):{rest}")
+                }
+                _ => e,
+            }
+        })?;
+        let (n_tris, n_spheres) = (layout.n_tris, layout.n_spheres);
+        let mut model_tris = Vec::with_capacity(n_tris as usize);
+        let mut model_spheres = Vec::with_capacity(n_spheres as usize);
+        for m in &meshes {
+            model_tris.extend_from_slice(&m.tris);
+            model_spheres.extend_from_slice(&m.spheres);
+        }
+        // A primitive's object: the first showing it (read only where no instance names one).
+        let mut prim_object = vec![INVALID; (n_tris + n_spheres) as usize];
+        let (mut lights, mut light_objects) = (Vec::new(), Vec::new());
+        for (k, (o, p)) in objects.iter_mut().zip(&placements).enumerate() {
+            let m = &meshes[p.mesh];
+            let (tri0, sphere0) = (layout.mesh_tris[p.mesh], n_tris + layout.mesh_spheres[p.mesh]);
+            let prims = (tri0..tri0 + m.tris.len() as u32).chain(sphere0..sphere0 + m.spheres.len() as u32);
+            let emits = self
+                .materials
+                .get(o.material as usize)
+                .is_some_and(|(_, m)| material::emits(m));
+            for prim in prims {
+                let owner = &mut prim_object[prim as usize];
+                if *owner == INVALID {
+                    *owner = k as u32;
+                }
+                if emits {
+                    lights.push(prim);
+                    light_objects.push(k as u32);
+                }
+            }
+            o.first_prim = if m.tris.is_empty() { sphere0 } else { tri0 };
+        }
+        Ok(SceneGpu {
+            model_tris,
+            model_spheres,
+            prim_object,
+            objects,
+            lights,
+            instancing: Some(Arc::new(Instancing {
+                meshes,
+                placements,
+                light_objects,
+                top: layout.top,
+            })),
+            ..common
+        })
     }
 
     /// Camera (thin lens, as in Ray Tracing in One Weekend) and settings for rendering `gpu`
@@ -235,8 +474,8 @@ impl Scene {
             // A pixel's angular size at the image centre.
             pixel_spread: (viewport_h / s.height as f32).atan(),
             prev_objects: 0,
-            n_instances: 0,
-            top_nodes: 0,
+            n_instances: gpu.instancing.as_ref().map_or(0, |i| i.placements.len() as u32),
+            top_nodes: gpu.instancing.as_ref().map_or(0, |i| i.top),
             _pad: [0; 3],
         }
     }

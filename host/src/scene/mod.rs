@@ -19,7 +19,7 @@ mod transform;
 mod validate;
 
 pub use error::SceneError;
-pub use gpu::SceneGpu;
+pub use gpu::{Instancing, InstancingMode, SceneGpu, AUTO_REUSE, AUTO_SAVED};
 pub use transform::{Animation, Bob, Orbit, Transform};
 
 use glam::Vec3;
@@ -199,7 +199,7 @@ pub struct CameraSpec {
 
 impl Scene {
     /// Names accepted by [`Scene::builtin`].
-    pub const BUILTINS: [&'static str; 6] = ["cornell", "suzanne", "bunny", "spheres", "instances", "herd"];
+    pub const BUILTINS: [&'static str; 7] = ["cornell", "suzanne", "bunny", "spheres", "instances", "herd", "forest"];
 
     /// The built-in scene `name`; meshes come from [`crate::inputs::assets_dir`].
     pub fn builtin(name: &str) -> Result<Scene, SceneError> {

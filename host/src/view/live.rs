@@ -5,7 +5,7 @@
 use crate::features::{self, Forced};
 use crate::gpu::GpuRenderer;
 use crate::render::with_bvh;
-use crate::scene::{material, Animation, Scene, SceneGpu, SceneObject, Shape, Transform};
+use crate::scene::{material, Animation, InstancingMode, Scene, SceneGpu, SceneObject, Shape, Transform};
 use anyhow::{bail, Result};
 use glam::Vec3;
 use shared::types::{Frame, Ray, INVALID};
@@ -23,6 +23,8 @@ pub struct LiveScene {
     pub selected: Option<usize>,
     /// Kernel features forced beyond the scene's needs (see [`crate::features`]).
     pub forced: Forced,
+    /// Whether objects become instances of their meshes (`--instancing`).
+    pub instancing: InstancingMode,
     data: SceneGpu,
     /// Objects were added or removed since the renderer last saw the scene.
     reload: bool,
@@ -31,13 +33,20 @@ pub struct LiveScene {
 
 impl LiveScene {
     pub fn new(scene: Scene) -> LiveScene {
-        let data = scene.gpu_data(0.0);
+        LiveScene::with_instancing(scene, InstancingMode::default())
+    }
+
+    /// A live scene instanced or flattened as `instancing` says (flattened, with a warning,
+    /// where it cannot be instanced).
+    pub fn with_instancing(scene: Scene, instancing: InstancingMode) -> LiveScene {
+        let data = layout(&scene, 0.0, instancing);
         LiveScene {
             scene,
             time: 0.0,
             bvh: true,
             selected: None,
             forced: Forced::default(),
+            instancing,
             data,
             reload: true,
             added: 0,
@@ -62,12 +71,12 @@ impl LiveScene {
     /// scene keeps accumulating). Returns whether accumulation restarted.
     pub fn sync(&mut self, r: &mut GpuRenderer) -> Result<bool> {
         if self.reload {
-            self.data = self.scene.gpu_data(self.time);
+            self.data = layout(&self.scene, self.time, self.instancing);
             r.load(&self.data, &self.frame())?;
             self.reload = false;
             return Ok(true);
         }
-        let objects = self.scene.objects_at(self.time);
+        let objects = self.scene.objects_in(&self.data, self.time);
         let mut restarted = false;
         if objects != self.data.objects {
             r.set_objects(&objects)?;
@@ -209,20 +218,31 @@ impl LiveScene {
         }
     }
 
-    /// The object seen at pixel (`x`, `y`), found by a ray cast through the renderer's
-    /// current BVH (the same traversal as the path tracer), and the hit distance.
+    /// The object seen at pixel (`x`, `y`) (through an instance, the instance's object), found
+    /// by a ray cast through the renderer's current BVH (the same traversal as the path
+    /// tracer), and the hit distance.
     pub fn pick(&mut self, r: &mut GpuRenderer, x: f32, y: f32) -> Result<Option<(usize, f32)>> {
         let ray = Self::pixel_ray(r.frame(), x, y);
-        let hit = r.cast(&[ray])?[0];
-        if hit.prim == INVALID {
-            return Ok(None);
-        }
-        Ok(self
-            .data
-            .prim_object
-            .get(hit.prim as usize)
-            .map(|&o| (o as usize, hit.t)))
+        let hit = r.cast_objects(&[ray])?[0];
+        Ok((hit.prim != INVALID).then_some((hit.prim as usize, hit.t)))
     }
+}
+
+/// The render buffers of `scene` at `time` as `mode` says; where that fails, with a warning,
+/// the other layout (a scene too large to flatten is instanced, one that cannot be instanced
+/// is flattened).
+fn layout(scene: &Scene, time: f32, mode: InstancingMode) -> SceneGpu {
+    scene.gpu_data_as(time, mode).unwrap_or_else(|e| {
+        let other = match mode {
+            InstancingMode::Off => InstancingMode::On,
+            _ => InstancingMode::Off,
+        };
+        eprintln!("warning: {e}; trying --instancing {other:?}");
+        scene.gpu_data_as(time, other).unwrap_or_else(|e| {
+            eprintln!("warning: {e}");
+            SceneGpu::default()
+        })
+    })
 }
 
 #[cfg(test)]

@@ -95,7 +95,7 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
     let kernels = Arc::new(Kernels::new(&gpu)?);
     let mut renderer = GpuRenderer::new(&gpu, &kernels)?;
     renderer.set_build(prepared.build(1));
-    let mut live = LiveScene::new(prepared.scene);
+    let mut live = LiveScene::with_instancing(prepared.scene, args.scene.instancing);
     live.bvh = !args.scene.no_bvh;
     live.time = args.scene.time;
     live.forced = crate::features::Forced::parse(&args.scene.features)?;

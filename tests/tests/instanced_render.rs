@@ -1,0 +1,172 @@
+//! The path tracer through two levels (`--instancing on`): an instanced scene renders as the
+//! same scene flattened, on the CPU executor and the GPU; both levels come out of the GPU as
+//! the CPU builds them; picking names the instance's object; moving objects moves their
+//! instances; `--explain` says what was chosen; scenes that cannot be instanced are named.
+use integration_tests::{assert_no_validation_errors, gpu};
+use raytrace::cli::{compare, Prepared, SceneArgs};
+use raytrace::cpu::render_cpu;
+use raytrace::gpu::{GpuRenderer, Kernels};
+use raytrace::picture::diff_stats;
+use raytrace::scene::{InstancingMode, Scene, Shape};
+use shared::types::{Ray, FEATURE_INSTANCES, INVALID};
+use std::sync::Arc;
+
+fn prepared(scene: &str, size: u32, spp: u32, instancing: &str) -> Prepared {
+    let size = format!("{size}x{size}");
+    let spp = spp.to_string();
+    let args = [
+        "raytrace",
+        scene,
+        "--size",
+        &size,
+        "--spp",
+        &spp,
+        "--instancing",
+        instancing,
+    ];
+    <SceneArgs as clap::Parser>::parse_from(args).prepare().expect("scene")
+}
+
+/// Scenes of every kind of instance: the Cornell box (six instances of one quad, scaled
+/// unevenly and turned, one of them the light: an instanced emitter for next-event
+/// estimation), spheres (one-sphere meshes under uniform scales; metal and glass), Suzanne
+/// (vertex normals).
+const SCENES: [&str; 3] = ["cornell", "spheres", "suzanne"];
+
+#[test]
+fn an_instanced_scene_renders_as_its_flattened_form_on_the_cpu() {
+    for scene in SCENES {
+        let (on, off) = (prepared(scene, 40, 16, "on"), prepared(scene, 40, 16, "off"));
+        assert!(on.data.instancing.is_some() && off.data.instancing.is_none(), "{scene}");
+        assert_ne!(on.frame.features & FEATURE_INSTANCES, 0, "{scene}");
+        assert_eq!(on.frame.n_instances as usize, on.scene.objects.len(), "{scene}");
+        let cpu = |p: &Prepared| render_cpu(&p.data, &p.frame, p.spp, p.build(p.spp), &|_| {});
+        let (a, b) = (cpu(&on), cpu(&off));
+        // The same random streams: only the hits' last bits differ (the instance's triangle
+        // is hit in model space), and they flip few paths.
+        let d = diff_stats(&a.picture, &b.picture).expect("same size");
+        eprintln!("{scene}: relative RMSE {}", d.relative_rmse);
+        assert!(
+            d.relative_rmse < 0.02,
+            "{scene}: instanced and flattened differ: relative RMSE {} (means {:?} {:?})",
+            d.relative_rmse,
+            d.mean_a,
+            d.mean_b
+        );
+        assert!(b.picture.mean_luminance() > 0.0, "{scene} is black");
+    }
+}
+
+#[test]
+fn the_gpu_renders_instanced_scenes_as_the_cpu_and_as_flattened() {
+    let Some(gpu) = gpu("the_gpu_renders_instanced_scenes_as_the_cpu_and_as_flattened") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    for scene in SCENES {
+        let on = prepared(scene, 32, 8, "on");
+        let c = compare(&on, &gpu, &kernels, true).expect("compare");
+        // Both levels' nodes read back from the GPU equal the CPU executor's bit for bit.
+        assert!(c.bvh_identical, "{scene}: the GPU's levels differ from the CPU's");
+        assert!(
+            c.stats.relative_rmse < 0.02,
+            "{scene}: CPU and GPU differ: relative RMSE {}",
+            c.stats.relative_rmse
+        );
+        let off = prepared(scene, 32, 8, "off");
+        let flat = compare(&off, &gpu, &kernels, true).expect("compare");
+        let d = diff_stats(&c.gpu.picture, &flat.gpu.picture).expect("same size");
+        assert!(
+            d.relative_rmse < 0.02,
+            "{scene}: on the GPU instanced and flattened differ: relative RMSE {}",
+            d.relative_rmse
+        );
+    }
+    assert_no_validation_errors(&gpu);
+}
+
+#[test]
+fn moving_objects_moves_their_instances_and_picking_names_the_object() {
+    let Some(gpu) = gpu("moving_objects_moves_their_instances_and_picking_names_the_object") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    let p = prepared("instances", 16, 1, "on");
+    assert!(p.data.instancing.is_some());
+    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    r.load(&p.data, &p.frame).expect("load");
+    r.render(1, true).expect("render");
+    // A ray straight down onto bunny 5 (object 5): the instance's object, not the first
+    // object showing the bunny's triangles.
+    let down = |x: f32, z: f32| Ray {
+        origin: [x, 20.0, z, 0.0],
+        dir: [0.0, -1.0, 0.0, f32::INFINITY],
+    };
+    let at = |o: &shared::types::Object| (o.rows[0][3], o.rows[2][3]);
+    let (x, z) = at(&p.data.objects[5]);
+    let hit = r.cast_objects(&[down(x, z)]).expect("cast")[0];
+    assert_eq!(hit.prim, 5, "picked {hit:?}");
+    // Moved far away: the ray now finds the ground, and the bunny is found where it went.
+    let mut moved = p.data.objects.clone();
+    moved[5].rows[0][3] += 100.0;
+    r.set_objects(&moved).expect("move");
+    r.render(1, true).expect("render");
+    let ground = p.scene.objects.iter().position(|o| o.name == "ground");
+    let hits = r.cast_objects(&[down(x, z), down(x + 100.0, z)]).expect("cast");
+    assert_ne!(hits[0].prim, 5);
+    assert_eq!(hits[0].prim, ground.map_or(INVALID, |g| g as u32), "{hits:?}");
+    assert_eq!(hits[1].prim, 5, "{hits:?}");
+    // A transform that cannot be inverted is refused by the object's number; nothing moves.
+    let mut flat = moved.clone();
+    flat[7].rows[1] = [0.0; 4];
+    let e = r.set_objects(&flat).unwrap_err().to_string();
+    assert!(e.contains("object 7") && e.contains("singular"), "{e}");
+    r.render(1, true).expect("render");
+    assert_eq!(r.cast_objects(&[down(x + 100.0, z)]).expect("cast")[0].prim, 5);
+    assert_no_validation_errors(&gpu);
+}
+
+#[test]
+fn the_choice_is_explained_and_scenes_that_cannot_be_instanced_are_named() {
+    // Auto: the sixteen bunnies share one mesh (instanced); the bunny in the box does not.
+    let shared = prepared("instances", 8, 1, "auto");
+    assert!(shared.data.instancing.is_some());
+    let explain = shared.features.explain();
+    assert!(
+        explain.contains("instances") && explain.contains("every object an instance"),
+        "{explain}"
+    );
+    let single = prepared("bunny", 8, 1, "auto");
+    assert!(single.data.instancing.is_none());
+    assert!(
+        single.features.explain().contains("flattened"),
+        "{}",
+        single.features.explain()
+    );
+    // A sphere scaled unevenly would be an ellipsoid through its instance.
+    let mut scene = Scene::builtin("spheres").unwrap();
+    let k = scene
+        .objects
+        .iter()
+        .position(|o| matches!(o.shape, Shape::Sphere { .. }))
+        .unwrap();
+    scene.objects[k].transform.scale.x *= 2.0;
+    let e = scene.gpu_data_as(0.0, InstancingMode::On).unwrap_err();
+    assert!(e.contains(&format!("object {k}")) && e.contains("unevenly"), "{e}");
+    // Auto flattens it instead, and says why; off never instances.
+    let many = Scene::builtin("instances").unwrap();
+    let mut uneven = many.clone();
+    let light = uneven
+        .objects
+        .iter()
+        .position(|o| matches!(o.shape, Shape::Sphere { .. }))
+        .unwrap();
+    uneven.objects[light].transform.scale.y = 3.0;
+    let d = uneven.gpu_data_as(0.0, InstancingMode::Auto).unwrap();
+    assert!(
+        d.instancing.is_none() && d.instancing_why.contains("unevenly"),
+        "{}",
+        d.instancing_why
+    );
+    assert!(many.gpu_data_as(0.0, InstancingMode::Off).unwrap().instancing.is_none());
+}
