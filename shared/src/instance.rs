@@ -85,7 +85,20 @@ pub struct Instance {
 
 const _: () = assert!(size_of::<Instance>() == 96);
 
-impl Instance {
+/// What a walk through an instance keeps of it once the ray is in model space: where its
+/// mesh's nodes and primitives are, and its object (six words, not the instance's 24: the
+/// walk holds it in registers).
+#[derive(Copy, Clone, Debug, Default)]
+pub struct MeshRef {
+    pub nodes: u32,
+    pub tri0: u32,
+    pub n_tris: u32,
+    pub sphere0: u32,
+    pub n_spheres: u32,
+    pub object: u32,
+}
+
+impl MeshRef {
     /// Primitives of the mesh.
     pub fn prims(&self) -> u32 {
         self.n_tris + self.n_spheres
@@ -98,6 +111,20 @@ impl Instance {
             self.tri0 + local
         } else {
             n_tris_all + self.sphere0 + (local - self.n_tris)
+        }
+    }
+}
+
+impl Instance {
+    /// Its mesh and object.
+    pub fn mesh(&self) -> MeshRef {
+        MeshRef {
+            nodes: self.nodes,
+            tri0: self.tri0,
+            n_tris: self.n_tris,
+            sphere0: self.sphere0,
+            n_spheres: self.n_spheres,
+            object: self.object,
         }
     }
 

@@ -129,7 +129,7 @@ pub fn section(dir: &Path) -> Result<String> {
     }
     let mut realtime = Vec::new();
     let mut scenes = Vec::new();
-    for kind in ["realtime", "realtime-herd"] {
+    for kind in ["realtime", "realtime-herd", "realtime-forest"] {
         if let Some((path, v)) = newest(dir, kind)? {
             realtime.push(source(&path));
             for r in rows(&v) {
@@ -137,9 +137,11 @@ pub fn section(dir: &Path) -> Result<String> {
                 let scene = r["scene"].as_str().unwrap_or("?").to_string();
                 if r.get("bvh").is_none_or(|b| b == "Binary") && !scenes.contains(&scene) {
                     scenes.push(scene);
+                    let instanced = r.get("instanced").and_then(|v| v.as_bool()) == Some(true);
                     realtime.push(format!(
-                        "| {} | {} | {:.3} ms | {:.0} | {:.3} ms | {:.3} ms |",
+                        "| {}{} | {} | {:.3} ms | {:.0} | {:.3} ms | {:.3} ms |",
                         r["scene"].as_str().unwrap_or("?"),
+                        if instanced { " (instanced)" } else { "" },
                         r["triangles"].as_u64().unwrap_or(0) + r["spheres"].as_u64().unwrap_or(0),
                         num(&r["gpu_ms"], "p50"),
                         num(r, "fps"),
@@ -154,7 +156,8 @@ pub fn section(dir: &Path) -> Result<String> {
         let (sources, lines): (Vec<_>, Vec<_>) = realtime.into_iter().partition(|l| l.starts_with('['));
         let _ = writeln!(
             s,
-            "Real-time frames: 1920x1080, 1 spp, depth 4, everything rebuilt every frame (sources: {}):\n",
+            "Real-time frames: 1920x1080, 1 spp, depth 4, everything rebuilt every frame (instanced: \
+             the top level over the objects; sources: {}):\n",
             sources.join(", ")
         );
         let _ = writeln!(s, "| scene | primitives | GPU frame p50 | fps | rebuild | trace |");

@@ -139,6 +139,7 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             let size = format!("{}x{}", o.size.0, o.size.1);
             let depth = o.depth.to_string();
             let instancing = format!("{:?}", o.instancing).to_lowercase();
+            let spf = o.spf.to_string();
             let mut args = vec![
                 "raytrace",
                 scene,
@@ -148,6 +149,8 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
                 &depth,
                 "--instancing",
                 &instancing,
+                "--spp",
+                &spf,
             ];
             if !nee {
                 args.push("--no-nee");

@@ -47,17 +47,13 @@ pub struct SceneGpu {
 /// flattened into one world-space BVH (`--instancing`).
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 pub enum InstancingMode {
-    /// Instanced where objects share meshes: flattening would copy at least [`AUTO_REUSE`]
-    /// times the distinct primitives, and [`AUTO_SAVED`] more.
+    /// Instanced where the rebuild saved outweighs the cost of tracing two levels
+    /// ([`auto_instances`]), or where the scene is too large to flatten.
     #[default]
     Auto,
     On,
     Off,
 }
-
-/// [`InstancingMode::Auto`] instances a scene whose flattened primitives number at least this
-/// many times its distinct ones, and at least [`AUTO_SAVED`] more.
-pub const AUTO_REUSE: u64 = 2;
 
 /// The most primitives [`Scene::gpu_data_as`] flattens: at [`FLAT_BYTES`] each, a build
 /// of more would not fit an 80 GB GPU.
@@ -67,10 +63,22 @@ pub const MAX_FLATTENED: u64 = 200_000_000;
 /// nodes (64) and the builder's scratch (181).
 pub const FLAT_BYTES: u64 = 293;
 
-/// The copies a scene must save to be instanced by [`InstancingMode::Auto`]: below this, a
-/// frame's transform and rebuild of the flattened scene cost less than walking two levels
-/// (a small scene whose walls share one quad stays flattened).
-pub const AUTO_SAVED: u64 = 500_000;
+/// Whether [`InstancingMode::Auto`] instances a scene of `flattened` primitives, `distinct`
+/// of them distinct, whose one build serves `samples` samples. Measured on the H100 (1080p,
+/// 1 sample a pixel, depth 4; bench/NOTES.md, session 24): the flattened rebuild costs about
+/// 0.38 ns a primitive (herd: 3.8 ms for 10M) and tracing two levels about 0.75 ns a sample
+/// more than one BVH (instances +1.2 ms, herd +1.4 ms), so instancing pays where the copies
+/// it saves exceed twice the samples: the herd's real-time frames (10M primitives, 69,669
+/// distinct: 7.9 against 10.2 ms), not the sixteen bunnies' (1.1M: 4.8 against 3.6 ms), nor
+/// a still of many samples. A scene must also repeat its meshes at least twice over, and
+/// save at least [`AUTO_MIN_SAVED`] copies.
+pub fn auto_instances(flattened: u64, distinct: u64, samples: u64) -> bool {
+    let saved = flattened.saturating_sub(distinct);
+    flattened >= 2 * distinct && saved >= AUTO_MIN_SAVED.max(2 * samples)
+}
+
+/// Copies below which instancing never pays: their rebuild takes under 0.04 ms.
+pub const AUTO_MIN_SAVED: u64 = 100_000;
 
 /// An instanced scene's two levels: what `bvh::build_levels` and `gpu::GpuLevels` build, and
 /// what the path tracer's lights need besides (object `k` is instance `k`).
@@ -258,10 +266,20 @@ impl Scene {
         }
     }
 
-    /// The render buffers at `time_s`, instanced or flattened as `mode` says (see
-    /// [`InstancingMode`]), with the reason in `instancing_why`. `On` fails where the scene
-    /// cannot be instanced (see [`Scene::gpu_data_instanced`]); `Auto` then flattens it.
+    /// The render buffers at `time_s`, instanced or flattened as `mode` says, for a render
+    /// whose one build serves the scene's settings' samples (width x height x spp): see
+    /// [`Scene::gpu_data_for`].
     pub fn gpu_data_as(&self, time_s: f32, mode: InstancingMode) -> Result<SceneGpu, String> {
+        let s = &self.settings;
+        self.gpu_data_for(time_s, mode, s.width as u64 * s.height as u64 * s.spp as u64)
+    }
+
+    /// The render buffers at `time_s`, instanced or flattened as `mode` says (see
+    /// [`InstancingMode`]), where one build of the BVH serves `samples` samples (a still: every
+    /// pixel's samples; a real-time frame: one a pixel), with the reason in `instancing_why`.
+    /// `On` fails where the scene cannot be instanced (see [`Scene::gpu_data_instanced`]);
+    /// `Auto` then flattens it. Neither flattens more than [`MAX_FLATTENED`] primitives.
+    pub fn gpu_data_for(&self, time_s: f32, mode: InstancingMode, samples: u64) -> Result<SceneGpu, String> {
         let (tris, spheres) = self.counts();
         let flattened = (tris + spheres) as u64;
         let mut used = vec![false; self.meshes.len()];
@@ -304,16 +322,23 @@ impl Scene {
         match mode {
             InstancingMode::Off => flat(format!("flattened (--instancing off); {reuse}")),
             InstancingMode::On => instanced(format!("every object an instance (--instancing on); {reuse}")),
-            InstancingMode::Auto if flattened >= AUTO_REUSE * distinct && flattened >= distinct + AUTO_SAVED => {
-                match instanced(format!(
-                    "every object an instance: {reuse} (auto: at least {AUTO_REUSE}x and {AUTO_SAVED} copies saved)"
-                )) {
+            InstancingMode::Auto if too_many || auto_instances(flattened, distinct, samples) => {
+                let why = if too_many {
+                    format!("every object an instance: {reuse}, too many to flatten")
+                } else {
+                    format!(
+                        "every object an instance: {reuse}; the rebuild saved outweighs the two levels' \
+                         trace for {samples} samples a build (auto)"
+                    )
+                };
+                match instanced(why) {
                     Ok(d) => Ok(d),
                     Err(e) => flat(format!("flattened: {e}")),
                 }
             }
             InstancingMode::Auto => flat(format!(
-                "flattened: {reuse} (auto instances from {AUTO_REUSE}x and {AUTO_SAVED} copies saved)"
+                "flattened: {reuse}; for {samples} samples a build one BVH traces faster than the rebuild \
+                 costs (auto)"
             )),
         }
     }

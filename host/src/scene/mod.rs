@@ -19,7 +19,7 @@ mod transform;
 mod validate;
 
 pub use error::SceneError;
-pub use gpu::{Instancing, InstancingMode, SceneGpu, AUTO_REUSE, AUTO_SAVED};
+pub use gpu::{auto_instances, Instancing, InstancingMode, SceneGpu, AUTO_MIN_SAVED, MAX_FLATTENED};
 pub use transform::{Animation, Bob, Orbit, Transform};
 
 use glam::Vec3;

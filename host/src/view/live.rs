@@ -228,17 +228,18 @@ impl LiveScene {
     }
 }
 
-/// The render buffers of `scene` at `time` as `mode` says; where that fails, with a warning,
-/// the other layout (a scene too large to flatten is instanced, one that cannot be instanced
-/// is flattened).
+/// The render buffers of `scene` at `time` as `mode` says, for frames of one sample a pixel
+/// (a moving scene's); where that fails, with a warning, the other layout (a scene too large
+/// to flatten is instanced, one that cannot be instanced is flattened).
 fn layout(scene: &Scene, time: f32, mode: InstancingMode) -> SceneGpu {
-    scene.gpu_data_as(time, mode).unwrap_or_else(|e| {
+    let pixels = scene.settings.width as u64 * scene.settings.height as u64;
+    scene.gpu_data_for(time, mode, pixels).unwrap_or_else(|e| {
         let other = match mode {
             InstancingMode::Off => InstancingMode::On,
             _ => InstancingMode::Off,
         };
         eprintln!("warning: {e}; trying --instancing {other:?}");
-        scene.gpu_data_as(time, other).unwrap_or_else(|e| {
+        scene.gpu_data_for(time, other, pixels).unwrap_or_else(|e| {
             eprintln!("warning: {e}");
             SceneGpu::default()
         })
