@@ -537,12 +537,11 @@ fn visit(s: &Scene, r: &TriRay, child: u32, first_leaf: u32, limit: &mut f32, be
 /// flattened scene, the unit geometric normal there, and the primitive's scale for
 /// [`intersect::offset_origin`].
 pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3, f32) {
-    let world = Placed {
-        prim,
-        object: INVALID,
-        model: false,
-    };
-    surface_at(s, &[], world, origin, dir, h)
+    if s.is_triangle(prim) {
+        triangle_surface(at(s.tris, prim), h)
+    } else {
+        sphere_surface(at(s.spheres, prim - s.n_tris), origin, dir, h)
+    }
 }
 
 /// Primitive `p.prim` as a world-space triangle: as stored, or taken from its object's model
@@ -572,19 +571,31 @@ pub fn sphere_at(s: &Scene, objects: &[Object], p: Placed) -> Sphere {
 /// [`surface`] of primitive `p.prim` as `p` places it (`objects`: the scene's objects, read
 /// for a primitive in model space).
 pub fn surface_at(s: &Scene, objects: &[Object], p: Placed, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3, f32) {
-    if s.is_triangle(p.prim) {
-        let t = &triangle_at(s, objects, p);
-        (
-            intersect::triangle_point(t, h.u, h.v),
-            intersect::triangle_normal(t).normalize(),
-            intersect::triangle_scale(t),
-        )
+    // A world-space primitive is read where it lies (a flattened scene's kernel has no other
+    // code here: the feature is a specialisation constant).
+    if s.features & FEATURE_INSTANCES == 0 || !p.model {
+        surface(s, p.prim, origin, dir, h)
+    } else if s.is_triangle(p.prim) {
+        triangle_surface(&triangle_at(s, objects, p), h)
     } else {
-        let sphere = &sphere_at(s, objects, p);
-        let sp = sphere.center_radius;
-        let c = xyz(sp);
-        let n = (origin + h.t * dir - c).normalize();
-        // Re-projected onto the surface: the hit point's error no longer grows with t.
-        (c + n * sp[3].abs(), n, intersect::sphere_scale(sphere))
+        sphere_surface(&sphere_at(s, objects, p), origin, dir, h)
     }
+}
+
+/// [`surface`] on world-space triangle `t`.
+fn triangle_surface(t: &Triangle, h: &Hit) -> (Vec3, Vec3, f32) {
+    (
+        intersect::triangle_point(t, h.u, h.v),
+        intersect::triangle_normal(t).normalize(),
+        intersect::triangle_scale(t),
+    )
+}
+
+/// [`surface`] on world-space sphere `sphere`.
+fn sphere_surface(sphere: &Sphere, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3, f32) {
+    let sp = sphere.center_radius;
+    let c = xyz(sp);
+    let n = (origin + h.t * dir - c).normalize();
+    // Re-projected onto the surface: the hit point's error no longer grows with t.
+    (c + n * sp[3].abs(), n, intersect::sphere_scale(sphere))
 }

@@ -175,7 +175,11 @@ fn the_choice_is_explained_and_scenes_that_cannot_be_instanced_are_named() {
         .position(|o| matches!(o.shape, Shape::Sphere { .. }))
         .unwrap();
     uneven.objects[light].transform.scale.y = 3.0;
-    assert!(many.gpu_data_for(0.0, InstancingMode::Auto, 1).unwrap().instancing.is_some());
+    assert!(many
+        .gpu_data_for(0.0, InstancingMode::Auto, 1)
+        .unwrap()
+        .instancing
+        .is_some());
     let d = uneven.gpu_data_for(0.0, InstancingMode::Auto, 1).unwrap();
     assert!(
         d.instancing.is_none() && d.instancing_why.contains("unevenly"),

@@ -139,10 +139,15 @@ impl GpuLevels {
             rows.len(),
             self.layout.instances.len()
         );
+        // Inverted again only where moved: most of a large scene's instances stand still.
         let inverses = rows
             .iter()
+            .zip(&self.layout.instances)
             .enumerate()
-            .map(|(k, r)| inverse_rows(r).map_err(|e| anyhow!("instance {k}: {e}")))
+            .map(|(k, (r, inst))| match self.layout.objects.get(inst.object as usize) {
+                Some(o) if o.rows == *r => Ok(inst.to_model),
+                _ => inverse_rows(r).map_err(|e| anyhow!("instance {k}: {e}")),
+            })
             .collect::<Result<Vec<_>>>()?;
         for ((inst, obj), (r, inv)) in self
             .layout

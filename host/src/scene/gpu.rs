@@ -119,6 +119,20 @@ impl SceneGpu {
     }
 }
 
+/// Writes `o`'s transform at `time_s` into `object`: its rows, the cofactor rows that take
+/// normals to world space, and the largest scale (spheres' radii).
+fn place(object: &mut Object, o: &super::SceneObject, time_s: f32) {
+    let t = o.transform_at(time_s);
+    let m = t.matrix();
+    let c = m.matrix3;
+    let row = |r: usize| [c.x_axis[r], c.y_axis[r], c.z_axis[r], m.translation[r]];
+    let n = super::attrs::cofactor(c.into());
+    let normal_row = |r: usize| [n.x_axis[r], n.y_axis[r], n.z_axis[r], 0.0];
+    object.rows = [row(0), row(1), row(2)];
+    object.normal_rows = [normal_row(0), normal_row(1), normal_row(2)];
+    object.radius_scale = t.scale.abs().max_element();
+}
+
 /// Probability with which next-event estimation samples the environment map when the scene
 /// also has other lights (1 without them).
 pub const ENV_LIGHT_PROB: f32 = 0.5;
@@ -137,12 +151,6 @@ impl Scene {
         self.objects
             .iter()
             .map(|o| {
-                let t = o.transform_at(time_s);
-                let m = t.matrix();
-                let c = m.matrix3;
-                let row = |r: usize| [c.x_axis[r], c.y_axis[r], c.z_axis[r], m.translation[r]];
-                let n = super::attrs::cofactor(c.into());
-                let normal_row = |r: usize| [n.x_axis[r], n.y_axis[r], n.z_axis[r], 0.0];
                 let (first_prim, attrs) = match o.shape {
                     Shape::Mesh(k) => {
                         let first = next_tri;
@@ -154,16 +162,29 @@ impl Scene {
                         (next_sphere - 1, INVALID)
                     }
                 };
-                Object {
-                    rows: [row(0), row(1), row(2)],
-                    normal_rows: [normal_row(0), normal_row(1), normal_row(2)],
-                    radius_scale: t.scale.abs().max_element(),
+                let mut object = Object {
                     material: o.material,
                     first_prim,
                     attrs,
-                }
+                    ..Default::default()
+                };
+                place(&mut object, o, time_s);
+                object
             })
             .collect()
+    }
+
+    /// `objects` (as `data` lays them out) moved to `time_s`: the animated objects' and
+    /// `edited`'s transforms made again, every other object's kept. What a real-time frame
+    /// needs, without the work for every object of a large scene.
+    pub fn objects_moved(&self, objects: &[Object], edited: &[usize], time_s: f32) -> Vec<Object> {
+        let mut moved = objects.to_vec();
+        for (k, (o, m)) in self.objects.iter().zip(moved.iter_mut()).enumerate() {
+            if o.animation != Default::default() || edited.contains(&k) {
+                place(m, o, time_s);
+            }
+        }
+        moved
     }
 
     /// Every object at `time_s` as `data` lays the primitives out (instanced or flattened):
@@ -584,6 +605,22 @@ mod tests {
             }
         }
         assert_eq!((o.radius_scale, o.material), (2.0, 1));
+    }
+
+    #[test]
+    fn moving_objects_makes_again_only_the_animated_and_the_edited() {
+        let mut scene = small_scene();
+        scene.objects[1].animation = Animation::default();
+        let data = scene.gpu_data(0.0);
+        // From time 0 to 1: the spinning objects turn, the still one stays.
+        let moved = scene.objects_moved(&data.objects, &[], 1.0);
+        assert_eq!(moved, scene.objects_in(&data, 1.0));
+        assert_ne!(moved[0], data.objects[0]);
+        assert_eq!(moved[1], data.objects[1]);
+        // The still object edited: made again only when named.
+        scene.objects[1].transform.translation.x += 1.0;
+        assert_ne!(scene.objects_moved(&data.objects, &[], 1.0), scene.objects_in(&data, 1.0));
+        assert_eq!(scene.objects_moved(&data.objects, &[1], 1.0), scene.objects_in(&data, 1.0));
     }
 
     #[test]
