@@ -206,6 +206,43 @@ fn objects_are_added_picked_moved_and_removed_in_the_window() {
 }
 
 #[test]
+fn instances_are_added_picked_moved_and_removed_in_the_window() {
+    // The same edits with every object an instance of its mesh: picking names the instance's
+    // object, a move rebuilds the top level, additions and removals load the scene again, and
+    // the statistics check both levels against the CPU executor's.
+    let test = "instances_are_added_picked_moved_and_removed_in_the_window";
+    let args = [
+        "--validation",
+        "view",
+        "cornell",
+        "--instancing",
+        "on",
+        "--size",
+        "64x64",
+        "--frames",
+        "12",
+        "--script",
+        "2:add-sphere,4:pick=32;32,5:move=0;50;0,6:stats,7:remove=32;27,9:remove=32;56,10:add-mesh,11:stats",
+    ];
+    let Some(o) = run_windowed(test, &args) else {
+        return;
+    };
+    let stdout = check(test, &o);
+    for want in [
+        "new object added sphere 1 (selected)",
+        "selected added sphere 1",
+        "removed added sphere 1",
+        "removed short block",
+        "new object added builtin:cube 2 (selected)",
+        "two levels valid: 9 instances",
+        "two levels valid: 8 instances",
+    ] {
+        assert!(stdout.contains(want), "{test}: expected {want:?} in\n{stdout}");
+    }
+    assert!(!stdout.contains("DIFFER"), "{test}: GPU and CPU levels differ:\n{stdout}");
+}
+
+#[test]
 fn a_still_denoised_viewer_converges_to_the_headless_render() {
     // The denoiser is on by default. 7 frames of 16 samples: the first six (16 to 96
     // samples per pixel) are denoised, the seventh (112) shows the accumulation itself,

@@ -327,76 +327,12 @@ fn herd(label: &str) -> Result<Scene, SceneError> {
 /// triangles, counter-clockwise seen from outside), its vertices pushed in and out by a few
 /// fixed waves so that it reads as foliage rather than a ball.
 fn canopy(levels: u32) -> Vec<Triangle> {
-    let t = (1.0 + 5f32.sqrt()) / 2.0;
-    let mut v: Vec<Vec3> = [
-        (-1.0, t, 0.0),
-        (1.0, t, 0.0),
-        (-1.0, -t, 0.0),
-        (1.0, -t, 0.0),
-        (0.0, -1.0, t),
-        (0.0, 1.0, t),
-        (0.0, -1.0, -t),
-        (0.0, 1.0, -t),
-        (t, 0.0, -1.0),
-        (t, 0.0, 1.0),
-        (-t, 0.0, -1.0),
-        (-t, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
-    .collect();
-    let mut faces: Vec<[usize; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut middle = std::collections::HashMap::new();
-        let mut mid = |a: usize, b: usize, v: &mut Vec<Vec3>| {
-            *middle.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                v.push(((v[a] + v[b]) / 2.0).normalize());
-                v.len() - 1
-            })
-        };
-        faces = faces
-            .iter()
-            .flat_map(|&[a, b, c]| {
-                let (ab, bc, ca) = (mid(a, b, &mut v), mid(b, c, &mut v), mid(c, a, &mut v));
-                [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
-            })
-            .collect();
-    }
-    let bump = |p: Vec3| {
+    let mut ball = inputs::hard_cases::icosphere(levels);
+    for p in &mut ball.verts {
         let w = (7.0 * p.x).sin() * (5.0 * p.y).cos() + (9.0 * p.z + 2.0 * p.x).sin() * 0.6 + (13.0 * p.y).sin() * 0.3;
-        p * (1.0 + 0.08 * w)
-    };
-    let v: Vec<Vec3> = v.into_iter().map(bump).collect();
-    let p = |i: usize| [v[i].x, v[i].y, v[i].z, 0.0];
-    faces
-        .iter()
-        .map(|&[a, b, c]| Triangle {
-            v0: p(a),
-            v1: p(b),
-            v2: p(c),
-        })
-        .collect()
+        *p *= 1.0 + 0.08 * w;
+    }
+    ball.triangles(Vec3::ZERO)
 }
 
 /// A closed cylinder of unit radius from y = 0 to y = 1, `sides` sides (4 * sides triangles,

@@ -619,8 +619,14 @@ mod tests {
         assert_eq!(moved[1], data.objects[1]);
         // The still object edited: made again only when named.
         scene.objects[1].transform.translation.x += 1.0;
-        assert_ne!(scene.objects_moved(&data.objects, &[], 1.0), scene.objects_in(&data, 1.0));
-        assert_eq!(scene.objects_moved(&data.objects, &[1], 1.0), scene.objects_in(&data, 1.0));
+        assert_ne!(
+            scene.objects_moved(&data.objects, &[], 1.0),
+            scene.objects_in(&data, 1.0)
+        );
+        assert_eq!(
+            scene.objects_moved(&data.objects, &[1], 1.0),
+            scene.objects_in(&data, 1.0)
+        );
     }
 
     #[test]

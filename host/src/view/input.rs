@@ -51,6 +51,8 @@ pub(super) enum Action {
     Restore,
     /// Denoiser on or off.
     Denoise(bool),
+    /// What the I key prints.
+    Stats,
 }
 
 pub(super) fn parse_action(s: &str) -> Result<(u64, Action)> {
@@ -85,6 +87,7 @@ pub(super) fn parse_action(s: &str) -> Result<(u64, Action)> {
         "minimize" => Action::Minimize,
         "restore" => Action::Restore,
         "denoise" => Action::Denoise(switch(s, arg)?),
+        "stats" => Action::Stats,
         other => bail!("script step {s:?}: unknown action {other:?}"),
     };
     Ok((frame, a))
@@ -195,6 +198,7 @@ impl App {
                 self.denoise = d;
                 println!("denoiser {}", on(d));
             }
+            Action::Stats => self.print_statistics()?,
         }
         Ok(())
     }

@@ -57,7 +57,8 @@ pub struct ViewArgs {
     pub no_denoise: bool,
     /// Actions at given frames, for tests and demos: `FRAME:ACTION,...` with ACTION one of
     /// add-sphere, add-mesh, pick=X;Y, remove=X;Y, move=DX;DY;DZ, rotate=DEG, resize=WxH,
-    /// fly=RIGHT;UP;FORWARD (the camera, world units), minimize, restore, denoise=on|off.
+    /// fly=RIGHT;UP;FORWARD (the camera, world units), minimize, restore, denoise=on|off, stats
+    /// (what the I key prints).
     #[arg(long, value_delimiter = ',')]
     pub script: Vec<String>,
 }

@@ -97,10 +97,38 @@ impl App {
             println!("  {label:<10} {:8.3} ms", t * 1e3);
         }
         let bvh = self.renderer.bvh()?;
-        let (tris, spheres) = self.renderer.world()?;
-        match crate::bvh::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
-            Ok(s) => println!("BVH valid: {s:?}"),
-            Err(e) => println!("BVH INVALID: {e}"),
+        if let Some(i) = &d.instancing {
+            // Two levels: built again by the CPU executor, validated, and compared bit for bit.
+            let (instanced, distinct) = i.counts();
+            let placements: Vec<_> = i
+                .placements
+                .iter()
+                .zip(&d.objects)
+                .map(|(p, o)| crate::bvh::Placement { rows: o.rows, ..*p })
+                .collect();
+            let opts = crate::bvh::BuildOptions {
+                wide: false,
+                ..self.renderer.build_options()
+            };
+            let checked = crate::bvh::build_levels(&i.meshes, &placements, opts).and_then(|l| {
+                crate::bvh::validate_levels(&l, &i.meshes, &placements)?;
+                Ok(l.nodes == bvh.nodes)
+            });
+            match checked {
+                Ok(same) => println!(
+                    "two levels valid: {} instances of {distinct} distinct primitives ({instanced} instanced); \
+                     the GPU's nodes {} the CPU executor's",
+                    placements.len(),
+                    if same { "equal" } else { "DIFFER from" }
+                ),
+                Err(e) => println!("two levels INVALID: {e}"),
+            }
+        } else {
+            let (tris, spheres) = self.renderer.world()?;
+            match crate::bvh::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
+                Ok(s) => println!("BVH valid: {s:?}"),
+                Err(e) => println!("BVH INVALID: {e}"),
+            }
         }
         println!(
             "denoiser {}: the last frame is {}",
