@@ -49,6 +49,9 @@ pub struct Row {
     pub instanced: bool,
     /// Primitives the GPU holds: each mesh once where instanced.
     pub distinct: u64,
+    /// Device bytes of the BVH and its primitives (`GpuRenderer::bvh_memory`): both levels
+    /// where instanced, the flattened scene's builder otherwise.
+    pub bvh_bytes: u64,
     /// GPU time of a whole frame (timestamps, first to last), ms.
     pub gpu_ms: Percentiles,
     /// Transform + BVH rebuild, ms.
@@ -260,6 +263,7 @@ fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Opti
         },
         instanced: data.instancing.is_some(),
         distinct: (data.model_tris.len() + data.model_spheres.len()) as u64,
+        bvh_bytes: r.bvh_memory(),
         fps: 1e3 / gpu_ms.p50,
         gpu_ms,
         build_ms: Percentiles::of(plain.build),
@@ -282,9 +286,9 @@ fn row_line(r: &Row) -> String {
         if r.animated { "yes" } else { "no" },
         if r.nee { "on" } else { "off" },
         if r.instanced {
-            format!("two levels ({} distinct)", r.distinct)
+            format!("two levels ({} distinct, {:.1} MB)", r.distinct, r.bvh_bytes as f64 * 1e-6)
         } else {
-            format!("{:?}", r.bvh)
+            format!("{:?} ({:.1} MB)", r.bvh, r.bvh_bytes as f64 * 1e-6)
         },
         r.gpu_ms.p50,
         r.gpu_ms.p90,

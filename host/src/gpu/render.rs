@@ -386,6 +386,18 @@ impl GpuRenderer {
         Ok(())
     }
 
+    /// Device bytes of the BVH and the primitives it holds: both levels (meshes' primitives
+    /// and nodes, instances, the top level's builder) where instanced, else the builder's.
+    pub fn bvh_memory(&self) -> u64 {
+        match &self.levels {
+            Some(l) => l.memory(),
+            None => {
+                let (nodes, rest) = self.lbvh.memory();
+                nodes + rest
+            }
+        }
+    }
+
     /// Set 0 of the tracers: the two levels' buffers, or the builder's.
     fn trace_set(&self) -> Result<ash::vk::DescriptorSet> {
         match &self.levels {
