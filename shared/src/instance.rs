@@ -18,8 +18,7 @@ use spirv_std::glam::Vec3;
 
 /// A primitive as shading meets it: the object that shows it, and whether the primitive is
 /// stored in that object's model space (a mesh of an instance, taken to world space by the
-/// object's transform where it is shaded) or already in world space (a flattened scene, or
-/// the world-space group of an instanced one).
+/// object's transform where it is shaded) or already in world space (a flattened scene).
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct Placed {
     pub prim: u32,
@@ -37,14 +36,9 @@ impl Placed {
         }
     }
 
-    /// Primitive `prim` hit through instance `instance` of `instances` ([`INVALID`]: not
-    /// through an instance, a flattened scene).
-    pub fn hit(instances: &[Instance], prim_object: &[u32], instance: u32, prim: u32) -> Placed {
-        let object = if instance == INVALID {
-            INVALID
-        } else {
-            at(instances, instance).object
-        };
+    /// Primitive `prim` shown in its model space by `object`, or ([`INVALID`]) a world-space
+    /// primitive (its object from `prim_object`).
+    pub fn shown(prim_object: &[u32], object: u32, prim: u32) -> Placed {
         if object == INVALID {
             Placed::world(prim_object, prim)
         } else {
@@ -54,6 +48,17 @@ impl Placed {
                 model: true,
             }
         }
+    }
+
+    /// Primitive `prim` hit through instance `instance` of `instances` ([`INVALID`]: not
+    /// through an instance, a flattened scene).
+    pub fn hit(instances: &[Instance], prim_object: &[u32], instance: u32, prim: u32) -> Placed {
+        let object = if instance == INVALID {
+            INVALID
+        } else {
+            at(instances, instance).object
+        };
+        Placed::shown(prim_object, object, prim)
     }
 }
 
@@ -70,9 +75,7 @@ pub struct Instance {
     /// The mesh's box in model space (its BVH's root box).
     pub lo: [f32; 3],
     /// The object it shows: its transform to world (`Object::rows`, what [`instance_box`]
-    /// reads), material and vertex attributes. [`INVALID`] for the world-space group: the
-    /// primitives the renderer keeps in world space (flattened), under an identity
-    /// transform, each primitive's object from `prim_object`.
+    /// reads), material and vertex attributes.
     pub object: u32,
     pub hi: [f32; 3],
     /// The mesh's first node in the bottom-level node buffer.
@@ -141,9 +144,6 @@ impl Instance {
     }
 }
 
-/// The identity transform (3x4, row-major): the world-space group's.
-pub const IDENTITY: [[f32; 4]; 3] = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
-
 /// `2^-21`: four units of roundoff, the relative margin [`world_box`] adds.
 const MARGIN: f32 = 1.0 / 2_097_152.0;
 
@@ -174,11 +174,7 @@ pub fn instance_box(i: u32, n: u32, instances: &[Instance], objects: &[Object], 
         return;
     }
     let inst = at(instances, i);
-    let rows = if inst.object == INVALID {
-        IDENTITY
-    } else {
-        at(objects, inst.object).rows
-    };
+    let rows = at(objects, inst.object).rows;
     let (lo, hi) = world_box(&rows, Vec3::from(inst.lo), Vec3::from(inst.hi));
     *at_mut(out, i) = box_triangle(lo, hi);
 }

@@ -81,15 +81,7 @@ impl World<'_> {
         } else {
             INVALID
         };
-        if object == INVALID {
-            Placed::world(self.prim_object, prim)
-        } else {
-            Placed {
-                prim,
-                object,
-                model: true,
-            }
-        }
+        Placed::shown(self.prim_object, object, prim)
     }
 
     fn bvh(&self) -> bool {
