@@ -105,10 +105,7 @@ pub fn settings_hash(p: &Prepared) -> String {
     h.add(bytemuck::cast_slice(&d.prim_object));
     h.add(bytemuck::cast_slice(&d.objects));
     h.add(bytemuck::cast_slice(&d.materials));
-    h.add(bytemuck::cast_slice(&d.lights));
-    if let Some(i) = &d.instancing {
-        h.add(bytemuck::cast_slice(&i.light_objects));
-    }
+    h.add(bytemuck::cast_slice(&d.light_words()));
     h.add(bytemuck::cast_slice(&d.attrs));
     h.add(bytemuck::cast_slice(&d.punctual));
     h.add(bytemuck::cast_slice(

@@ -125,9 +125,22 @@ impl LevelsLayout {
     }
 }
 
+/// An instance [`layout`] cannot place, and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LayoutError {
+    pub instance: usize,
+    pub problem: String,
+}
+
+impl std::fmt::Display for LayoutError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "instance {}: {}", self.instance, self.problem)
+    }
+}
+
 /// The [`LevelsLayout`] of `placements` of `meshes`. Errors name the instance and its problem: a
 /// mesh that does not exist or is empty, a transform that cannot be inverted.
-pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLayout, String> {
+pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLayout, LayoutError> {
     let mut l = LevelsLayout::default();
     let mut boxes = Vec::with_capacity(meshes.len());
     for m in meshes {
@@ -142,16 +155,18 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
     }
     for (k, p) in placements.iter().enumerate() {
         let Some(m) = meshes.get(p.mesh) else {
-            return Err(format!(
-                "instance {k} shows mesh {}, and there are {} meshes",
-                p.mesh,
-                meshes.len()
-            ));
+            return Err(LayoutError {
+                instance: k,
+                problem: format!("it shows mesh {}, and there are {} meshes", p.mesh, meshes.len()),
+            });
         };
         if m.tris.is_empty() && m.spheres.is_empty() {
-            return Err(format!("instance {k} shows mesh {}, which has no primitives", p.mesh));
+            return Err(LayoutError {
+                instance: k,
+                problem: format!("it shows mesh {}, which has no primitives", p.mesh),
+            });
         }
-        let to_model = inverse_rows(&p.rows).map_err(|e| format!("instance {k}: {e}"))?;
+        let to_model = inverse_rows(&p.rows).map_err(|problem| LayoutError { instance: k, problem })?;
         let (lo, hi) = boxes[p.mesh];
         l.instances.push(Instance {
             to_model,
@@ -175,7 +190,7 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
 /// Builds both levels on the CPU executor with `opts` (binary trees: the two-level walk
 /// does not read the wide layout), in the [`layout`] of `placements`, whose errors it returns.
 pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildOptions) -> Result<Levels, String> {
-    let layout = layout(meshes, placements)?;
+    let layout = layout(meshes, placements).map_err(|e| e.to_string())?;
     let opts = BuildOptions { wide: false, ..opts };
     let mut l = Levels {
         mesh_nodes: layout.mesh_nodes.clone(),

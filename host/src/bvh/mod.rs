@@ -3,7 +3,9 @@
 mod levels;
 mod validate;
 
-pub use levels::{build_levels, inverse_rows, layout, validate_levels, Levels, LevelsLayout, MeshPrims, Placement};
+pub use levels::{
+    build_levels, inverse_rows, layout, validate_levels, LayoutError, Levels, LevelsLayout, MeshPrims, Placement,
+};
 pub use validate::{validate, validate_wide, BvhStats, WideStats};
 
 use shared::types::{Node, OrderedBounds};

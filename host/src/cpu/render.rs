@@ -62,15 +62,15 @@ pub fn world_primitives(scene: &SceneGpu) -> (Vec<Triangle>, Vec<Sphere>) {
 /// inverted stays where the data put it, with a warning.
 fn levels_at(i: &Instancing, objects: &[Object], build: BuildOptions) -> Levels {
     let placements: Vec<Placement> = i
-        .placements
-        .iter()
-        .zip(objects)
+        .placements_at(objects)
+        .into_iter()
+        .zip(&i.placements)
         .enumerate()
-        .map(|(k, (p, o))| match inverse_rows(&o.rows) {
-            Ok(_) => Placement { rows: o.rows, ..*p },
+        .map(|(k, (moved, made))| match inverse_rows(&moved.rows) {
+            Ok(_) => moved,
             Err(e) => {
                 eprintln!("warning: object {k} is not moved: {e}");
-                *p
+                *made
             }
         })
         .collect();
@@ -135,10 +135,7 @@ pub fn render_cpu_samples(
         timings.push(("levels", t.elapsed().as_secs_f64()));
     }
     // Lights, and with two levels the objects showing them.
-    let lights = match &scene.instancing {
-        Some(i) => [scene.lights.as_slice(), &i.light_objects].concat(),
-        None => scene.lights.clone(),
-    };
+    let lights = scene.light_words();
 
     let t = Instant::now();
     let features = crate::render::tracer_features(frame.features, build);

@@ -146,7 +146,7 @@ impl GpuLevels {
             .enumerate()
             .map(|(k, (r, inst))| match self.layout.objects.get(inst.object as usize) {
                 Some(o) if o.rows == *r => Ok(inst.to_model),
-                _ => inverse_rows(r).map_err(|e| anyhow!("instance {k}: {e}")),
+                _ => inverse_rows(r).map_err(|e| anyhow!("instance {k} (object {}): {e}", inst.object)),
             })
             .collect::<Result<Vec<_>>>()?;
         for ((inst, obj), (r, inv)) in self

@@ -1,7 +1,7 @@
 //! The GPU renderer. One command buffer per frame: transform every primitive to world space,
 //! rebuild the BVH (the LBVH of `GpuLbvh`), trace samples into the float accumulation
 //! image, and run the display pass; a timestamp after each stage.
-use crate::bvh::{BuildOptions, BuildResult, Levels, MortonBits, Placement};
+use crate::bvh::{BuildOptions, BuildResult, Levels, MortonBits};
 use crate::gpu::denoise::{guide_bytes, GpuDenoiser};
 use crate::gpu::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, GpuLevels, Kernel, Kernels};
 use crate::picture::{swap_red_blue, Picture};
@@ -309,11 +309,7 @@ impl GpuRenderer {
         let model_spheres = dev("model spheres", size_of_val(scene.model_spheres.as_slice()))?;
         let prim_object = dev("object of each primitive", size_of_val(scene.prim_object.as_slice()))?;
         let materials = dev("materials", size_of_val(scene.materials.as_slice()))?;
-        // With two levels the lights' objects follow them (`path::World::light`).
-        let light_words = match &scene.instancing {
-            Some(i) => [scene.lights.as_slice(), &i.light_objects].concat(),
-            None => scene.lights.clone(),
-        };
+        let light_words = scene.light_words();
         let lights = dev("lights", size_of_val(light_words.as_slice()))?;
         let frame_buf = host("frame", size_of::<Frame>())?;
         let accum = dev("accumulation image", pixels * 16)?;
@@ -362,12 +358,7 @@ impl GpuRenderer {
         });
         self.objects = scene.objects.clone();
         if let Some(i) = &scene.instancing {
-            let placements: Vec<Placement> = i
-                .placements
-                .iter()
-                .zip(&scene.objects)
-                .map(|(p, o)| Placement { rows: o.rows, ..*p })
-                .collect();
+            let placements = i.placements_at(&scene.objects);
             let opts = BuildOptions {
                 wide: false,
                 ..self.build
@@ -490,8 +481,7 @@ impl GpuRenderer {
         }
         if let Some(l) = self.levels.as_mut() {
             let rows: Vec<_> = objects.iter().map(|o| o.rows).collect();
-            l.set_transforms(&rows)
-                .map_err(|e| anyhow::anyhow!("{}", e.to_string().replacen("instance", "object", 1)))?;
+            l.set_transforms(&rows)?;
         }
         b.objects.write(objects)?;
         self.objects = objects.to_vec();

@@ -5,7 +5,7 @@
 //! then every sphere object's sphere; all in model space, placed by their object's matrix.
 use super::envmap::EnvMap;
 use super::texture::TextureSet;
-use super::{material, Scene, Shape};
+use super::{material, Scene, SceneObject, Shape};
 use crate::bvh::{MeshPrims, Placement};
 use glam::Vec3;
 use shared::types::{
@@ -97,6 +97,16 @@ pub struct Instancing {
 }
 
 impl Instancing {
+    /// The placements with every object's transform as `objects` (object `k`: instance `k`)
+    /// have it now.
+    pub fn placements_at(&self, objects: &[Object]) -> Vec<Placement> {
+        self.placements
+            .iter()
+            .zip(objects)
+            .map(|(p, o)| Placement { rows: o.rows, ..*p })
+            .collect()
+    }
+
     /// Primitives counting every instance's again, and distinct primitives.
     pub fn counts(&self) -> (u64, u64) {
         let size = |m: &MeshPrims| (m.tris.len() + m.spheres.len()) as u64;
@@ -106,6 +116,15 @@ impl Instancing {
 }
 
 impl SceneGpu {
+    /// The light buffer's words: the emissive primitives, and with two levels the object
+    /// showing each after them (`shared::path::World::light`).
+    pub fn light_words(&self) -> Vec<u32> {
+        match &self.instancing {
+            Some(i) => [self.lights.as_slice(), &i.light_objects].concat(),
+            None => self.lights.clone(),
+        }
+    }
+
     /// What alpha-tested triangles read (`traverse::Scene::coverage`): these buffers.
     pub fn coverage(&self) -> shared::alpha::Coverage<'_> {
         shared::alpha::Coverage {
@@ -121,7 +140,7 @@ impl SceneGpu {
 
 /// Writes `o`'s transform at `time_s` into `object`: its rows, the cofactor rows that take
 /// normals to world space, and the largest scale (spheres' radii).
-fn place(object: &mut Object, o: &super::SceneObject, time_s: f32) {
+fn place(object: &mut Object, o: &SceneObject, time_s: f32) {
     let t = o.transform_at(time_s);
     let m = t.matrix();
     let c = m.matrix3;
@@ -178,25 +197,26 @@ impl Scene {
     /// `edited`'s transforms made again, every other object's kept. What a real-time frame
     /// needs, without the work for every object of a large scene.
     pub fn objects_moved(&self, objects: &[Object], edited: &[usize], time_s: f32) -> Vec<Object> {
-        let mut moved = objects.to_vec();
-        for (k, (o, m)) in self.objects.iter().zip(moved.iter_mut()).enumerate() {
-            if o.animation != Default::default() || edited.contains(&k) {
-                place(m, o, time_s);
-            }
-        }
-        moved
+        self.moved(objects, time_s, |k, o| {
+            o.animation != Default::default() || edited.contains(&k)
+        })
     }
 
     /// Every object at `time_s` as `data` lays the primitives out (instanced or flattened):
     /// what `GpuRenderer::set_objects` takes for a moment of an animation.
     pub fn objects_in(&self, data: &SceneGpu, time_s: f32) -> Vec<Object> {
-        let mut objects = self.objects_at(time_s);
-        if data.instancing.is_some() {
-            for (o, d) in objects.iter_mut().zip(&data.objects) {
-                o.first_prim = d.first_prim;
+        self.moved(&data.objects, time_s, |_, _| true)
+    }
+
+    /// `objects` with the transforms at `time_s` of those `which` picks (by index and object).
+    fn moved(&self, objects: &[Object], time_s: f32, which: impl Fn(usize, &SceneObject) -> bool) -> Vec<Object> {
+        let mut moved = objects.to_vec();
+        for (k, (o, m)) in self.objects.iter().zip(moved.iter_mut()).enumerate() {
+            if which(k, o) {
+                place(m, o, time_s);
             }
         }
-        objects
+        moved
     }
 
     /// For every mesh, the index of its first triangle's attributes in [`SceneGpu::attrs`]
@@ -404,16 +424,10 @@ impl Scene {
                 rows: objects[k].rows,
             });
         }
+        // Instance k is object k: errors name the object.
         let layout = crate::bvh::layout(&meshes, &placements).map_err(|e| {
-            // Instance k is object k: name it.
-            match e.split_once(':') {
-                Some((inst, rest)) if inst.starts_with("instance ") => {
-                    let k: usize = inst["instance ".len()..].parse().unwrap_or(0);
-                    let name = self.objects.get(k).map_or("", |o| o.name.as_str());
-                    format!("object {k} ({name}):{rest}")
-                }
-                _ => e,
-            }
+            let name = self.objects.get(e.instance).map_or("", |o| o.name.as_str());
+            format!("object {} ({name}): {}", e.instance, e.problem)
         })?;
         let (n_tris, n_spheres) = (layout.n_tris, layout.n_spheres);
         let mut model_tris = Vec::with_capacity(n_tris as usize);

@@ -100,12 +100,7 @@ impl App {
         if let Some(i) = &d.instancing {
             // Two levels: built again by the CPU executor, validated, and compared bit for bit.
             let (instanced, distinct) = i.counts();
-            let placements: Vec<_> = i
-                .placements
-                .iter()
-                .zip(&d.objects)
-                .map(|(p, o)| crate::bvh::Placement { rows: o.rows, ..*p })
-                .collect();
+            let placements = i.placements_at(&d.objects);
             let opts = crate::bvh::BuildOptions {
                 wide: false,
                 ..self.renderer.build_options()
