@@ -75,7 +75,9 @@ pub struct Instance {
     /// The mesh's box in model space (its BVH's root box).
     pub lo: [f32; 3],
     /// The object it shows: its transform to world (`Object::rows`, what [`instance_box`]
-    /// reads), material and vertex attributes.
+    /// reads), material and vertex attributes; [`INVALID`] for the world-space group of a
+    /// mixed scene (world-space primitives of several objects, each primitive's object in
+    /// `prim_object`, as in a flattened scene; placed by [`IDENTITY`]).
     pub object: u32,
     pub hi: [f32; 3],
     /// The mesh's first node in the bottom-level node buffer.
@@ -166,15 +168,23 @@ pub fn world_box(rows: &[[f32; 4]; 3], lo: Vec3, hi: Vec3) -> (Vec3, Vec3) {
     (Vec3::new(x.0, y.0, z.0), Vec3::new(x.1, y.1, z.1))
 }
 
+/// The transform of an instance of no object (the world-space group of a mixed scene).
+pub const IDENTITY: [[f32; 4]; 3] = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
+
 /// The top level's input for instance `i` of `n`: its mesh's box taken to world space by its
-/// object's transform ([`world_box`]), as a [`box_triangle`] (the `instance_boxes` kernel;
-/// the CPU executor calls it for every instance).
+/// object's transform ([`world_box`]; an instance of no object, the world-space group, by
+/// [`IDENTITY`]), as a [`box_triangle`] (the `instance_boxes` kernel; the CPU executor calls
+/// it for every instance).
 pub fn instance_box(i: u32, n: u32, instances: &[Instance], objects: &[Object], out: &mut [Triangle]) {
     if i >= n {
         return;
     }
     let inst = at(instances, i);
-    let rows = at(objects, inst.object).rows;
+    let rows = if inst.object == INVALID {
+        IDENTITY
+    } else {
+        at(objects, inst.object).rows
+    };
     let (lo, hi) = world_box(&rows, Vec3::from(inst.lo), Vec3::from(inst.hi));
     *at_mut(out, i) = box_triangle(lo, hi);
 }

@@ -2,7 +2,7 @@
 //! frame, before the BVH build (the thesis's per-object model matrix: translation,
 //! Tait-Bryan Y-X-Z rotation, scale). Explicit [`fma`] chains round identically on the CPU
 //! and the GPU, so both backends build the same BVH from the same scene.
-use crate::math::fma;
+use crate::math::{floor, fma};
 use crate::types::{BuildParams, Object, Sphere, Triangle};
 
 /// `rows * [v, 1]`; `w` of the result is 0.
@@ -32,11 +32,38 @@ pub fn transform(
     }
     let o = objects[prim_object[i as usize] as usize];
     if i < p.n_tris {
-        tris[i as usize] = world_triangle(&o, &model_tris[i as usize]);
+        let t = &model_tris[i as usize];
+        let waved = Triangle {
+            v0: waved(&o, t.v0),
+            v1: waved(&o, t.v1),
+            v2: waved(&o, t.v2),
+        };
+        tris[i as usize] = world_triangle(&o, &waved);
     } else {
         let k = (i - p.n_tris) as usize;
         spheres[k] = world_sphere(&o, &model_spheres[k]);
     }
+}
+
+/// Model-space vertex `v` of object `o` moved along y by the object's wave (`Object::wave`:
+/// amplitude `a`, waves per unit `kx` and `kz`, phase `p`): `a (8 g^2 - 1)` with `g` the
+/// fraction of `kx x + kz z - p` less 1/2, a crest of height `a` at every whole wave and a trough
+/// of `-a` between (a parabola each side: no `sin`, whose GPU and CPU bits differ; floor,
+/// products and sums are the same bits everywhere, so deformed meshes build equal on both).
+/// Objects without a wave (`a = 0`) keep `v`: only the transform stage calls this, so a
+/// waving object is always flattened (its shape changes every frame).
+pub fn waved(o: &Object, v: [f32; 4]) -> [f32; 4] {
+    let [a, kx, kz, phase] = o.wave;
+    if a == 0.0 {
+        return v;
+    }
+    // Plain products and sums, which the kernels never fuse (`NoContraction`), not `fma`:
+    // a device may round its `fma` twice (llvmpipe does), and the wave must move every
+    // vertex by the same bits everywhere. 1 - 8 f (1 - f) is 8 g^2 - 1 with g = f - 1/2.
+    let s = v[0] * kx + (v[2] * kz - phase);
+    let g = (s - floor(s)) - 0.5;
+    let h = 8.0 * (g * g) - 1.0;
+    [v[0], a * h + v[1], v[2], v[3]]
 }
 
 /// Model-space triangle `t` of object `o` in world space (the same bits wherever it is
@@ -55,5 +82,38 @@ pub fn world_sphere(o: &Object, s: &Sphere) -> Sphere {
     let c = apply(o, s.center_radius);
     Sphere {
         center_radius: [c[0], c[1], c[2], s.center_radius[3] * o.radius_scale],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn waving(wave: [f32; 4]) -> Object {
+        Object {
+            wave,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_wave_has_crests_at_whole_waves_and_troughs_between() {
+        // Amplitude 0.5, two waves a unit along x, a quarter wave on.
+        let o = waving([0.5, 2.0, 0.0, 0.25]);
+        let y = |x: f32, z: f32| waved(&o, [x, 1.0, z, 0.0])[1];
+        // Crests where 2x - 0.25 is whole, troughs half a wave on; along z nothing changes.
+        for (x, want) in [(0.125, 1.5), (0.625, 1.5), (0.375, 0.5), (-0.125, 0.5)] {
+            assert_eq!(y(x, 0.0), want, "x {x}");
+            assert_eq!(y(x, 7.0), want, "x {x}, z 7");
+        }
+        // A quarter wave from the crest: the parabola 8 g^2 - 1 at g = -1/4 is -1/2;
+        // and the same a wave later (it repeats).
+        assert_eq!(y(0.25, 0.0), 0.75);
+        assert!((y(0.2, 0.0) - y(0.7, 0.0)).abs() < 1e-6);
+        // x and z never move, and no wave leaves the vertex as it was.
+        let v = [0.3, -2.0, 0.9, 0.0];
+        assert_eq!(waved(&o, v)[0], 0.3);
+        assert_eq!(waved(&o, v)[2], 0.9);
+        assert_eq!(waved(&waving([0.0, 2.0, 1.0, 0.5]), v), v);
     }
 }

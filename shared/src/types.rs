@@ -289,6 +289,10 @@ pub struct Object {
     /// shared by every object showing the mesh), or [`INVALID`]: flat, no texture
     /// coordinates.
     pub attrs: u32,
+    /// A wave that deforms the object's triangles every frame ([`crate::transform::waved`]):
+    /// amplitude (model-space units along y; 0: none), waves per unit along x and along z,
+    /// and the phase (in waves) at the frame's moment.
+    pub wave: [f32; 4],
 }
 
 /// Vertex attributes of one mesh triangle in model space (64 bytes): vertex `k`'s shading
@@ -586,7 +590,7 @@ impl Hit {
     };
 }
 
-const _: () = assert!(size_of::<Object>() == 112);
+const _: () = assert!(size_of::<Object>() == 128);
 const _: () = assert!(size_of::<VertexAttrs>() == 64);
 const _: () = assert!(size_of::<PunctualLight>() == 64);
 const _: () = assert!(size_of::<Material>() == 112);

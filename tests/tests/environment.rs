@@ -42,6 +42,7 @@ fn ball_under(map: EnvMap, m: shared::types::Material, nee: bool) -> Scene {
             transform: Transform::IDENTITY,
             material: 0,
             animation: Default::default(),
+            instance: None,
         }],
         punctual: Vec::new(),
         textures: Default::default(),

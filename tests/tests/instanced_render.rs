@@ -1,7 +1,9 @@
 //! The path tracer through two levels (`--instancing on`): an instanced scene renders as the
 //! same scene flattened, on the CPU executor and the GPU; both levels come out of the GPU as
 //! the CPU builds them; picking names the instance's object; moving objects moves their
-//! instances; `--explain` says what was chosen; scenes that cannot be instanced are named.
+//! instances; a scene of both kinds (a world-space group rebuilt every frame, deforming,
+//! beside instances) renders as flattened and follows its wave on both backends; `--explain`
+//! says what was chosen; scenes that cannot be instanced are named.
 use integration_tests::{assert_no_validation_errors, gpu};
 use raytrace::cli::{compare, Prepared, SceneArgs};
 use raytrace::cpu::render_cpu;
@@ -12,8 +14,12 @@ use shared::types::{Ray, FEATURE_INSTANCES, INVALID};
 use std::sync::Arc;
 
 fn prepared(scene: &str, size: u32, spp: u32, instancing: &str) -> Prepared {
+    prepared_at(scene, size, spp, instancing, 0.0)
+}
+
+fn prepared_at(scene: &str, size: u32, spp: u32, instancing: &str, time: f32) -> Prepared {
     let size = format!("{size}x{size}");
-    let spp = spp.to_string();
+    let (spp, time) = (spp.to_string(), time.to_string());
     let args = [
         "raytrace",
         scene,
@@ -23,9 +29,15 @@ fn prepared(scene: &str, size: u32, spp: u32, instancing: &str) -> Prepared {
         &spp,
         "--instancing",
         instancing,
+        "--time",
+        &time,
     ];
     <SceneArgs as clap::Parser>::parse_from(args).prepare().expect("scene")
 }
+
+/// The shipped scene of both kinds: a waving pond and a ground quad in the world-space group
+/// (`instance = false`), twelve bunnies and a light instanced (`instance = true`).
+const POND: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/pond.toml");
 
 /// Scenes of every kind of instance: the Cornell box (six instances of one quad, scaled
 /// unevenly and turned, one of them the light: an instanced emitter for next-event
@@ -133,7 +145,7 @@ fn the_choice_is_explained_and_scenes_that_cannot_be_instanced_are_named() {
     assert!(shared.data.instancing.is_some());
     let explain = shared.features.explain();
     assert!(
-        explain.contains("instances") && explain.contains("every object an instance"),
+        explain.contains("instances") && explain.contains("objects are instances"),
         "{explain}"
     );
     // The measured break-even (H100, 1080p, one sample a pixel): the herd's real-time frames
@@ -187,4 +199,90 @@ fn the_choice_is_explained_and_scenes_that_cannot_be_instanced_are_named() {
         d.instancing_why
     );
     assert!(many.gpu_data_as(0.0, InstancingMode::Off).unwrap().instancing.is_none());
+}
+
+#[test]
+fn a_mixed_scene_renders_as_its_flattened_form_on_the_cpu() {
+    for time in [0.0, 0.7] {
+        let (on, off) = (
+            prepared_at(POND, 40, 16, "auto", time),
+            prepared_at(POND, 40, 16, "off", time),
+        );
+        let i = on.data.instancing.as_ref().expect("the scene asks for instances");
+        // The pond's 64 x 64 grid and the ground's quad in the group; twelve bunnies and the
+        // lamp instanced, and the group's instance.
+        assert_eq!(i.world_tris, 2 * 64 * 64 + 2);
+        assert_eq!(on.frame.n_instances, 14);
+        assert!(off.data.instancing.is_none());
+        let explain = on.features.explain();
+        assert!(
+            explain.contains("12 instance = true") && explain.contains("2 in the world-space group"),
+            "{explain}"
+        );
+        let cpu = |p: &Prepared| render_cpu(&p.data, &p.frame, p.spp, p.build(p.spp), &|_| {});
+        let (a, b) = (cpu(&on), cpu(&off));
+        let d = diff_stats(&a.picture, &b.picture).expect("same size");
+        assert!(
+            d.relative_rmse < 0.02,
+            "time {time}: mixed and flattened differ: relative RMSE {}",
+            d.relative_rmse
+        );
+        assert!(b.picture.mean_luminance() > 0.0);
+    }
+    // The wave moves the pond: frames at two moments differ there.
+    let frame = |t: f32| {
+        let p = prepared_at(POND, 40, 16, "auto", t);
+        render_cpu(&p.data, &p.frame, p.spp, p.build(p.spp), &|_| {}).picture
+    };
+    let d = diff_stats(&frame(0.0), &frame(0.7)).expect("same size");
+    assert!(d.relative_rmse > 0.01, "the wave did not move: {}", d.relative_rmse);
+}
+
+#[test]
+fn the_gpu_rebuilds_a_mixed_scenes_group_every_frame_as_the_cpu() {
+    let Some(gpu) = gpu("the_gpu_rebuilds_a_mixed_scenes_group_every_frame_as_the_cpu") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    // At a moment of the wave: the GPU's transform waves the pond as the CPU's does, bit for
+    // bit (both levels' nodes equal), and the images agree.
+    let p = prepared_at(POND, 32, 8, "auto", 0.7);
+    let c = compare(&p, &gpu, &kernels, true).expect("compare");
+    assert!(c.bvh_identical, "the GPU's levels differ from the CPU's");
+    assert!(c.stats.relative_rmse < 0.02, "relative RMSE {}", c.stats.relative_rmse);
+    // Frames go on: objects moved to later moments (the wave's phase, the spinning bunnies),
+    // the group transformed and built again, the top level over it.
+    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    r.set_build(p.build(1));
+    r.load(&p.data, &p.frame).expect("load");
+    let i = p.data.instancing.as_ref().unwrap();
+    for t in [1.1, 2.3] {
+        let objects = p.scene.objects_in(&p.data, t);
+        r.set_objects(&objects).expect("move");
+        r.render(1, true).expect("render");
+        let (meshes, placements) = raytrace::cpu::levels_inputs(&p.data, i, &objects);
+        let opts = raytrace::bvh::BuildOptions {
+            wide: false,
+            ..p.build(1)
+        };
+        let cpu = raytrace::bvh::build_levels(&meshes, &placements, opts).expect("levels");
+        raytrace::bvh::validate_levels(&cpu, &meshes, &placements).expect("valid levels");
+        assert_eq!(r.bvh().expect("nodes").nodes, cpu.nodes, "time {t}: the levels differ");
+        assert_eq!(
+            r.world().expect("primitives").0,
+            cpu.tris,
+            "time {t}: the primitives differ"
+        );
+    }
+    // Picking names the object in the group (the pond) and an instance's (a bunny).
+    let pond = p.scene.objects.iter().position(|o| o.name == "pond").unwrap() as u32;
+    let bunny = p.scene.objects.iter().position(|o| o.name == "bunny 3").unwrap();
+    let b = p.data.objects[bunny].rows;
+    let down = |x: f32, z: f32| Ray {
+        origin: [x, 20.0, z, 0.0],
+        dir: [0.0, -1.0, 0.0, f32::INFINITY],
+    };
+    let hits = r.cast_objects(&[down(0.3, 0.2), down(b[0][3], b[2][3])]).expect("cast");
+    assert_eq!((hits[0].prim, hits[1].prim), (pond, bunny as u32), "{hits:?}");
+    assert_no_validation_errors(&gpu);
 }

@@ -125,6 +125,7 @@ fn instanced(offset: Vec3, count: usize, seed: u32) -> (Vec<MeshPrims>, Vec<Plac
         };
         placements.push(Placement {
             mesh,
+            object: placements.len() as u32,
             rows: rows(axis, angle, scale, t),
         });
         scales.push(uniform);
@@ -253,11 +254,19 @@ fn closed_meshes_stay_closed_through_instances() {
                     r[3] = offset + k as f32;
                 }
                 // The mesh, and two cubes beside it so the top level has inner nodes.
-                let mut placements = vec![Placement { mesh: 0, rows }];
+                let mut placements = vec![Placement {
+                    mesh: 0,
+                    object: 0,
+                    rows,
+                }];
                 for k in 0..2 {
                     let mut r = rows;
                     r[0][3] += 10.0 * (k as f32 + 1.0);
-                    placements.push(Placement { mesh: 1, rows: r });
+                    placements.push(Placement {
+                        mesh: 1,
+                        object: k + 1,
+                        rows: r,
+                    });
                 }
                 let l = levels(&meshes, &placements);
                 let scene = l.scene(FEATURES_ALL);
@@ -329,6 +338,7 @@ fn a_miss_of_every_instance_and_a_scene_of_one_instance_are_handled() {
     let meshes = vec![prims(&cube(1))];
     let one = vec![Placement {
         mesh: 0,
+        object: 0,
         rows: rows(Vec3::X, 0.5, Vec3::splat(2.0), Vec3::new(5.0, 0.0, 0.0)),
     }];
     let l = levels(&meshes, &one);
@@ -363,6 +373,7 @@ fn bad_instances_are_refused_by_name() {
     let meshes = vec![prims(&cube(1)), MeshPrims::default()];
     let good = Placement {
         mesh: 0,
+        object: 0,
         rows: rows(Vec3::X, 0.0, Vec3::ONE, Vec3::ZERO),
     };
     let cases = [
@@ -384,7 +395,7 @@ fn bad_instances_are_refused_by_name() {
         (Placement { mesh: 1, ..good }, "no primitives"),
     ];
     for (bad, what) in cases {
-        let e = build_levels(&meshes, &[good, bad], opts()).expect_err(what);
+        let e = build_levels(&meshes, &[good, Placement { object: 1, ..bad }], opts()).expect_err(what);
         assert!(e.contains("instance 1") && e.contains(what), "{what}: {e}");
     }
 }
@@ -434,7 +445,18 @@ fn gpu_queries_through_instances_equal_the_cpu_and_stay_closed() {
         }
         let mut r1 = r0;
         r1[0][3] += 10.0;
-        let placements = [Placement { mesh: 0, rows: r0 }, Placement { mesh: 1, rows: r1 }];
+        let placements = [
+            Placement {
+                mesh: 0,
+                object: 0,
+                rows: r0,
+            },
+            Placement {
+                mesh: 1,
+                object: 1,
+                rows: r1,
+            },
+        ];
         let l = levels(&meshes, &placements);
         g.load_levels(&l);
         let rays: Vec<(Vec3, Vec3, f32)> = common::rays_at_vertices_and_edges(&mesh, Vec3::ZERO)

@@ -282,6 +282,7 @@ fn furnace(a: f32, e: f32, depth: u32, extra: &[(&str, bool)]) -> Scene {
             transform: Transform::IDENTITY,
             material: 0,
             animation: Default::default(),
+            instance: None,
         }],
     }
 }

@@ -50,6 +50,7 @@ fn ball(shape: Shape, meshes: Vec<Mesh>) -> Scene {
             transform: Transform::IDENTITY,
             material: 0,
             animation: Default::default(),
+            instance: None,
         }],
     }
 }
@@ -132,6 +133,7 @@ fn bent_normals_never_send_a_path_below_the_surface() {
         transform: Transform::new(Vec3::new(0.0, -0.5, 0.0), Vec3::ZERO, Vec3::ONE),
         material: 1,
         animation: Default::default(),
+        instance: None,
     });
     s.camera.position = Vec3::new(0.0, 3.0, 0.0);
     s.camera.up = Vec3::Z;

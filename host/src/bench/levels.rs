@@ -60,6 +60,7 @@ fn placements(meshes: usize, count: usize, frame: u32) -> Vec<Placement> {
             };
             Placement {
                 mesh: k % meshes,
+                object: k as u32,
                 rows: [row(0), row(1), row(2)],
             }
         })

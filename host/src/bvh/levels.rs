@@ -3,7 +3,7 @@
 //! one builder. The CPU executor builds them here; `validate_levels` checks both.
 use super::{validate, BuildOptions};
 use shared::glam::{DMat3, DVec3, Vec3};
-use shared::instance::{instance_box, Instance};
+use shared::instance::{instance_box, Instance, IDENTITY};
 use shared::traverse::Scene;
 use shared::types::{prim_box, Node, Object, Sphere, Triangle, FEATURE_INSTANCES, INVALID};
 
@@ -14,12 +14,25 @@ pub struct MeshPrims {
     pub spheres: Vec<Sphere>,
 }
 
-/// An instance: which mesh, placed by which transform (model to world, 3x4 row-major).
-/// Instance `k` shows object `k`.
+/// An instance: which mesh, shown by which object, placed by which transform (model to
+/// world, 3x4 row-major). An instance of no object ([`INVALID`]) is the world-space group
+/// of a mixed scene: its mesh is in world space, placed by [`IDENTITY`] (its `rows`).
 #[derive(Copy, Clone, Debug)]
 pub struct Placement {
     pub mesh: usize,
+    pub object: u32,
     pub rows: [[f32; 4]; 3],
+}
+
+impl Placement {
+    /// The world-space group: mesh `mesh`, in world space.
+    pub fn world(mesh: usize) -> Placement {
+        Placement {
+            mesh,
+            object: INVALID,
+            rows: IDENTITY,
+        }
+    }
 }
 
 /// Both levels: the meshes' primitives and BVHs one after another (bottom level), the
@@ -33,8 +46,8 @@ pub struct Levels {
     pub nodes: Vec<Node>,
     pub top: u32,
     pub instances: Vec<Instance>,
-    /// The objects the instances show (here only their transforms, what the top level's
-    /// boxes are made from).
+    /// The objects the instances show, by object number (here only their transforms, what
+    /// the top level's boxes are made from).
     pub objects: Vec<Object>,
     /// The top level's inputs: each instance's world box as a degenerate triangle.
     pub boxes: Vec<Triangle>,
@@ -105,7 +118,8 @@ fn mesh_box(m: &MeshPrims) -> (Vec3, Vec3) {
 /// Where an instanced scene's data goes, whichever backend builds it: each mesh's first
 /// node (a mesh of `m` primitives has `2m - 1`; [`INVALID`] for an empty mesh), triangle
 /// and sphere in the bottom level's buffers, the instances and the objects they show
-/// (their transforms), and the top level's first node (after every mesh's).
+/// (their transforms, by object number), and the top level's first node (after every
+/// mesh's).
 #[derive(Clone, Debug, Default)]
 pub struct LevelsLayout {
     pub mesh_nodes: Vec<u32>,
@@ -166,12 +180,13 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
                 problem: format!("it shows mesh {}, which has no primitives", p.mesh),
             });
         }
-        let to_model = inverse_rows(&p.rows).map_err(|problem| LayoutError { instance: k, problem })?;
+        let rows = if p.object == INVALID { IDENTITY } else { p.rows };
+        let to_model = inverse_rows(&rows).map_err(|problem| LayoutError { instance: k, problem })?;
         let (lo, hi) = boxes[p.mesh];
         l.instances.push(Instance {
             to_model,
             lo: lo.to_array(),
-            object: k as u32,
+            object: p.object,
             hi: hi.to_array(),
             nodes: l.mesh_nodes[p.mesh],
             tri0: l.mesh_tris[p.mesh],
@@ -179,10 +194,13 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
             sphere0: l.mesh_spheres[p.mesh],
             n_spheres: m.spheres.len() as u32,
         });
-        l.objects.push(Object {
-            rows: p.rows,
-            ..Default::default()
-        });
+        if p.object != INVALID {
+            let o = p.object as usize;
+            if l.objects.len() <= o {
+                l.objects.resize(o + 1, Object::default());
+            }
+            l.objects[o].rows = rows;
+        }
     }
     Ok(l)
 }
@@ -258,7 +276,7 @@ pub fn validate_levels(l: &Levels, meshes: &[MeshPrims], placements: &[Placement
         });
         for c in vertices.chain(sphere_corners) {
             let w = DVec3::from_array(std::array::from_fn(|r| {
-                let q = p.rows[r];
+                let q = if p.object == INVALID { IDENTITY[r] } else { p.rows[r] };
                 q[0] as f64 * c.x as f64 + q[1] as f64 * c.y as f64 + q[2] as f64 * c.z as f64 + q[3] as f64
             }));
             if w.cmplt(lo.as_dvec3()).any() || w.cmpgt(hi.as_dvec3()).any() {

@@ -1,6 +1,6 @@
 //! The CPU renderer: the transform, BVH build, path tracing and display kernels of `shared`
 //! run by the CPU executor (pixels in parallel with rayon: each writes only its own sum).
-use crate::bvh::{build_levels, inverse_rows, BuildOptions, BuildResult, Levels, Placement};
+use crate::bvh::{build_levels, inverse_rows, BuildOptions, BuildResult, Levels, MeshPrims, Placement};
 use crate::picture::Picture;
 use crate::scene::{Instancing, SceneGpu};
 use rayon::prelude::*;
@@ -33,6 +33,12 @@ pub fn display_image(accum: &[[f32; 4]], push: &RenderPush, frame: &Frame) -> Ve
 /// transform stage writes).
 pub fn world_primitives(scene: &SceneGpu) -> (Vec<Triangle>, Vec<Sphere>) {
     let (n_tris, n_spheres) = (scene.model_tris.len(), scene.model_spheres.len());
+    transformed(scene, &scene.objects, n_tris, n_spheres)
+}
+
+/// The transform kernel over the first `n_tris` triangles and `n_spheres` spheres of
+/// `scene`'s model-space primitives, with the objects at `objects`.
+fn transformed(scene: &SceneGpu, objects: &[Object], n_tris: usize, n_spheres: usize) -> (Vec<Triangle>, Vec<Sphere>) {
     let p = BuildParams {
         n_tris: n_tris as u32,
         n: (n_tris + n_spheres) as u32,
@@ -45,7 +51,7 @@ pub fn world_primitives(scene: &SceneGpu) -> (Vec<Triangle>, Vec<Sphere>) {
         shared::transform::transform(
             i,
             &p,
-            &scene.objects,
+            objects,
             &scene.prim_object,
             &scene.model_tris,
             &scene.model_spheres,
@@ -56,26 +62,41 @@ pub fn world_primitives(scene: &SceneGpu) -> (Vec<Triangle>, Vec<Sphere>) {
     (tris, spheres)
 }
 
-/// Both levels of an instanced scene with its objects at `objects` (object `k` is instance
-/// `k`), built by the CPU executor. The layout was checked when the data was made
-/// (`Scene::gpu_data_instanced`); an object moved since to a transform that cannot be
-/// inverted stays where the data put it, with a warning.
-fn levels_at(i: &Instancing, objects: &[Object], build: BuildOptions) -> Levels {
+/// What both levels of an instanced scene are built from with its objects at `objects`:
+/// the meshes, the world-space group (`Instancing::world_tris`, mesh 0) transformed as the
+/// GPU's frame transforms it, and every instance where its object is. The layout was
+/// checked when the data was made (`Scene::gpu_data_instanced`); an object moved since to a
+/// transform that cannot be inverted stays where the data put it, with a warning.
+pub fn levels_inputs<'a>(
+    scene: &SceneGpu,
+    i: &'a Instancing,
+    objects: &[Object],
+) -> (std::borrow::Cow<'a, [MeshPrims]>, Vec<Placement>) {
     let placements: Vec<Placement> = i
         .placements_at(objects)
         .into_iter()
         .zip(&i.placements)
-        .enumerate()
-        .map(|(k, (moved, made))| match inverse_rows(&moved.rows) {
+        .map(|(moved, made)| match inverse_rows(&moved.rows) {
             Ok(_) => moved,
             Err(e) => {
-                eprintln!("warning: object {k} is not moved: {e}");
+                eprintln!("warning: object {} is not moved: {e}", made.object);
                 *made
             }
         })
         .collect();
+    let mut meshes = std::borrow::Cow::Borrowed(&i.meshes[..]);
+    if i.world_tris > 0 {
+        meshes.to_mut()[0].tris = transformed(scene, objects, i.world_tris as usize, 0).0;
+    }
+    (meshes, placements)
+}
+
+/// Both levels of an instanced scene with its objects at `objects`, built by the CPU
+/// executor from [`levels_inputs`].
+fn levels_at(scene: &SceneGpu, i: &Instancing, objects: &[Object], build: BuildOptions) -> Levels {
+    let (meshes, placements) = levels_inputs(scene, i, objects);
     // The placements' meshes and transforms were checked by the layout that made `i`.
-    build_levels(&i.meshes, &placements, build).unwrap_or_default()
+    build_levels(&meshes, &placements, build).unwrap_or_default()
 }
 
 /// Renders `samples` samples per pixel of `scene` with `frame`; `progress` is called with
@@ -130,7 +151,10 @@ pub fn render_cpu_samples(
     timings.extend(build_times);
     // Two levels: every mesh's BVH and the top level over the objects where they are now.
     let t = Instant::now();
-    let levels = scene.instancing.as_ref().map(|i| levels_at(i, &scene.objects, build));
+    let levels = scene
+        .instancing
+        .as_ref()
+        .map(|i| levels_at(scene, i, &scene.objects, build));
     if levels.is_some() {
         timings.push(("levels", t.elapsed().as_secs_f64()));
     }

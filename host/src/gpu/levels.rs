@@ -9,7 +9,7 @@ use crate::bvh::{inverse_rows, layout, BuildOptions, LevelsLayout, MeshPrims, Pl
 use anyhow::{anyhow, ensure, Context, Result};
 use gpu_allocator::MemoryLocation;
 use shared::instance::Instance;
-use shared::types::{grid, BuildParams, Node, Object, Sphere, Triangle, RENDER_BINDINGS, WORKGROUP};
+use shared::types::{grid, BuildParams, Node, Object, Sphere, Triangle, INVALID, RENDER_BINDINGS, WORKGROUP};
 use std::sync::Arc;
 
 pub struct GpuLevels {
@@ -129,38 +129,51 @@ impl GpuLevels {
         Ok(())
     }
 
-    /// New transforms of the instances (model to world, 3x4 row-major, instance `k` the
-    /// `k`-th); the top level is built again by the next [`Self::record_top`]. A transform
-    /// that cannot be inverted is refused by the instance's number, and nothing changes.
+    /// New transforms of the objects (model to world, 3x4 row-major, by object number): every
+    /// instance moves with its object; the top level is built again by the next
+    /// [`Self::record_top`]. A transform that cannot be inverted is refused by the instance's
+    /// and the object's number, and nothing changes.
     pub fn set_transforms(&mut self, rows: &[[[f32; 4]; 3]]) -> Result<()> {
-        ensure!(
-            rows.len() == self.layout.instances.len(),
-            "{} transforms for {} instances",
-            rows.len(),
-            self.layout.instances.len()
-        );
         // Inverted again only where moved: most of a large scene's instances stand still.
-        let inverses = rows
-            .iter()
-            .zip(&self.layout.instances)
-            .enumerate()
-            .map(|(k, (r, inst))| match self.layout.objects.get(inst.object as usize) {
-                Some(o) if o.rows == *r => Ok(inst.to_model),
-                _ => inverse_rows(r).map_err(|e| anyhow!("instance {k} (object {}): {e}", inst.object)),
-            })
-            .collect::<Result<Vec<_>>>()?;
-        for ((inst, obj), (r, inv)) in self
-            .layout
-            .instances
-            .iter_mut()
-            .zip(&mut self.layout.objects)
-            .zip(rows.iter().zip(inverses))
-        {
-            inst.to_model = inv;
-            obj.rows = *r;
+        let mut moved = Vec::new();
+        for (k, inst) in self.layout.instances.iter().enumerate() {
+            if inst.object == INVALID {
+                continue;
+            }
+            let o = inst.object as usize;
+            let rows = *rows
+                .get(o)
+                .with_context(|| format!("instance {k} shows object {o}, and {} transforms are given", rows.len()))?;
+            if self.layout.objects[o].rows != rows {
+                let inv = inverse_rows(&rows).map_err(|e| anyhow!("instance {k} (object {o}): {e}"))?;
+                moved.push((k, o, rows, inv));
+            }
+        }
+        for (k, o, rows, inv) in moved {
+            self.layout.instances[k].to_model = inv;
+            self.layout.objects[o].rows = rows;
         }
         self.objects.write(&self.layout.objects)?;
         self.instances.write(&self.layout.instances)
+    }
+
+    /// Records the copy of a mixed scene's world-space group, just built by `builder` over
+    /// its `n` world-space triangles (`n > 0`), into the bottom level: its triangles and
+    /// nodes where the layout put mesh 0 (the group's, shown by instance 0), its root box as
+    /// instance 0's model box. The top level's build ([`Self::record_top`]) follows.
+    pub fn record_world(&self, cmds: &mut Commands, builder: &GpuLbvh, n: u32) -> Result<()> {
+        let (b_tris, _, b_nodes) = builder.buffers()?;
+        let (tri, node) = (size_of::<Triangle>() as u64, size_of::<Node>() as u64);
+        let n = n as u64;
+        cmds.copy_range(b_tris, 0, &self.tris, self.layout.mesh_tris[0] as u64 * tri, n * tri);
+        let first = self.layout.mesh_nodes[0] as u64 * node;
+        cmds.copy_range(b_nodes, 0, &self.nodes, first, (2 * n - 1) * node);
+        // The root's `min` and `max` (bytes 0..12, 16..28 of a node) as the instance's `lo`
+        // and `hi` (bytes 48..60, 64..76).
+        cmds.copy_range(b_nodes, 0, &self.instances, 48, 12);
+        cmds.copy_range(b_nodes, 16, &self.instances, 64, 12);
+        cmds.barrier();
+        Ok(())
     }
 
     /// Records the top level's build into `cmds` (which must be recording): the instances'

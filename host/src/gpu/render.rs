@@ -127,6 +127,9 @@ pub struct GpuRenderer {
     /// An instanced scene's two levels (`SceneGpu::instancing`): the tracers walk them, and
     /// a frame builds the top level again instead of transforming and building the world.
     levels: Option<GpuLevels>,
+    /// Triangles of the two levels' world-space group (`Instancing::world_tris`): a frame
+    /// transforms and builds them with `lbvh`, as a flattened scene, then copies them in.
+    world_tris: u32,
     cmds: Commands,
     bufs: Option<SceneBuffers>,
     frame: Frame,
@@ -162,6 +165,7 @@ impl GpuRenderer {
             kernels: kernels.clone(),
             lbvh: GpuLbvh::new(gpu, kernels)?,
             levels: None,
+            world_tris: 0,
             cmds: Commands::new(gpu)?,
             bufs: None,
             frame: Frame::default(),
@@ -299,6 +303,7 @@ impl GpuRenderer {
     pub fn load(&mut self, scene: &SceneGpu, frame: &Frame) -> Result<()> {
         self.bufs = None;
         self.levels = None;
+        self.world_tris = 0;
         let gpu = &self.gpu.clone();
         let dev = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::GpuOnly);
         let host = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::CpuToGpu);
@@ -364,6 +369,10 @@ impl GpuRenderer {
                 ..self.build
             };
             self.levels = Some(GpuLevels::new(gpu, &self.kernels, &i.meshes, &placements, opts)?);
+            self.world_tris = i.world_tris;
+            if i.world_tris > 0 {
+                self.lbvh.reserve(i.world_tris as usize, 0)?;
+            }
         } else {
             self.lbvh.reserve(scene.model_tris.len(), scene.model_spheres.len())?;
         }
@@ -378,10 +387,15 @@ impl GpuRenderer {
     }
 
     /// Device bytes of the BVH and the primitives it holds: both levels (meshes' primitives
-    /// and nodes, instances, the top level's builder) where instanced, else the builder's.
+    /// and nodes, instances, the top level's builder, and the builder of a world-space
+    /// group) where instanced, else the builder's.
     pub fn bvh_memory(&self) -> u64 {
         match &self.levels {
-            Some(l) => l.memory(),
+            Some(l) if self.world_tris == 0 => l.memory(),
+            Some(l) => {
+                let (nodes, rest) = self.lbvh.memory();
+                l.memory() + nodes + rest
+            }
             None => {
                 let (nodes, rest) = self.lbvh.memory();
                 nodes + rest
@@ -537,19 +551,34 @@ impl GpuRenderer {
             cmds.fill_range(&b.accum, 0, b.accum.size, 0);
             cmds.barrier();
         }
-        if let Some(l) = self.levels.as_ref().filter(|_| rebuild || self.samples == 0) {
-            l.record_top(cmds)?;
-        } else if rebuild || self.samples == 0 {
+        let transform = |cmds: &mut Commands, n_tris: u32, n: u32| -> Result<()> {
             let p = BuildParams {
-                n_tris: f.n_tris,
-                n: f.n_prims,
+                n_tris,
+                n,
                 shift: 0,
                 passes: 0,
             };
-            let (x, y) = grid(f.n_prims.div_ceil(WORKGROUP));
+            let (x, y) = grid(n.div_ceil(WORKGROUP));
+            let sets = [self.lbvh.set()?, sets[1]];
             cmds.dispatch_sets(k, &sets, Kernel::Transform, bytemuck::bytes_of(&p), x, y)?;
             cmds.barrier();
             cmds.timestamp("transform");
+            Ok(())
+        };
+        if let Some(l) = self.levels.as_ref().filter(|_| rebuild || self.samples == 0) {
+            // The world-space group, as a flattened scene's world, then the top level.
+            if self.world_tris > 0 {
+                transform(cmds, self.world_tris, self.world_tris)?;
+                let build = BuildOptions {
+                    wide: false,
+                    ..self.build
+                };
+                self.lbvh.record(cmds, build, false, false)?;
+                l.record_world(cmds, &self.lbvh, self.world_tris)?;
+            }
+            l.record_top(cmds)?;
+        } else if rebuild || self.samples == 0 {
+            transform(cmds, f.n_tris, f.n_prims)?;
             self.lbvh.record(cmds, self.build, false, false)?;
         }
         let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));

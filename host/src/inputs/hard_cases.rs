@@ -254,6 +254,7 @@ pub fn scene_of(tris: &[Triangle], spheres: &[Sphere]) -> Scene {
             transform: Transform::IDENTITY,
             material: 0,
             animation: Default::default(),
+            instance: None,
         });
     }
     for s in spheres {
@@ -267,6 +268,7 @@ pub fn scene_of(tris: &[Triangle], spheres: &[Sphere]) -> Scene {
             },
             material: 0,
             animation: Default::default(),
+            instance: None,
         });
     }
     Scene {

@@ -1,11 +1,11 @@
 //! The built-in scenes ([`Scene::BUILTINS`]): the Cornell box with its two blocks, the box
 //! holding Suzanne or the Stanford bunny, Ray Tracing in One Weekend's final scene of spheres,
 //! a 4x4 grid of spinning bunnies of over a million triangles, a 12x12 herd of ten million,
-//! and a forest of 24,578 objects and 1.24 billion triangles (instanced). Walls and blocks are
+//! and a forest of 24,386 objects and 1.23 billion triangles (instanced, its pond waving). Walls and blocks are
 //! objects made of the built-in quad and cube, so they can be moved like any other.
 use super::{
     material, shapes, validate, Animation, Bob, CameraSpec, Mesh, Scene, SceneError, SceneObject, Settings, Shape,
-    Transform,
+    Transform, Wave,
 };
 use crate::inputs;
 use glam::{Quat, Vec3};
@@ -69,6 +69,7 @@ impl Builder {
             transform,
             material,
             animation: Animation::default(),
+            instance: None,
         });
         let last = self.scene.objects.len() - 1;
         &mut self.scene.objects[last]
@@ -366,9 +367,10 @@ fn trunk(sides: u32) -> Vec<Triangle> {
 
 /// A forest of 16,384 cells, 128 on a side: every other cell a tree (a trunk and a canopy of
 /// 81,920 triangles: two instances), the rest Stanford bunnies in the real-time looks, an
-/// eighth of them spinning and some bobbing; 24,578 objects and 1.24 billion triangles,
-/// 151,718 distinct. Rendered through two levels (instanced); flattened it would need
-/// hundreds of gigabytes.
+/// eighth of them spinning and some bobbing, and a pond of 30,720 triangles in a clearing
+/// whose surface waves (deformed and built again every frame: the world-space group); 24,386
+/// objects and 1.23 billion triangles, 182,437 distinct. Rendered through two levels;
+/// flattened it would need hundreds of gigabytes.
 fn forest(label: &str) -> Result<Scene, SceneError> {
     let camera = CameraSpec {
         position: Vec3::new(0.0, 45.0, -215.0),
@@ -388,6 +390,27 @@ fn forest(label: &str) -> Result<Scene, SceneError> {
     ];
     let canopy = Shape::Mesh(b.mesh("builtin:canopy", canopy(6)));
     let trunk = Shape::Mesh(b.mesh("builtin:trunk", trunk(32)));
+    // A pond in front of the camera, waving: its triangles move every frame, so it is
+    // transformed and built again every frame (the world-space group of the two levels).
+    let water = b.material("water", material::metal([0.40, 0.55, 0.62], 0.05));
+    let (pond_at, pond_size) = (Vec3::new(0.0, 0.05, -140.0), Vec3::new(40.0, 1.0, 24.0));
+    let scaled = |v: [f32; 4]| [v[0] * pond_size.x, v[1], v[2] * pond_size.z, v[3]];
+    let surface = shapes::grid(160, 96)
+        .into_iter()
+        .map(|t| Triangle {
+            v0: scaled(t.v0),
+            v1: scaled(t.v1),
+            v2: scaled(t.v2),
+        })
+        .collect();
+    let pond = Shape::Mesh(b.mesh("builtin:pond", surface));
+    let o = b.object("pond", pond, Transform::at(pond_at), water);
+    o.animation.wave = Some(Wave {
+        amplitude: 0.25,
+        wavelength: 6.0,
+        period_s: 2.5,
+        heading_deg: 30.0,
+    });
     let (side, spacing) = (128, 3.0);
     let mut rng = Pcg64::seed_from_u64(7);
     for k in 0..side * side {
@@ -396,6 +419,9 @@ fn forest(label: &str) -> Result<Scene, SceneError> {
         let at = Vec3::new((i as f32 - 63.5) * spacing, 0.0, (j as f32 - 63.5) * spacing) + jitter;
         let yaw: f32 = rng.random_range(0.0..360.0);
         let size: f32 = rng.random_range(0.8..1.3);
+        if ((at - pond_at).abs() - pond_size / 2.0).max_element() < 2.0 {
+            continue;
+        }
         if (i + j) % 2 == 0 {
             let height = 1.6 * size;
             let stem = Transform::new(
@@ -521,6 +547,13 @@ mod tests {
         let (instanced, distinct) = i.counts();
         assert_eq!(instanced, tris as u64 + 1);
         assert!(distinct < 200_000, "{distinct}");
+        // The waving pond: the world-space group, transformed and built every frame.
+        assert_eq!(i.world_tris, 2 * 160 * 96);
+        assert!(
+            gpu.instancing_why.contains("1 in the world-space group"),
+            "{}",
+            gpu.instancing_why
+        );
         // Three meshes and a sphere besides the bunny and the ground's quad.
         assert!(scene.meshes.len() >= 4);
         let e = scene.gpu_data_as(0.0, InstancingMode::Off).unwrap_err();

@@ -5,7 +5,7 @@ use super::attrs::{self, Normals};
 use super::error::object_label;
 use super::{
     material, model, shapes, validate, Animation, Bob, CameraSpec, Mesh, Orbit, Scene, SceneError, SceneObject,
-    Settings, Shape, Transform,
+    Settings, Shape, Transform, Wave,
 };
 use glam::Vec3;
 use indexmap::IndexMap;
@@ -122,6 +122,9 @@ struct ObjectFile {
     scale: Option<ScaleFile>,
     #[serde(default)]
     animation: AnimationFile,
+    /// In a scene of two levels: an instance of its mesh (true) or in the world-space group
+    /// rebuilt every frame (false); absent: the renderer decides.
+    instance: Option<bool>,
 }
 
 #[derive(Deserialize)]
@@ -138,6 +141,17 @@ struct AnimationFile {
     spin: [f32; 3],
     orbit: Option<OrbitFile>,
     bob: Option<BobFile>,
+    wave: Option<WaveFile>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WaveFile {
+    amplitude: f32,
+    wavelength: f32,
+    period: f32,
+    #[serde(default)]
+    heading: f32,
 }
 
 #[derive(Deserialize)]
@@ -404,7 +418,14 @@ fn to_object(
                 amplitude: b.amplitude,
                 period_s: b.period,
             }),
+            wave: a.wave.as_ref().map(|w| Wave {
+                amplitude: w.amplitude,
+                wavelength: w.wavelength,
+                period_s: w.period,
+                heading_deg: w.heading,
+            }),
         },
+        instance: o.instance,
     })
 }
 

@@ -8,9 +8,10 @@ use super::texture::TextureSet;
 use super::{material, Scene, SceneObject, Shape};
 use crate::bvh::{MeshPrims, Placement};
 use glam::Vec3;
+use shared::transform;
 use shared::types::{
-    Camera, Frame, Material, Object, PunctualLight, Sphere, Triangle, VertexAttrs, FEATURES_ALL, FLAG_BVH, FLAG_GAMMA2,
-    FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
+    BuildParams, Camera, Frame, Material, Object, PunctualLight, Sphere, Triangle, VertexAttrs, FEATURES_ALL, FLAG_BVH,
+    FLAG_GAMMA2, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
 };
 use std::sync::Arc;
 
@@ -35,9 +36,10 @@ pub struct SceneGpu {
     pub env: Option<Arc<EnvMap>>,
     /// Every texture of the materials and their texels (`Material::textures` index them).
     pub textures: Arc<TextureSet>,
-    /// With two levels ([`Scene::gpu_data_instanced`]): every object an instance of its mesh.
-    /// The primitives above are then the meshes' in model space, each mesh once, in the
-    /// levels' layout; `None`: flattened, every object's primitives copied.
+    /// With two levels ([`Scene::gpu_data_instanced`]): objects are instances of their
+    /// meshes, but those in the world-space group. The primitives above are then the
+    /// group's (model space, transformed every frame), then the meshes' in model space, each
+    /// mesh once, in the levels' layout; `None`: flattened, every object's primitives copied.
     pub instancing: Option<Arc<Instancing>>,
     /// Why the scene is instanced or flattened ([`Scene::gpu_data_as`]; `--explain`).
     pub instancing_why: String,
@@ -94,16 +96,22 @@ pub struct Instancing {
     pub light_objects: Vec<u32>,
     /// The top level's first node (after every mesh's).
     pub top: u32,
+    /// Triangles of the world-space group (mesh 0, instance 0; 0: none): the first
+    /// `world_tris` of `SceneGpu::model_tris` and `prim_object`, which the transform stage
+    /// takes to world space and the builder builds every frame, as a flattened scene's.
+    pub world_tris: u32,
 }
 
 impl Instancing {
-    /// The placements with every object's transform as `objects` (object `k`: instance `k`)
-    /// have it now.
+    /// The placements with every object's transform as `objects` (by object number) have it
+    /// now (the world-space group stays where it is: in world space).
     pub fn placements_at(&self, objects: &[Object]) -> Vec<Placement> {
         self.placements
             .iter()
-            .zip(objects)
-            .map(|(p, o)| Placement { rows: o.rows, ..*p })
+            .map(|p| match objects.get(p.object as usize) {
+                Some(o) => Placement { rows: o.rows, ..*p },
+                None => *p,
+            })
             .collect()
     }
 
@@ -150,6 +158,7 @@ fn place(object: &mut Object, o: &SceneObject, time_s: f32) {
     object.rows = [row(0), row(1), row(2)];
     object.normal_rows = [normal_row(0), normal_row(1), normal_row(2)];
     object.radius_scale = t.scale.abs().max_element();
+    object.wave = o.animation.wave.map_or([0.0; 4], |w| w.params(time_s));
 }
 
 /// Probability with which next-event estimation samples the environment map when the scene
@@ -341,12 +350,24 @@ impl Scene {
             "{} objects show {flattened} primitives, {distinct} distinct",
             self.objects.len()
         );
+        let grouped = self
+            .objects
+            .iter()
+            .filter(|o| matches!(o.shape, Shape::Mesh(_)) && Self::in_world_group(o))
+            .count();
+        let group = match grouped {
+            0 => String::new(),
+            n => {
+                format!("; {n} in the world-space group rebuilt every frame (they wave or are marked instance = false)")
+            }
+        };
         let instanced = |why: String| {
             self.gpu_data_instanced(time_s).map(|mut d| {
-                d.instancing_why = why;
+                d.instancing_why = format!("{why}{group}");
                 d
             })
         };
+        let asked = self.objects.iter().filter(|o| o.instance == Some(true)).count();
         let too_many = flattened > MAX_FLATTENED;
         let flat = |why: String| {
             if too_many {
@@ -362,13 +383,15 @@ impl Scene {
         };
         match mode {
             InstancingMode::Off => flat(format!("flattened (--instancing off); {reuse}")),
-            InstancingMode::On => instanced(format!("every object an instance (--instancing on); {reuse}")),
-            InstancingMode::Auto if too_many || auto_instances(flattened, distinct, samples) => {
-                let why = if too_many {
-                    format!("every object an instance: {reuse}, too many to flatten")
+            InstancingMode::On => instanced(format!("objects are instances (--instancing on); {reuse}")),
+            InstancingMode::Auto if asked > 0 || too_many || auto_instances(flattened, distinct, samples) => {
+                let why = if asked > 0 {
+                    format!("objects are instances: the scene marks {asked} instance = true; {reuse}")
+                } else if too_many {
+                    format!("objects are instances: {reuse}, too many to flatten")
                 } else {
                     format!(
-                        "every object an instance: {reuse}; the rebuild saved outweighs the two levels' \
+                        "objects are instances: {reuse}; the rebuild saved outweighs the two levels' \
                          trace for {samples} samples a build (auto)"
                     )
                 };
@@ -384,23 +407,42 @@ impl Scene {
         }
     }
 
+    /// Whether object `o` must be in the world-space group of a two-level scene: its shape
+    /// changes every frame (a wave), or the scene says so (`instance = false`).
+    fn in_world_group(o: &SceneObject) -> bool {
+        o.animation.wave.is_some() || o.instance == Some(false)
+    }
+
     /// The render buffers at `time_s` seconds with two levels: every object an instance of
     /// its mesh (each mesh's primitives once, in model space; a sphere object shows a mesh
-    /// of one sphere). Errors name the object that cannot be instanced: a sphere scaled
-    /// unevenly (an instance's sphere is hit as the ellipsoid its transform makes, a
-    /// flattened one as a sphere of the largest scale), a transform that cannot be inverted.
+    /// of one sphere), but those that wave or that the scene marks `instance = false`: their
+    /// triangles form the world-space group (mesh 0, instance 0: what a flattened scene
+    /// would hold of them, transformed and built again every frame, placed by the identity).
+    /// Errors name the object that cannot be instanced: a sphere scaled unevenly (an
+    /// instance's sphere is hit as the ellipsoid its transform makes, a flattened one as a
+    /// sphere of the largest scale), a transform that cannot be inverted.
     pub fn gpu_data_instanced(&self, time_s: f32) -> Result<SceneGpu, String> {
         let common = self.gpu_common(time_s);
         let mut objects = common.objects.clone();
-        let mut meshes: Vec<MeshPrims> = vec![MeshPrims::default(); self.meshes.len()];
-        let mut placements = Vec::with_capacity(self.objects.len());
+        // Mesh 0: the world-space group; scene mesh m: mesh m + 1; then one mesh of one
+        // sphere for each sphere object.
+        let mut meshes: Vec<MeshPrims> = vec![MeshPrims::default(); self.meshes.len() + 1];
+        let mut group_tris = Vec::new();
+        let mut group_objects = Vec::new();
+        let mut placements = Vec::with_capacity(self.objects.len() + 1);
         for (k, o) in self.objects.iter().enumerate() {
             let mesh = match o.shape {
+                Shape::Mesh(m) if Self::in_world_group(o) => {
+                    objects[k].first_prim = group_tris.len() as u32;
+                    group_tris.extend_from_slice(&self.meshes[m].tris);
+                    group_objects.extend(std::iter::repeat_n(k as u32, self.meshes[m].tris.len()));
+                    continue;
+                }
                 Shape::Mesh(m) => {
-                    if meshes[m].tris.is_empty() {
-                        meshes[m].tris = self.meshes[m].tris.to_vec();
+                    if meshes[m + 1].tris.is_empty() {
+                        meshes[m + 1].tris = self.meshes[m].tris.to_vec();
                     }
-                    m
+                    m + 1
                 }
                 Shape::Sphere { radius } => {
                     let s = o.transform_at(time_s).scale.abs();
@@ -421,32 +463,64 @@ impl Scene {
             };
             placements.push(Placement {
                 mesh,
+                object: k as u32,
                 rows: objects[k].rows,
             });
         }
-        // Instance k is object k: errors name the object.
+        let world_tris = group_tris.len() as u32;
+        if world_tris > 0 {
+            // The group as the transform stage makes it at `time_s` (the GPU's first frame
+            // makes it again; the CPU executor's levels take it from here).
+            let p = BuildParams {
+                n_tris: world_tris,
+                n: world_tris,
+                ..Default::default()
+            };
+            let mut world = vec![Triangle::default(); group_tris.len()];
+            for i in 0..world_tris {
+                transform::transform(i, &p, &objects, &group_objects, &group_tris, &[], &mut world, &mut []);
+            }
+            meshes[0].tris = world;
+            placements.insert(0, Placement::world(0));
+        }
+        // Errors name the object (an instance's object).
         let layout = crate::bvh::layout(&meshes, &placements).map_err(|e| {
-            let name = self.objects.get(e.instance).map_or("", |o| o.name.as_str());
-            format!("object {} ({name}): {}", e.instance, e.problem)
+            let k = placements[e.instance].object as usize;
+            let name = self.objects.get(k).map_or("", |o| o.name.as_str());
+            format!("object {k} ({name}): {}", e.problem)
         })?;
         let (n_tris, n_spheres) = (layout.n_tris, layout.n_spheres);
+        // What the tracers' primitives' numbers index: the group's model-space triangles
+        // (what the transform stage reads) where its world-space ones lie, then the meshes'.
         let mut model_tris = Vec::with_capacity(n_tris as usize);
         let mut model_spheres = Vec::with_capacity(n_spheres as usize);
-        for m in &meshes {
+        model_tris.extend_from_slice(&group_tris);
+        for m in &meshes[1..] {
             model_tris.extend_from_slice(&m.tris);
             model_spheres.extend_from_slice(&m.spheres);
         }
-        // A primitive's object: the first showing it (read only where no instance names one).
+        // A primitive's object: the group's own; a mesh's, the first object showing it (read
+        // only where no instance names one).
         let mut prim_object = vec![INVALID; (n_tris + n_spheres) as usize];
+        prim_object[..group_objects.len()].copy_from_slice(&group_objects);
+        let emits = |o: &Object| {
+            self.materials
+                .get(o.material as usize)
+                .is_some_and(|(_, m)| material::emits(m))
+        };
         let (mut lights, mut light_objects) = (Vec::new(), Vec::new());
-        for (k, (o, p)) in objects.iter_mut().zip(&placements).enumerate() {
+        for (i, &k) in group_objects.iter().enumerate() {
+            if emits(&objects[k as usize]) {
+                lights.push(i as u32);
+                light_objects.push(INVALID);
+            }
+        }
+        for p in placements.iter().filter(|p| p.object != INVALID) {
+            let k = p.object as usize;
             let m = &meshes[p.mesh];
             let (tri0, sphere0) = (layout.mesh_tris[p.mesh], n_tris + layout.mesh_spheres[p.mesh]);
             let prims = (tri0..tri0 + m.tris.len() as u32).chain(sphere0..sphere0 + m.spheres.len() as u32);
-            let emits = self
-                .materials
-                .get(o.material as usize)
-                .is_some_and(|(_, m)| material::emits(m));
+            let emits = emits(&objects[k]);
             for prim in prims {
                 let owner = &mut prim_object[prim as usize];
                 if *owner == INVALID {
@@ -457,7 +531,7 @@ impl Scene {
                     light_objects.push(k as u32);
                 }
             }
-            o.first_prim = if m.tris.is_empty() { sphere0 } else { tri0 };
+            objects[k].first_prim = if m.tris.is_empty() { sphere0 } else { tri0 };
         }
         Ok(SceneGpu {
             model_tris,
@@ -470,6 +544,7 @@ impl Scene {
                 placements,
                 light_objects,
                 top: layout.top,
+                world_tris,
             })),
             ..common
         })
@@ -556,6 +631,7 @@ mod tests {
                 spin_deg_per_s: Vec3::new(0.0, 90.0, 0.0),
                 ..Default::default()
             },
+            instance: None,
         };
         Scene {
             name: "small".into(),

@@ -20,7 +20,7 @@ mod validate;
 
 pub use error::SceneError;
 pub use gpu::{auto_instances, Instancing, InstancingMode, SceneGpu, AUTO_MIN_SAVED, MAX_FLATTENED};
-pub use transform::{Animation, Bob, Orbit, Transform};
+pub use transform::{Animation, Bob, Orbit, Transform, Wave};
 
 use glam::Vec3;
 use shared::types::{Material, PunctualLight, Triangle, VertexAttrs};
@@ -122,6 +122,10 @@ pub struct SceneObject {
     /// Index into [`Scene::materials`].
     pub material: u32,
     pub animation: Animation,
+    /// Whether a scene of two levels shows the object as an instance of its mesh
+    /// (`instance = true` in TOML) or in the world-space group rebuilt every frame
+    /// (`false`); `None`: the renderer decides (`Scene::gpu_data_for`).
+    pub instance: Option<bool>,
 }
 
 impl SceneObject {

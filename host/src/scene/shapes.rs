@@ -1,17 +1,19 @@
-//! Meshes that need no file (`mesh = "builtin:NAME"` in scene files): a unit quad and a unit
-//! cube, wound so that `cross(v1 - v0, v2 - v0)` points out of the surface.
+//! Meshes that need no file (`mesh = "builtin:NAME"` in scene files): a unit quad, the quad
+//! cut into a 64 by 64 grid (a surface to wave) and a unit cube, wound so that
+//! `cross(v1 - v0, v2 - v0)` points out of the surface.
 use super::Transform;
 use glam::Vec3;
 use shared::types::Triangle;
 
 /// Names accepted after `builtin:`.
-pub const NAMES: [&str; 2] = ["cube", "quad"];
+pub const NAMES: [&str; 3] = ["cube", "grid", "quad"];
 
 /// The mesh called `name` (without the `builtin:` prefix), if there is one.
 pub fn by_name(name: &str) -> Option<Vec<Triangle>> {
     match name {
         "cube" => Some(cube()),
         "quad" => Some(quad()),
+        "grid" => Some(grid(64, 64)),
         _ => None,
     }
 }
@@ -24,6 +26,21 @@ fn corner(p: Vec3) -> [f32; 4] {
 pub fn quad() -> Vec<Triangle> {
     let [a, b, c, d] = [(-0.5, -0.5), (-0.5, 0.5), (0.5, 0.5), (0.5, -0.5)].map(|(x, z)| corner(Vec3::new(x, 0.0, z)));
     vec![Triangle { v0: a, v1: b, v2: c }, Triangle { v0: a, v1: c, v2: d }]
+}
+
+/// The unit square of [`quad`] cut into `nx` by `nz` cells: `2 nx nz` triangles (a surface
+/// to deform: a wave needs vertices to move).
+pub fn grid(nx: u32, nz: u32) -> Vec<Triangle> {
+    let at = |i: u32, j: u32| corner(Vec3::new(i as f32 / nx as f32 - 0.5, 0.0, j as f32 / nz as f32 - 0.5));
+    let mut tris = Vec::with_capacity(2 * (nx * nz) as usize);
+    for j in 0..nz {
+        for i in 0..nx {
+            let [a, b, c, d] = [at(i, j), at(i, j + 1), at(i + 1, j + 1), at(i + 1, j)];
+            tris.push(Triangle { v0: a, v1: b, v2: c });
+            tris.push(Triangle { v0: a, v1: c, v2: d });
+        }
+    }
+    tris
 }
 
 /// The unit cube `[-0.5, 0.5]^3`, faces outward: 12 triangles.

@@ -67,6 +67,29 @@ pub struct Animation {
     pub orbit: Option<Orbit>,
     /// A sinusoidal offset along y, added last.
     pub bob: Option<Bob>,
+    /// Waves running over the object's triangles: its shape changes every frame (the
+    /// transform stage deforms it: `shared::transform::waved`).
+    pub wave: Option<Wave>,
+}
+
+/// Waves along y over a mesh's model space: crests `wavelength` apart running towards
+/// `heading_deg` (about y; 0: towards +x), one wavelength every `period_s`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Wave {
+    pub amplitude: f32,
+    pub wavelength: f32,
+    pub period_s: f32,
+    pub heading_deg: f32,
+}
+
+impl Wave {
+    /// `Object::wave` at `time_s`: amplitude, waves per unit along x and z, phase in waves
+    /// (its fraction: large times keep their precision).
+    pub fn params(&self, time_s: f32) -> [f32; 4] {
+        let (s, c) = self.heading_deg.to_radians().sin_cos();
+        let phase = (time_s as f64 / self.period_s as f64).rem_euclid(1.0) as f32;
+        [self.amplitude, c / self.wavelength, s / self.wavelength, phase]
+    }
 }
 
 /// A circular path in the xz plane: at time `t` the object is at

@@ -135,6 +135,14 @@ fn object(scene: &Scene, o: &SceneObject) -> Result<(), String> {
             if t.scale.max_element() - t.scale.min_element() > 1e-6 * t.scale.max_element() {
                 return Err(format!("a sphere needs a uniform scale, got {}", t.scale));
             }
+            if o.animation.wave.is_some() {
+                return Err("a sphere cannot wave: waves deform a mesh's triangles".into());
+            }
+            if o.instance == Some(false) {
+                return Err(
+                    "instance = false is for meshes: a sphere of a two-level scene is always an instance".into(),
+                );
+            }
         }
     }
     if o.material as usize >= scene.materials.len() {
@@ -160,6 +168,16 @@ fn animation(a: &Animation) -> Result<(), String> {
             return Err(format!("bob amplitude must be finite, got {}", b.amplitude));
         }
         positive("bob period", b.period_s)?;
+    }
+    if let Some(w) = a.wave {
+        if !w.amplitude.is_finite() || !w.heading_deg.is_finite() {
+            return Err(format!(
+                "wave amplitude and heading must be finite, got {} and {}",
+                w.amplitude, w.heading_deg
+            ));
+        }
+        positive("wave length", w.wavelength)?;
+        positive("wave period", w.period_s)?;
     }
     Ok(())
 }

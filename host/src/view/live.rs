@@ -142,6 +142,7 @@ impl LiveScene {
             transform: Transform::at(at),
             material,
             animation: Animation::default(),
+            instance: None,
         })
     }
 
@@ -172,6 +173,7 @@ impl LiveScene {
             transform: Transform::new(at - centre * scale, Vec3::ZERO, Vec3::splat(scale)),
             material,
             animation: Animation::default(),
+            instance: None,
         }))
     }
 

@@ -100,13 +100,13 @@ impl App {
         if let Some(i) = &d.instancing {
             // Two levels: built again by the CPU executor, validated, and compared bit for bit.
             let (instanced, distinct) = i.counts();
-            let placements = i.placements_at(&d.objects);
+            let (meshes, placements) = crate::cpu::levels_inputs(d, i, &d.objects);
             let opts = crate::bvh::BuildOptions {
                 wide: false,
                 ..self.renderer.build_options()
             };
-            let checked = crate::bvh::build_levels(&i.meshes, &placements, opts).and_then(|l| {
-                crate::bvh::validate_levels(&l, &i.meshes, &placements)?;
+            let checked = crate::bvh::build_levels(&meshes, &placements, opts).and_then(|l| {
+                crate::bvh::validate_levels(&l, &meshes, &placements)?;
                 Ok(l.nodes == bvh.nodes)
             });
             match checked {

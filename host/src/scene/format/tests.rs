@@ -129,8 +129,9 @@ fn every_field_is_read() {
         [materials.m]\nkind = \"metal\"\nalbedo = [0.1, 0.2, 0.3]\nemission = [1, 0, 0]\nroughness = 0.5\n\
         [[objects]]\nname = \"cube\"\nmesh = \"builtin:cube\"\nmaterial = \"m\"\ntranslate = [1, 2, 3]\n\
         rotate = [10, 20, 30]\nscale = [1, 2, 3]\n\
+        instance = false\n\
         [objects.animation]\nspin = [1, 2, 3]\norbit = { center = [1, 0, 1], radius = 2, period = 3 }\n\
-        bob = { amplitude = 0.5, period = 2 }\n";
+        bob = { amplitude = 0.5, period = 2 }\nwave = { amplitude = 0.1, wavelength = 2, period = 4, heading = 90 }\n";
     let s = parse(text).unwrap();
     assert_eq!(s.name, "all");
     let c = s.camera;
@@ -166,6 +167,16 @@ fn every_field_is_read() {
         Some((Vec3::new(1.0, 0.0, 1.0), 2.0, 3.0))
     );
     assert_eq!(a.bob.map(|b| (b.amplitude, b.period_s)), Some((0.5, 2.0)));
+    let w = a.wave.unwrap();
+    assert_eq!(
+        (w.amplitude, w.wavelength, w.period_s, w.heading_deg),
+        (0.1, 2.0, 4.0, 90.0)
+    );
+    // At 5 s: a quarter wave on (phase 0.25), half a wave a unit, heading along z.
+    let [amp, kx, kz, phase] = w.params(5.0);
+    assert!((amp, phase) == (0.1, 0.25) && kx.abs() < 1e-7 && (kz - 0.5).abs() < 1e-7);
+    assert_eq!(o.instance, Some(false));
+    assert_eq!(parse(&format!("{HEADER}{BALL}")).unwrap().objects[0].instance, None);
 }
 
 #[test]
@@ -256,7 +267,7 @@ fn missing_obj_file_is_named() {
     let text = format!("{HEADER}[[objects]]\nmesh = \"meshes/nope.obj\"\nmaterial = \"white\"\n");
     error_of(&text, &["cannot load mesh \"meshes/nope.obj\"", "nope.obj"]);
     let text = format!("{HEADER}[[objects]]\nmesh = \"builtin:teapot\"\nmaterial = \"white\"\n");
-    error_of(&text, &["builtin:teapot", "builtin:cube, builtin:quad"]);
+    error_of(&text, &["builtin:teapot", "builtin:cube, builtin:grid, builtin:quad"]);
 }
 
 #[test]
@@ -308,6 +319,35 @@ fn bad_sizes_are_refused() {
     );
     let bob = "[objects.animation]\nbob = { amplitude = 1, period = 0 }\n";
     error_of(&format!("{HEADER}{BALL}{bob}"), &["objects[0]", "bob period"]);
+    let wave = |w: &str| format!("[objects.animation]\nwave = {{ {w} }}\n");
+    let good = "amplitude = 1, wavelength = 2, period = 3";
+    error_of(
+        &format!("{HEADER}{BALL}{}", wave(good)),
+        &["objects[0]", "a sphere cannot wave"],
+    );
+    let waving = |w: &str| format!("{HEADER}{cube}{}", wave(w));
+    assert!(parse(&waving(good)).is_ok());
+    error_of(
+        &waving("amplitude = 1, wavelength = 0, period = 3"),
+        &["objects[0]", "wave length"],
+    );
+    error_of(
+        &waving("amplitude = 1, wavelength = 2, period = -3"),
+        &["objects[0]", "wave period"],
+    );
+    error_of(
+        &waving("amplitude = inf, wavelength = 2, period = 3"),
+        &["objects[0]", "wave amplitude"],
+    );
+    error_of(&waving("amplitude = 1, wavelength = 2"), &["period"]);
+    error_of(
+        &format!("{HEADER}{BALL}instance = false\n"),
+        &["objects[0]", "instance = false is for meshes"],
+    );
+    error_of(
+        &format!("{HEADER}{cube}instance = \"yes\"\n"),
+        &["line 11", "expected a boolean"],
+    );
     let shape = "[[objects]]\nsphere = 1\nmesh = \"builtin:cube\"\nmaterial = \"white\"\n";
     error_of(&format!("{HEADER}{shape}"), &["objects[0]", "not both"]);
 }

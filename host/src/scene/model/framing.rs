@@ -108,6 +108,7 @@ pub(super) fn complete(scene: &mut Scene, has_camera: bool, file: &str, warnings
         transform: Transform::at(at),
         material: scene.materials.len() as u32 - 1,
         animation: Animation::default(),
+        instance: None,
     });
     warnings.push(format!(
         "{file}: nothing in the file emits light: added a key light, a sphere of radius {light_radius:.3} and radiance {KEY_EMISSION} at {}",

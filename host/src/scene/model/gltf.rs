@@ -637,6 +637,7 @@ impl Walk<'_> {
                 transform,
                 material: p.material,
                 animation: Animation::default(),
+                instance: None,
             });
         }
         Ok(())

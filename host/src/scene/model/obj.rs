@@ -338,6 +338,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
             transform: Transform::IDENTITY,
             material: model.materials.len() as u32 - 1,
             animation: Animation::default(),
+            instance: None,
         });
     }
     Ok(model)

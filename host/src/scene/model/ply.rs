@@ -144,6 +144,7 @@ pub(super) fn load(path: &Path, file: &str) -> Result<Model, SceneError> {
             transform: Transform::IDENTITY,
             material: 0,
             animation: Animation::default(),
+            instance: None,
         }],
         camera: None,
         punctual: Vec::new(),
