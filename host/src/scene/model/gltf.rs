@@ -718,6 +718,19 @@ impl Walk<'_> {
 
     /// The model, with the warnings the walk collected.
     fn finish(mut self) -> Model {
+        // A mesh several nodes show is instanced in a scene of two levels (each node an
+        // instance of it); the renderer's rule decides for the rest.
+        let mut uses = vec![0usize; self.model.meshes.len()];
+        for o in &self.model.objects {
+            if let Shape::Mesh(m) = o.shape {
+                uses[m] += 1;
+            }
+        }
+        for o in &mut self.model.objects {
+            if matches!(o.shape, Shape::Mesh(m) if uses[m] > 1) {
+                o.instance = Some(true);
+            }
+        }
         let file = self.file;
         let w = &mut self.model.warnings;
         if !self.skipped_modes.is_empty() {

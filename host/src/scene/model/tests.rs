@@ -337,6 +337,15 @@ fn gltf_node_hierarchy_places_each_instance_and_parses_the_mesh_once() {
     assert_eq!(model.objects[0].transform.scale, Vec3::splat(2.0));
     assert_eq!(model.objects[2].transform, crate::scene::Transform::IDENTITY);
     assert_eq!(model.objects[1].name, "up: tri");
+    // The shared mesh's nodes are instances in a scene of two levels; the baked one is left
+    // to the renderer's rule.
+    let marks: Vec<_> = model.objects.iter().map(|o| o.instance).collect();
+    assert_eq!(marks, [Some(true), Some(true), None]);
+    let (scene, _) = model.into_scene("tree", "tree.gltf");
+    let data = scene.gpu_data_as(0.0, crate::scene::InstancingMode::Auto).unwrap();
+    let i = data.instancing.as_ref().expect("two levels");
+    assert_eq!((i.placements.len(), i.world_tris), (scene.objects.len(), 0));
+    assert!(data.instancing_why.contains("2 instance = true"), "{}", data.instancing_why);
 }
 
 #[test]
