@@ -61,9 +61,11 @@ pub struct SceneArgs {
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: Treelets,
     /// Objects as instances of their meshes (two-level BVH: each mesh built once, the top
-    /// level over the objects every frame) or flattened into one BVH: auto instances where the
-    /// rebuild it saves outweighs tracing two levels (the copies saved exceed twice the
-    /// samples a build serves: measured on the H100), or where flattening would not fit.
+    /// level over the objects every frame; objects that wave or are marked instance = false
+    /// form a world-space group built every frame) or flattened into one BVH: auto takes two
+    /// levels where the scene marks instance = true, where the rebuild it saves outweighs
+    /// tracing two levels (the copies saved exceed twice the samples a build serves: measured
+    /// on the H100), or where flattening would not fit.
     #[arg(long, value_enum, default_value = "auto")]
     pub instancing: InstancingMode,
     /// Kernel features beyond what the scene needs: `all`, or +NAME / -NAME for triangles,

@@ -1,8 +1,9 @@
 //! The built-in scenes ([`Scene::BUILTINS`]): the Cornell box with its two blocks, the box
 //! holding Suzanne or the Stanford bunny, Ray Tracing in One Weekend's final scene of spheres,
 //! a 4x4 grid of spinning bunnies of over a million triangles, a 12x12 herd of ten million,
-//! and a forest of 24,386 objects and 1.23 billion triangles (instanced, its pond waving). Walls and blocks are
-//! objects made of the built-in quad and cube, so they can be moved like any other.
+//! and a forest of 24,386 objects and 1.23 billion triangles (instanced, its pond waving).
+//! Walls and blocks are objects made of the built-in quad and cube, so they can be moved like
+//! any other.
 use super::{
     material, shapes, validate, Animation, Bob, CameraSpec, Mesh, Scene, SceneError, SceneObject, Settings, Shape,
     Transform, Wave,

@@ -45,12 +45,14 @@ pub struct SceneGpu {
     pub instancing_why: String,
 }
 
-/// Whether a scene's objects become instances of their meshes (two levels) or are
+/// Whether a scene's objects become instances of their meshes (two levels: but those that
+/// deform or are marked `instance = false`, which form the world-space group) or are all
 /// flattened into one world-space BVH (`--instancing`).
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 pub enum InstancingMode {
-    /// Instanced where the rebuild saved outweighs the cost of tracing two levels
-    /// ([`auto_instances`]), or where the scene is too large to flatten.
+    /// Two levels where the scene marks an object `instance = true`, where the rebuild saved
+    /// outweighs the cost of tracing two levels ([`auto_instances`]), or where the scene is
+    /// too large to flatten.
     #[default]
     Auto,
     On,
@@ -327,8 +329,10 @@ impl Scene {
     /// The render buffers at `time_s`, instanced or flattened as `mode` says (see
     /// [`InstancingMode`]), where one build of the BVH serves `samples` samples (a still: every
     /// pixel's samples; a real-time frame: one a pixel), with the reason in `instancing_why`.
-    /// `On` fails where the scene cannot be instanced (see [`Scene::gpu_data_instanced`]);
-    /// `Auto` then flattens it. Neither flattens more than [`MAX_FLATTENED`] primitives.
+    /// `Auto` takes two levels where an object is marked `instance = true`, or by
+    /// [`auto_instances`]. `On` fails where the scene cannot be instanced (see
+    /// [`Scene::gpu_data_instanced`]); `Auto` then flattens it. Neither flattens more than
+    /// [`MAX_FLATTENED`] primitives.
     pub fn gpu_data_for(&self, time_s: f32, mode: InstancingMode, samples: u64) -> Result<SceneGpu, String> {
         let (tris, spheres) = self.counts();
         let flattened = (tris + spheres) as u64;

@@ -345,7 +345,11 @@ fn gltf_node_hierarchy_places_each_instance_and_parses_the_mesh_once() {
     let data = scene.gpu_data_as(0.0, crate::scene::InstancingMode::Auto).unwrap();
     let i = data.instancing.as_ref().expect("two levels");
     assert_eq!((i.placements.len(), i.world_tris), (scene.objects.len(), 0));
-    assert!(data.instancing_why.contains("2 instance = true"), "{}", data.instancing_why);
+    assert!(
+        data.instancing_why.contains("2 instance = true"),
+        "{}",
+        data.instancing_why
+    );
 }
 
 #[test]
