@@ -286,3 +286,46 @@ fn the_gpu_rebuilds_a_mixed_scenes_group_every_frame_as_the_cpu() {
     assert_eq!((hits[0].prim, hits[1].prim), (pond, bunny as u32), "{hits:?}");
     assert_no_validation_errors(&gpu);
 }
+
+#[test]
+fn adding_and_removing_objects_keeps_the_meshes_bvhs() {
+    let Some(gpu) = gpu("adding_and_removing_objects_keeps_the_meshes_bvhs") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    let p = prepared("instances", 16, 1, "on");
+    let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    r.load(&p.data, &p.frame).expect("load");
+    let (built, kept) = r.meshes_built().expect("two levels");
+    // The bunny, the ground's quad and the lamp's sphere.
+    assert_eq!((built, kept), (3, 0));
+    // An edit: a bunny added (a copy of bunny 5, 40 units on), bunny 7 removed.
+    let mut scene = p.scene.clone();
+    let mut copy = scene.objects[5].clone();
+    copy.transform.translation.x += 40.0;
+    scene.objects.push(copy);
+    scene.objects.remove(7);
+    let data = scene.gpu_data_as(0.0, InstancingMode::On).expect("data");
+    let mut frame = scene.frame(&data);
+    frame.features = p.frame.features;
+    r.load(&data, &frame).expect("load the edited scene");
+    // No mesh built again: only the top level over the objects as they are now.
+    assert_eq!(r.meshes_built(), Some((0, 3)));
+    r.render(1, true).expect("render");
+    // The same levels and the same picture as the edited scene loaded afresh.
+    let mut fresh = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+    fresh.load(&data, &frame).expect("load");
+    fresh.render(1, true).expect("render");
+    assert_eq!(r.bvh().expect("nodes").nodes, fresh.bvh().expect("nodes").nodes);
+    assert_eq!(r.world().expect("primitives"), fresh.world().expect("primitives"));
+    assert_eq!(r.sums().expect("image"), fresh.sums().expect("image"));
+    // The added bunny is picked where it went, by its object's number.
+    let added = (scene.objects.len() - 1) as u32;
+    let o = data.objects[added as usize].rows;
+    let down = Ray {
+        origin: [o[0][3], 20.0, o[2][3], 0.0],
+        dir: [0.0, -1.0, 0.0, f32::INFINITY],
+    };
+    assert_eq!(r.cast_objects(&[down]).expect("cast")[0].prim, added);
+    assert_no_validation_errors(&gpu);
+}

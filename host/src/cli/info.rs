@@ -76,19 +76,35 @@ pub fn kernels_command(opts: &GpuOptions) -> Result<()> {
     for (entry, lines) in &stats {
         println!("{entry}: {}", lines.join(", "));
     }
-    // What the renders run: the path tracer specialised to each scene's features.
+    // What the renders run: the path tracer specialised to each scene's features (the
+    // sixteen bunnies flattened and in two levels).
     let scenes = if stats.is_empty() {
         &[][..]
     } else {
-        &["cornell", "bunny"][..]
+        &["cornell", "bunny", "instances"][..]
     };
     for scene in scenes {
-        for nee in [false, true] {
-            let args = ["raytrace", scene, if nee { "--spp=1" } else { "--no-nee" }];
+        let layouts: &[&str] = if *scene == "instances" {
+            &["off", "on"]
+        } else {
+            &["off"]
+        };
+        for (nee, instancing) in [false, true]
+            .into_iter()
+            .flat_map(|n| layouts.iter().map(move |l| (n, *l)))
+        {
+            let args = [
+                "raytrace",
+                scene,
+                if nee { "--spp=1" } else { "--no-nee" },
+                "--instancing",
+                instancing,
+            ];
             let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
             let lines = k.specialised_statistics(Kernel::PathTrace, p.frame.features)?;
             let nee = if nee { " (NEE)" } else { "" };
-            println!("path_trace for {scene}{nee}: {}", lines.join(", "));
+            let levels = if instancing == "on" { " (two levels)" } else { "" };
+            println!("path_trace for {scene}{nee}{levels}: {}", lines.join(", "));
         }
     }
     Ok(())

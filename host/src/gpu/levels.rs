@@ -32,6 +32,33 @@ pub struct GpuLevels {
     trace: BindingSets,
     boxes: BindingSets,
     _empty: Buffer,
+    /// Each mesh's [`MeshKey`] (what a later [`GpuLevels::keeping`] matches).
+    keys: Vec<MeshKey>,
+    /// Meshes whose BVH was built here, and those copied from the levels before.
+    pub built: usize,
+    pub kept: usize,
+}
+
+/// What identifies a mesh's primitives: their counts and a hash of their bits.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+struct MeshKey {
+    tris: usize,
+    spheres: usize,
+    hash: u64,
+}
+
+impl MeshKey {
+    fn of(m: &MeshPrims) -> MeshKey {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::hash::DefaultHasher::new();
+        bytemuck::cast_slice::<_, u8>(&m.tris).hash(&mut h);
+        bytemuck::cast_slice::<_, u8>(&m.spheres).hash(&mut h);
+        MeshKey {
+            tris: m.tris.len(),
+            spheres: m.spheres.len(),
+            hash: h.finish(),
+        }
+    }
 }
 
 impl GpuLevels {
@@ -39,6 +66,22 @@ impl GpuLevels {
     /// builds every mesh's BVH and the top level with `opts` (binary: the walk does not read
     /// the wide layout).
     pub fn new(
+        gpu: &Arc<Gpu>,
+        kernels: &Arc<Kernels>,
+        meshes: &[MeshPrims],
+        placements: &[Placement],
+        opts: BuildOptions,
+    ) -> Result<GpuLevels> {
+        Self::keeping(None, gpu, kernels, meshes, placements, opts)
+    }
+
+    /// [`Self::new`], keeping the BVHs of `previous` (the levels of the scene before an edit:
+    /// objects added, removed or moved): a mesh whose primitives have the same bits as one
+    /// of `previous`'s, built with the same options, has its primitives and nodes copied
+    /// over instead of built again. Adding an instance of a mesh the scene shows already, or
+    /// removing one, builds no mesh: only the top level.
+    pub fn keeping(
+        previous: Option<&GpuLevels>,
         gpu: &Arc<Gpu>,
         kernels: &Arc<Kernels>,
         meshes: &[MeshPrims],
@@ -79,46 +122,69 @@ impl GpuLevels {
             trace,
             boxes,
             _empty: empty,
+            keys: meshes.iter().map(MeshKey::of).collect(),
+            built: 0,
+            kept: 0,
         };
         l.objects.write(&l.layout.objects)?;
         l.instances.write(&l.layout.instances)?;
-        l.build_meshes(meshes)?;
+        l.build_meshes(meshes, previous.filter(|p| p.opts == opts))?;
         l.rebuild_top()?;
         Ok(l)
     }
 
-    /// Every mesh's primitives and BVH into the bottom level, one build each.
-    fn build_meshes(&mut self, meshes: &[MeshPrims]) -> Result<()> {
-        let mut builder = GpuLbvh::new(&self.gpu, &self.kernels)?;
+    /// Every mesh's primitives and BVH into the bottom level: copied from `previous` where
+    /// it holds the same mesh, else built (one build each).
+    fn build_meshes(&mut self, meshes: &[MeshPrims], previous: Option<&GpuLevels>) -> Result<()> {
+        let old: std::collections::HashMap<MeshKey, usize> = previous
+            .map(|p| p.keys.iter().enumerate().map(|(j, k)| (*k, j)).collect())
+            .unwrap_or_default();
+        let mut builder = None;
         for (m, mesh) in meshes.iter().enumerate() {
             let n = mesh.tris.len() + mesh.spheres.len();
             if n == 0 {
                 continue;
             }
-            builder.upload(&mesh.tris, &mesh.spheres)?;
-            builder.build(self.opts, false)?;
-            let (b_tris, b_spheres, b_nodes) = builder.buffers()?;
+            // Where the mesh's primitives and nodes come from: the levels before, or a build.
+            let (from, src) = match (previous, old.get(&self.keys[m])) {
+                (Some(p), Some(&j)) => {
+                    self.kept += 1;
+                    let l = &p.layout;
+                    let from = (l.mesh_tris[j], l.mesh_spheres[j], l.mesh_nodes[j]);
+                    (from, (&p.tris, &p.spheres, &p.nodes))
+                }
+                _ => {
+                    self.built += 1;
+                    let b = match &mut builder {
+                        Some(b) => b,
+                        None => builder.insert(GpuLbvh::new(&self.gpu, &self.kernels)?),
+                    };
+                    b.upload(&mesh.tris, &mesh.spheres)?;
+                    b.build(self.opts, false)?;
+                    ((0, 0, 0), b.buffers()?)
+                }
+            };
             let (tri, sphere) = (size_of::<Triangle>() as u64, size_of::<Sphere>() as u64);
             let node = size_of::<Node>() as u64;
             self.cmds.begin()?;
             let c = &self.cmds;
             c.copy_range(
-                b_tris,
-                0,
+                src.0,
+                from.0 as u64 * tri,
                 &self.tris,
                 self.layout.mesh_tris[m] as u64 * tri,
                 mesh.tris.len() as u64 * tri,
             );
             c.copy_range(
-                b_spheres,
-                0,
+                src.1,
+                from.1 as u64 * sphere,
                 &self.spheres,
                 self.layout.mesh_spheres[m] as u64 * sphere,
                 mesh.spheres.len() as u64 * sphere,
             );
             c.copy_range(
-                b_nodes,
-                0,
+                src.2,
+                from.2 as u64 * node,
                 &self.nodes,
                 self.layout.mesh_nodes[m] as u64 * node,
                 (2 * n as u64 - 1) * node,

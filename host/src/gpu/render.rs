@@ -302,7 +302,9 @@ impl GpuRenderer {
     /// Uploads a scene and its frame; accumulation starts again.
     pub fn load(&mut self, scene: &SceneGpu, frame: &Frame) -> Result<()> {
         self.bufs = None;
-        self.levels = None;
+        // The levels before, whose meshes' BVHs the new ones keep where the meshes are the
+        // same (an edit adds, removes or moves objects: only the top level is built again).
+        let previous = self.levels.take();
         self.world_tris = 0;
         let gpu = &self.gpu.clone();
         let dev = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::GpuOnly);
@@ -368,7 +370,8 @@ impl GpuRenderer {
                 wide: false,
                 ..self.build
             };
-            self.levels = Some(GpuLevels::new(gpu, &self.kernels, &i.meshes, &placements, opts)?);
+            let levels = GpuLevels::keeping(previous.as_ref(), gpu, &self.kernels, &i.meshes, &placements, opts)?;
+            self.levels = Some(levels);
             self.world_tris = i.world_tris;
             if i.world_tris > 0 {
                 self.lbvh.reserve(i.world_tris as usize, 0)?;
@@ -401,6 +404,12 @@ impl GpuRenderer {
                 nodes + rest
             }
         }
+    }
+
+    /// With two levels: how many meshes' BVHs the last [`Self::load`] built, and how many it
+    /// kept from the scene loaded before.
+    pub fn meshes_built(&self) -> Option<(usize, usize)> {
+        self.levels.as_ref().map(|l| (l.built, l.kept))
     }
 
     /// Set 0 of the tracers: the two levels' buffers, or the builder's.
