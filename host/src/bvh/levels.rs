@@ -16,7 +16,8 @@ pub struct MeshPrims {
 
 /// An instance: which mesh, shown by which object, placed by which transform (model to
 /// world, 3x4 row-major). An instance of no object ([`INVALID`]) is the world-space group
-/// of a mixed scene: its mesh is in world space, placed by [`IDENTITY`] (its `rows`).
+/// of a mixed scene ([`Placement::world`]): its mesh is in world space, its `rows`
+/// [`IDENTITY`] (what the `instance_boxes` kernel places it by).
 #[derive(Copy, Clone, Debug)]
 pub struct Placement {
     pub mesh: usize,
@@ -180,8 +181,7 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
                 problem: format!("it shows mesh {}, which has no primitives", p.mesh),
             });
         }
-        let rows = if p.object == INVALID { IDENTITY } else { p.rows };
-        let to_model = inverse_rows(&rows).map_err(|problem| LayoutError { instance: k, problem })?;
+        let to_model = inverse_rows(&p.rows).map_err(|problem| LayoutError { instance: k, problem })?;
         let (lo, hi) = boxes[p.mesh];
         l.instances.push(Instance {
             to_model,
@@ -199,7 +199,7 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
             if l.objects.len() <= o {
                 l.objects.resize(o + 1, Object::default());
             }
-            l.objects[o].rows = rows;
+            l.objects[o].rows = p.rows;
         }
     }
     Ok(l)
@@ -276,7 +276,7 @@ pub fn validate_levels(l: &Levels, meshes: &[MeshPrims], placements: &[Placement
         });
         for c in vertices.chain(sphere_corners) {
             let w = DVec3::from_array(std::array::from_fn(|r| {
-                let q = if p.object == INVALID { IDENTITY[r] } else { p.rows[r] };
+                let q = p.rows[r];
                 q[0] as f64 * c.x as f64 + q[1] as f64 * c.y as f64 + q[2] as f64 * c.z as f64 + q[3] as f64
             }));
             if w.cmplt(lo.as_dvec3()).any() || w.cmpgt(hi.as_dvec3()).any() {

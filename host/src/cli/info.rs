@@ -89,22 +89,21 @@ pub fn kernels_command(opts: &GpuOptions) -> Result<()> {
         } else {
             &["off"]
         };
-        for (nee, instancing) in [false, true]
-            .into_iter()
-            .flat_map(|n| layouts.iter().map(move |l| (n, *l)))
-        {
-            let args = [
-                "raytrace",
-                scene,
-                if nee { "--spp=1" } else { "--no-nee" },
-                "--instancing",
-                instancing,
-            ];
-            let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
-            let lines = k.specialised_statistics(Kernel::PathTrace, p.frame.features)?;
-            let nee = if nee { " (NEE)" } else { "" };
-            let levels = if instancing == "on" { " (two levels)" } else { "" };
-            println!("path_trace for {scene}{nee}{levels}: {}", lines.join(", "));
+        for nee in [false, true] {
+            for &instancing in layouts {
+                let args = [
+                    "raytrace",
+                    scene,
+                    if nee { "--spp=1" } else { "--no-nee" },
+                    "--instancing",
+                    instancing,
+                ];
+                let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
+                let lines = k.specialised_statistics(Kernel::PathTrace, p.frame.features)?;
+                let nee = if nee { " (NEE)" } else { "" };
+                let levels = if instancing == "on" { " (two levels)" } else { "" };
+                println!("path_trace for {scene}{nee}{levels}: {}", lines.join(", "));
+            }
         }
     }
     Ok(())

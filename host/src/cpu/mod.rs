@@ -8,5 +8,6 @@ mod render;
 pub use denoise::{unplane as guides_from_planes, CpuDenoiser, Denoised};
 pub use lbvh::build;
 pub use render::{
-    display_image, levels_inputs, render_cpu, render_cpu_moving, render_cpu_samples, world_primitives, CpuRender,
+    display_image, levels_inputs, render_cpu, render_cpu_moving, render_cpu_samples, transformed, world_primitives,
+    CpuRender,
 };

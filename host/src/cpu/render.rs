@@ -33,12 +33,26 @@ pub fn display_image(accum: &[[f32; 4]], push: &RenderPush, frame: &Frame) -> Ve
 /// transform stage writes).
 pub fn world_primitives(scene: &SceneGpu) -> (Vec<Triangle>, Vec<Sphere>) {
     let (n_tris, n_spheres) = (scene.model_tris.len(), scene.model_spheres.len());
-    transformed(scene, &scene.objects, n_tris, n_spheres)
+    transformed(
+        &scene.objects,
+        &scene.prim_object,
+        &scene.model_tris,
+        &scene.model_spheres,
+        n_tris,
+        n_spheres,
+    )
 }
 
 /// The transform kernel over the first `n_tris` triangles and `n_spheres` spheres of
-/// `scene`'s model-space primitives, with the objects at `objects`.
-fn transformed(scene: &SceneGpu, objects: &[Object], n_tris: usize, n_spheres: usize) -> (Vec<Triangle>, Vec<Sphere>) {
+/// `model_tris` and `model_spheres` (their objects in `prim_object`), with `objects`.
+pub fn transformed(
+    objects: &[Object],
+    prim_object: &[u32],
+    model_tris: &[Triangle],
+    model_spheres: &[Sphere],
+    n_tris: usize,
+    n_spheres: usize,
+) -> (Vec<Triangle>, Vec<Sphere>) {
     let p = BuildParams {
         n_tris: n_tris as u32,
         n: (n_tris + n_spheres) as u32,
@@ -52,9 +66,9 @@ fn transformed(scene: &SceneGpu, objects: &[Object], n_tris: usize, n_spheres: u
             i,
             &p,
             objects,
-            &scene.prim_object,
-            &scene.model_tris,
-            &scene.model_spheres,
+            prim_object,
+            model_tris,
+            model_spheres,
             &mut tris,
             &mut spheres,
         );
@@ -86,7 +100,8 @@ pub fn levels_inputs<'a>(
         .collect();
     let mut meshes = std::borrow::Cow::Borrowed(&i.meshes[..]);
     if i.world_tris > 0 {
-        meshes.to_mut()[0].tris = transformed(scene, objects, i.world_tris as usize, 0).0;
+        let n = i.world_tris as usize;
+        meshes.to_mut()[0].tris = transformed(objects, &scene.prim_object, &scene.model_tris, &[], n, 0).0;
     }
     (meshes, placements)
 }

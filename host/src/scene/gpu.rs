@@ -8,10 +8,9 @@ use super::texture::TextureSet;
 use super::{material, Scene, SceneObject, Shape};
 use crate::bvh::{MeshPrims, Placement};
 use glam::Vec3;
-use shared::transform;
 use shared::types::{
-    BuildParams, Camera, Frame, Material, Object, PunctualLight, Sphere, Triangle, VertexAttrs, FEATURES_ALL, FLAG_BVH,
-    FLAG_GAMMA2, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
+    Camera, Frame, Material, Object, PunctualLight, Sphere, Triangle, VertexAttrs, FEATURES_ALL, FLAG_BVH, FLAG_GAMMA2,
+    FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
 };
 use std::sync::Arc;
 
@@ -475,16 +474,8 @@ impl Scene {
         if world_tris > 0 {
             // The group as the transform stage makes it at `time_s` (the GPU's first frame
             // makes it again; the CPU executor's levels take it from here).
-            let p = BuildParams {
-                n_tris: world_tris,
-                n: world_tris,
-                ..Default::default()
-            };
-            let mut world = vec![Triangle::default(); group_tris.len()];
-            for i in 0..world_tris {
-                transform::transform(i, &p, &objects, &group_objects, &group_tris, &[], &mut world, &mut []);
-            }
-            meshes[0].tris = world;
+            let n = group_tris.len();
+            meshes[0].tris = crate::cpu::transformed(&objects, &group_objects, &group_tris, &[], n, 0).0;
             placements.insert(0, Placement::world(0));
         }
         // Errors name the object (an instance's object).
