@@ -35,6 +35,14 @@ fn prepared_at(scene: &str, size: u32, spp: u32, instancing: &str, time: f32) ->
     <SceneArgs as clap::Parser>::parse_from(args).prepare().expect("scene")
 }
 
+/// A ray straight down from 20 units above `(x, z)`: what picking casts onto the ground.
+fn down(x: f32, z: f32) -> Ray {
+    Ray {
+        origin: [x, 20.0, z, 0.0],
+        dir: [0.0, -1.0, 0.0, f32::INFINITY],
+    }
+}
+
 /// The shipped scene of both kinds: a waving pond and a ground quad in the world-space group
 /// (`instance = false`), twelve bunnies and a light instanced (`instance = true`).
 const POND: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/pond.toml");
@@ -110,10 +118,6 @@ fn moving_objects_moves_their_instances_and_picking_names_the_object() {
     r.render(1, true).expect("render");
     // A ray straight down onto bunny 5 (object 5): the instance's object, not the first
     // object showing the bunny's triangles.
-    let down = |x: f32, z: f32| Ray {
-        origin: [x, 20.0, z, 0.0],
-        dir: [0.0, -1.0, 0.0, f32::INFINITY],
-    };
     let at = |o: &shared::types::Object| (o.rows[0][3], o.rows[2][3]);
     let (x, z) = at(&p.data.objects[5]);
     let hit = r.cast_objects(&[down(x, z)]).expect("cast")[0];
@@ -278,10 +282,6 @@ fn the_gpu_rebuilds_a_mixed_scenes_group_every_frame_as_the_cpu() {
     let pond = p.scene.objects.iter().position(|o| o.name == "pond").unwrap() as u32;
     let bunny = p.scene.objects.iter().position(|o| o.name == "bunny 3").unwrap();
     let b = p.data.objects[bunny].rows;
-    let down = |x: f32, z: f32| Ray {
-        origin: [x, 20.0, z, 0.0],
-        dir: [0.0, -1.0, 0.0, f32::INFINITY],
-    };
     let hits = r.cast_objects(&[down(0.3, 0.2), down(b[0][3], b[2][3])]).expect("cast");
     assert_eq!((hits[0].prim, hits[1].prim), (pond, bunny as u32), "{hits:?}");
     assert_no_validation_errors(&gpu);
@@ -322,10 +322,6 @@ fn adding_and_removing_objects_keeps_the_meshes_bvhs() {
     // The added bunny is picked where it went, by its object's number.
     let added = (scene.objects.len() - 1) as u32;
     let o = data.objects[added as usize].rows;
-    let down = Ray {
-        origin: [o[0][3], 20.0, o[2][3], 0.0],
-        dir: [0.0, -1.0, 0.0, f32::INFINITY],
-    };
-    assert_eq!(r.cast_objects(&[down]).expect("cast")[0].prim, added);
+    assert_eq!(r.cast_objects(&[down(o[0][3], o[2][3])]).expect("cast")[0].prim, added);
     assert_no_validation_errors(&gpu);
 }
