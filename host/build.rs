@@ -9,13 +9,43 @@ use std::process::Command;
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("cargo::rustc-env=RAYTRACE_COMMIT={}", commit());
     watch_git_head();
-    let crate_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shader-crate");
-    let mut builder = SpirvBuilder::new(crate_path, "spirv-unknown-vulkan1.2")
+    let out_dir = PathBuf::from(std::env::var("OUT_DIR")?);
+    let compute = SpirvBuilder::new(shader_crate(), "spirv-unknown-vulkan1.2")
         .capability(Capability::VulkanMemoryModelDeviceScope)
         .capability(Capability::Int64)
         .capability(Capability::Int64Atomics);
+    let names = build_module(compute, &out_dir.join("shader_crate_precise.spv"), "SHADER_SPV_PATH")?;
+    // The ray-tracing pipeline's module: its own target folder, so that the two builds'
+    // different flags do not rebuild each other's artefacts.
+    let driver = SpirvBuilder::new(shader_crate(), "spirv-unknown-vulkan1.2")
+        .capability(Capability::VulkanMemoryModelDeviceScope)
+        .capability(Capability::Int64)
+        .capability(Capability::RayTracingKHR)
+        .extension("SPV_KHR_ray_tracing")
+        .shader_crate_features(["driver".to_string()])
+        .target_dir_path("spirv-builder-driver");
+    let driver_names = build_module(driver, &out_dir.join("driver_precise.spv"), "DRIVER_SPV_PATH")?;
+    let list = |n: &[String]| n.join(", ");
+    std::fs::write(
+        out_dir.join("entry_points.rs"),
+        format!(
+            "/// Entry points of the embedded SPIR-V.\npub const ENTRY_POINTS: &[&str] = &[{}];\n/// Entry points of the driver tracer's SPIR-V.\npub const DRIVER_ENTRY_POINTS: &[&str] = &[{}];\n",
+            list(&names),
+            list(&driver_names)
+        ),
+    )?;
+    Ok(())
+}
+
+fn shader_crate() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shader-crate")
+}
+
+/// Builds one module of `shader-crate`, writes it to `path` with every float operation
+/// marked `NoContraction` (see [`no_contraction`]), names that file in the compile-time
+/// variable `var`, and returns the module's entry points (quoted).
+fn build_module(mut builder: SpirvBuilder, path: &Path, var: &str) -> Result<Vec<String>, Box<dyn std::error::Error>> {
     builder.build_script.defaults = true;
-    builder.build_script.env_shader_spv_path = Some(true);
     let result = builder.build()?;
     let ModuleResult::SingleModule(module) = &result.module else {
         return Err("expected a single SPIR-V module".into());
@@ -28,22 +58,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|w| u32::from_le_bytes(*w))
         .collect();
     let precise = no_contraction(&words)?;
-    let precise_path = PathBuf::from(std::env::var("OUT_DIR")?).join("shader_crate_precise.spv");
-    std::fs::write(
-        &precise_path,
-        precise.iter().flat_map(|w| w.to_le_bytes()).collect::<Vec<u8>>(),
-    )?;
-    println!("cargo::rustc-env=SHADER_SPV_PATH={}", precise_path.display());
-    let names: Vec<String> = result.entry_points.iter().map(|e| format!("{e:?}")).collect();
-    let out = PathBuf::from(std::env::var("OUT_DIR")?).join("entry_points.rs");
-    std::fs::write(
-        out,
-        format!(
-            "/// Entry points of the embedded SPIR-V.\npub const ENTRY_POINTS: &[&str] = &[{}];\n",
-            names.join(", ")
-        ),
-    )?;
-    Ok(())
+    std::fs::write(path, precise.iter().flat_map(|w| w.to_le_bytes()).collect::<Vec<u8>>())?;
+    println!("cargo::rustc-env={var}={}", path.display());
+    Ok(result.entry_points.iter().map(|e| format!("{e:?}")).collect())
 }
 
 /// `git ARGS` run in this crate's folder: its trimmed output, or `None` where git is missing,

@@ -17,6 +17,19 @@ pub enum Backend {
     Cpu,
 }
 
+/// What finds the rays' hits on the GPU (`--accel`).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+pub enum Accel {
+    /// The project's own BVH, built by its kernels every frame and walked by `shared`'s
+    /// traversal (on either backend).
+    #[default]
+    Lbvh,
+    /// The Vulkan driver's acceleration structures, built by the driver every frame and
+    /// traversed by its ray-tracing pipeline (`crate::gpu::driver`): GPU only, on devices
+    /// with VK_KHR_ray_tracing_pipeline; flattened scenes.
+    Driver,
+}
+
 /// Stage times (seconds) summed by stage: labels like `sort.scatter` count under `sort`.
 pub fn stage_totals(timings: &[(&'static str, f64)]) -> Vec<(&'static str, f64)> {
     let mut out: Vec<(&'static str, f64)> = Vec::new();

@@ -15,6 +15,7 @@ pub mod bounds;
 mod chi2;
 pub mod denoise;
 pub mod display;
+pub mod driver;
 pub mod envmap;
 pub mod instance;
 pub mod intersect;

@@ -65,6 +65,30 @@ impl Found {
     };
 }
 
+/// How a path's rays find what they hit: the project's own BVH walk ([`Walk`]), or the
+/// driver's acceleration structure through a ray-tracing pipeline (`crate::driver`). The
+/// path loop is generic over it, so both tracers shade, sample and count rays with the
+/// same code.
+pub trait Trace {
+    /// [`World::found`]: the closest hit in `(0, t_max)` and where its primitive is.
+    fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found;
+    /// [`World::any`]: whether anything lies in `(0, t_max)`.
+    fn any(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool;
+}
+
+/// The project's own traversal: the BVH (or brute force without [`FLAG_BVH`]).
+pub struct Walk;
+
+impl Trace for Walk {
+    fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found {
+        w.found(origin, dir, t_max)
+    }
+
+    fn any(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+        w.any(origin, dir, t_max)
+    }
+}
+
 impl World<'_> {
     /// The material of the object showing `p`.
     pub fn material(&self, p: Placed) -> Material {
@@ -266,8 +290,9 @@ impl LightSample {
 /// second one cost the bunny frame 13%, bench/NOTES session 17). Returns the weighted
 /// contribution.
 #[allow(clippy::too_many_arguments)]
-fn direct_light(
+fn direct_light<T: Trace>(
     w: &World,
+    tr: &mut T,
     m: &Material,
     d: Vec3,
     p: Vec3,
@@ -297,7 +322,7 @@ fn direct_light(
             emitter_light(w, m, d, p, n, sn, scale, mis, pick, rng)
         }
     };
-    if max3(s.value) <= 0.0 || w.any(s.from, s.dir, s.t_max) {
+    if max3(s.value) <= 0.0 || tr.any(w, s.from, s.dir, s.t_max) {
         return Vec3::ZERO;
     }
     s.value
@@ -497,10 +522,19 @@ impl Path {
 /// One segment of path `q` (which has `q.depth < max_depth`): trace it, add what it sees,
 /// scatter. Returns whether the path goes on. With `capture` (the first segment of a
 /// pixel's first sample, with [`FEATURE_GUIDES`]) its hit goes to `first`.
-fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, first: &mut Found) -> bool {
+#[allow(clippy::too_many_arguments)]
+fn bounce<T: Trace>(
+    w: &World,
+    tr: &mut T,
+    mode: Mode,
+    q: &mut Path,
+    rng: &mut Rng,
+    capture: bool,
+    first: &mut Found,
+) -> bool {
     let f = w.frame;
     let (o, d) = (q.origin, q.dir);
-    let found = w.found(o, d, f32::INFINITY);
+    let found = tr.found(w, o, d, f32::INFINITY);
     let hit = found.hit;
     q.rays += 1;
     if hit.prim == INVALID {
@@ -556,7 +590,7 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, fir
     // the BSDF sampled goes on (a GGX sample below the surface ends the path, not the light).
     if s.diffuse && mode.nee && q.depth + 1 < f.max_depth {
         let (side, shading_side) = facing(d, ng, sp.ns);
-        q.l += q.beta * direct_light(w, &m, d, p, side, shading_side, scale, mode.mis, rng);
+        q.l += q.beta * direct_light(w, tr, &m, d, p, side, shading_side, scale, mode.mis, rng);
         q.rays += 1;
     }
     if s.absorbed {
@@ -591,13 +625,21 @@ fn bounce(w: &World, mode: Mode, q: &mut Path, rng: &mut Rng, capture: bool, fir
 /// Adds `p.samples` samples of pixel `(x, y)` to `accum`: see [`pixel_samples`]. With
 /// [`FEATURE_GUIDES`] also the pixel's guide: written by the frame's first dispatch
 /// (`p.count == 0`, the samples the frame traced before), its sums added to by the rest.
-pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
+pub fn render_pixel<T: Trace>(
+    x: u32,
+    y: u32,
+    p: &RenderPush,
+    w: &World,
+    tr: &mut T,
+    accum: &mut [[f32; 4]],
+    guides: &mut [[u32; 4]],
+) {
     let f = w.frame;
     if x >= f.width || y >= f.height {
         return;
     }
     let pixel = y * f.width + x;
-    let (s, g) = pixel_samples_guided(x, y, p, w);
+    let (s, g) = pixel_samples_guided(x, y, p, w, tr);
     let a = sync::at_mut(accum, pixel);
     *a = [a[0] + s[0], a[1] + s[1], a[2] + s[2], a[3] + s[3]];
     if w.scene.features & FEATURE_GUIDES != 0 {
@@ -620,13 +662,13 @@ pub fn render_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32
 /// subgroup's longest path ends. Each sample keeps its own random stream and samples are
 /// summed in order, so the result is the same as tracing them one after another.
 pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
-    pixel_samples_guided(x, y, p, w).0
+    pixel_samples_guided(x, y, p, w, &mut Walk).0
 }
 
 /// [`pixel_samples`], and with [`FEATURE_GUIDES`] the pixel's guide for the denoiser: the
 /// samples' radiance split into the first hits' emission and the rest, and the first
 /// sample's first hit (`crate::denoise`). Without the feature the guide is `Guide::NONE`.
-pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32; 4], Guide) {
+pub fn pixel_samples_guided<T: Trace>(x: u32, y: u32, p: &RenderPush, w: &World, tr: &mut T) -> ([f32; 4], Guide) {
     let f = w.frame;
     let guides = w.scene.features & FEATURE_GUIDES != 0;
     // Only the first sample's first hit is kept in the loop; its guide is made after it.
@@ -654,7 +696,7 @@ pub fn pixel_samples_guided(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32;
             }
         }
         let capture = guides && started == 1 && q.depth == 0;
-        live = bounce(w, mode, &mut q, &mut rng, capture, &mut first);
+        live = bounce(w, tr, mode, &mut q, &mut rng, capture, &mut first);
         if !live {
             if finite3(q.l) {
                 sum += q.l;

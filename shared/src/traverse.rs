@@ -108,7 +108,7 @@ fn primitive_of(s: &Scene, r: &TriRay, prim: u32, object: u32, t_max: f32) -> (f
 /// Whether a query can hit anything: finite origin and direction, a direction not zero, and
 /// a range `(0, t_max)` that is not empty or NaN. Tested explicitly: Vulkan drivers need not
 /// keep NaN semantics in comparisons (the H100's any-hit query with `t_max` NaN hit).
-fn usable(origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+pub fn usable(origin: Vec3, dir: Vec3, t_max: f32) -> bool {
     finite3(origin) && finite3(dir) && dir != Vec3::ZERO && !t_max.is_nan() && t_max > 0.0
 }
 

@@ -5,7 +5,7 @@ use super::render::{ms, open_gpu, render_on_cpu, Rendered};
 use super::scene::{Prepared, SceneArgs};
 use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
 use crate::picture;
-use crate::render;
+use crate::render::{self, Accel};
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 use std::sync::Arc;
@@ -13,8 +13,9 @@ use std::sync::Arc;
 /// Outcome of `raytrace compare`.
 pub struct Comparison {
     pub stats: picture::DiffStats,
-    /// Same tree: child links, parents and primitive order.
-    pub topology_identical: bool,
+    /// Same tree: child links, parents and primitive order (`None`: the GPU traced with the
+    /// driver's structures, `--accel driver`, and built no BVH of the project's).
+    pub topology_identical: Option<bool>,
     /// Same tree and bit-identical boxes.
     pub bvh_identical: bool,
     /// Largest difference between the backends' world-space coordinates, relative to the
@@ -29,6 +30,7 @@ pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool
     let mut r = GpuRenderer::new(gpu, kernels)?;
     // One submission: every sample sees the BVH built in it.
     r.set_build(p.build(p.spp));
+    r.set_accel(p.accel, p.driver_build)?;
     r.load(&p.data, &p.frame)?;
     let timings = r.render(p.spp, true)?;
     let g = Rendered {
@@ -36,14 +38,19 @@ pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool
         timings: render::stage_totals(&timings),
         device: gpu.describe(),
     };
-    let gpu_bvh = r.bvh()?;
+    let gpu_bvh = match p.accel {
+        Accel::Lbvh => Some(r.bvh()?),
+        Accel::Driver => None,
+    };
     let (gpu_tris, gpu_spheres) = r.world()?;
     let (c, cpu_out) = render_on_cpu(p, quiet);
     let links = |b: &crate::bvh::BuildResult| b.nodes.iter().map(|n| (n.a, n.b)).collect::<Vec<_>>();
-    let topology_identical = links(&gpu_bvh) == links(&cpu_out.bvh)
-        && gpu_bvh.parents == cpu_out.bvh.parents
-        && gpu_bvh.sorted_prims == cpu_out.bvh.sorted_prims;
-    let bvh_identical = topology_identical && gpu_bvh.nodes == cpu_out.bvh.nodes;
+    let topology_identical = gpu_bvh.as_ref().map(|g| {
+        links(g) == links(&cpu_out.bvh)
+            && g.parents == cpu_out.bvh.parents
+            && g.sorted_prims == cpu_out.bvh.sorted_prims
+    });
+    let bvh_identical = topology_identical == Some(true) && gpu_bvh.is_some_and(|g| g.nodes == cpu_out.bvh.nodes);
     let floats = |t: &[shared::types::Triangle], s: &[shared::types::Sphere]| -> Vec<f32> {
         let mut v: Vec<f32> = bytemuck::cast_slice(t).to_vec();
         v.extend_from_slice(bytemuck::cast_slice(s));
@@ -91,10 +98,16 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
     for s in stages {
         println!("| {s} | {} | {} |", find(&c.cpu, s), find(&c.gpu, s));
     }
-    println!(
-        "world-space primitives: largest relative difference {:.2e}; BVH topology identical: {}; BVH boxes bit-identical: {}",
-        c.world_max_error, c.topology_identical, c.bvh_identical
-    );
+    match c.topology_identical {
+        Some(same) => println!(
+            "world-space primitives: largest relative difference {:.2e}; BVH topology identical: {same}; BVH boxes bit-identical: {}",
+            c.world_max_error, c.bvh_identical
+        ),
+        None => println!(
+            "world-space primitives: largest relative difference {:.2e}; the GPU traced the driver's acceleration structures (--accel driver), the CPU the project's BVH",
+            c.world_max_error
+        ),
+    }
     println!(
         "image difference: relative RMSE {:.4} (tolerance {tolerance}), max {:.3}, {:.2}% of pixels differ by > 5% of the mean",
         c.stats.relative_rmse,
@@ -105,7 +118,7 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
         "wrote {} (CPU | GPU | |difference|, full scale = half the mean luminance)",
         out.display()
     );
-    if !c.topology_identical {
+    if c.topology_identical == Some(false) {
         bail!("the CPU and GPU built BVHs of different topology");
     }
     if c.stats.relative_rmse > tolerance {

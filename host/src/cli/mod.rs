@@ -18,7 +18,7 @@ pub use render::{
 pub use scene::{parse_size, Bits, Prepared, SceneArgs, Treelets};
 
 use crate::gpu::GpuOptions;
-use crate::render::Backend;
+use crate::render::{Accel, Backend};
 use crate::shard::Shard;
 use crate::view::ViewArgs;
 use anyhow::Result;
@@ -119,10 +119,17 @@ enum Command {
 pub fn run() -> Result<()> {
     let cli = Cli::parse();
     let kernel_stats = matches!(cli.cmd, Some(Command::Info { kernels: true }));
+    // The device opens with the driver's ray tracing only where a command traces with it.
+    let accel = match &cli.cmd {
+        Some(Command::Render { scene, .. } | Command::Compare { scene, .. }) => scene.accel,
+        Some(Command::View(args)) => args.scene.accel,
+        _ => Accel::Lbvh,
+    };
     let opts = GpuOptions {
         validation: cli.validation,
         device: cli.device.clone(),
         kernel_stats,
+        ray_tracing: accel == Accel::Driver,
         ..Default::default()
     };
     let Some(cmd) = cli.cmd else {

@@ -4,7 +4,7 @@ use super::scene::{Prepared, SceneArgs};
 use crate::cpu::{render_cpu_samples, CpuDenoiser, CpuRender};
 use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Instance, Kernels};
 use crate::picture::Picture;
-use crate::render::{self, Backend};
+use crate::render::{self, Accel, Backend};
 use crate::shard::{self, Shard};
 use anyhow::{anyhow, ensure, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -66,6 +66,7 @@ fn trace_gpu_samples(
 ) -> Result<Vec<(&'static str, f64)>> {
     r.set_first_sample(first);
     r.set_build(p.build(p.spp));
+    r.set_accel(p.accel, p.driver_build)?;
     r.load(&p.data, &p.frame)?;
     r.set_denoise(if p.frame.flags & FLAG_DENOISE != 0 {
         Denoise::Accumulated
@@ -517,6 +518,11 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         job.fps
     );
     let mut p = args.prepare()?;
+    let driver = p.accel == Accel::Driver;
+    ensure!(
+        !(driver && job.backend == Backend::Cpu),
+        "--accel driver traces with the GPU driver's acceleration structures: not with --backend cpu"
+    );
     let (first, spp) = match job.shard {
         Some(s) => {
             ensure!(
@@ -535,7 +541,13 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
             (false, true) => "the binary LBVH with treelets restructured: --bvh binary, --treelets",
             (false, false) => "the binary LBVH: --bvh binary (the default, faster on the H100)",
         };
-        println!("BVH traced: {tree}");
+        match p.accel {
+            Accel::Lbvh => println!("BVH traced: {tree}"),
+            Accel::Driver => println!(
+                "rays traced by the driver's acceleration structures (--accel driver), the bottom level built every frame ({:?})",
+                p.driver_build
+            ),
+        }
     }
     let name = &p.scene.name;
     let frames_tag = if job.frames.is_some() { "-####" } else { "" };
@@ -560,7 +572,7 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         );
     }
     let backend = match job.backend {
-        Backend::Auto if devices.is_some() => Backend::Gpu,
+        Backend::Auto if devices.is_some() || driver => Backend::Gpu,
         Backend::Auto => {
             let (chosen, why) = choose_backend(opts);
             eprintln!("backend: {why}");
@@ -572,6 +584,7 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         (_, Some(list)) => Engine::Devices(list, None),
         (Backend::Gpu | Backend::Auto, None) => match open_gpu(opts) {
             Ok((gpu, kernels)) => Engine::Gpu(Box::new(GpuRenderer::new(&gpu, &kernels)?)),
+            Err(e) if driver => return Err(e.context("--accel driver needs a Vulkan device")),
             Err(e) => {
                 eprintln!("no usable Vulkan device ({e:#}); rendering on the CPU backend instead");
                 Engine::Cpu
@@ -627,7 +640,11 @@ pub fn summary(p: &Prepared, r: &Rendered, wall: f64) -> String {
         p.frame.height,
         r.picture.samples,
         p.frame.max_depth,
-        if p.frame.flags & shared::types::FLAG_BVH == 0 { ", brute force" } else { "" },
+        match (p.accel, p.frame.flags & shared::types::FLAG_BVH) {
+            (Accel::Driver, _) => ", driver's acceleration structures",
+            (Accel::Lbvh, 0) => ", brute force",
+            _ => "",
+        },
         ms(total),
         r.device,
         stages.join(", "),

@@ -3,7 +3,8 @@
 //! features derived.
 use crate::bvh::{BuildOptions, Layout, MortonBits};
 use crate::features::{self, Features, Forced};
-use crate::render;
+use crate::gpu::driver::DriverBuild;
+use crate::render::{self, Accel};
 use crate::scene::{Environment, InstancingMode, Scene, SceneGpu};
 use anyhow::{bail, Result};
 use glam::Vec3;
@@ -68,6 +69,15 @@ pub struct SceneArgs {
     /// on the H100), or where flattening would not fit.
     #[arg(long, value_enum, default_value = "auto")]
     pub instancing: InstancingMode,
+    /// What finds the rays' hits on the GPU: the project's own BVH (lbvh), or the Vulkan
+    /// driver's acceleration structures, built by the driver every frame and traced by a
+    /// ray-tracing pipeline running the same path loop and shading (driver: devices with
+    /// VK_KHR_ray_tracing_pipeline; scenes flattened into one BVH).
+    #[arg(long, value_enum, default_value = "lbvh")]
+    pub accel: Accel,
+    /// How the driver builds its bottom level every frame (with --accel driver).
+    #[arg(long, value_enum, default_value = "fast-build")]
+    pub driver_build: DriverBuild,
     /// Kernel features beyond what the scene needs: `all`, or +NAME / -NAME for triangles,
     /// spheres, nee, metal, dielectric, thin-lens (comma-separated).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
@@ -186,6 +196,9 @@ pub struct Prepared {
     pub bits: MortonBits,
     pub treelets: Treelets,
     pub layout: Layout,
+    /// What traces the rays on the GPU, and how the driver builds where it does.
+    pub accel: Accel,
+    pub driver_build: DriverBuild,
     /// The kernel features the frame runs with, and why.
     pub features: Features,
 }
@@ -236,9 +249,8 @@ impl SceneArgs {
             }
         }
         self.apply_environment(&mut scene)?;
-        let data = scene
-            .gpu_data_as(self.time, self.instancing)
-            .map_err(anyhow::Error::msg)?;
+        let instancing = self.instancing_for_accel()?;
+        let data = scene.gpu_data_as(self.time, instancing).map_err(anyhow::Error::msg)?;
         let mut frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
         if self.denoise {
             frame.flags |= FLAG_DENOISE;
@@ -254,7 +266,27 @@ impl SceneArgs {
             bits: self.bits.into(),
             treelets: self.treelets,
             layout: self.bvh,
+            accel: self.accel,
+            driver_build: self.driver_build,
         })
+    }
+
+    /// `--instancing` as `--accel` allows it: the driver tracer traces flattened scenes
+    /// (`auto` flattens), and options of the project's BVH do not combine with it.
+    fn instancing_for_accel(&self) -> Result<InstancingMode> {
+        if self.accel == Accel::Lbvh {
+            return Ok(self.instancing);
+        }
+        if self.instancing == InstancingMode::On {
+            bail!("--accel driver traces flattened scenes (one bottom level over the world-space primitives): not with --instancing on");
+        }
+        if self.no_bvh {
+            bail!("--no-bvh traces by brute force: not with --accel driver");
+        }
+        if self.bvh == Layout::Wide {
+            bail!("--bvh wide picks the project's BVH layout: not with --accel driver");
+        }
+        Ok(InstancingMode::Off)
     }
 }
 

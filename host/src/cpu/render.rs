@@ -224,7 +224,7 @@ pub fn render_cpu_samples(
     let rows = accum.par_chunks_mut(w as usize).zip(guides.par_chunks_mut(w as usize));
     rows.enumerate().for_each(|(y, (row, guide_row))| {
         for (x, (a, g)) in row.iter_mut().zip(guide_row).enumerate() {
-            (*a, *g) = path::pixel_samples_guided(x as u32, y as u32, &push, &world);
+            (*a, *g) = path::pixel_samples_guided(x as u32, y as u32, &push, &world, &mut path::Walk);
         }
         progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
     });

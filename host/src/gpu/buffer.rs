@@ -17,12 +17,31 @@ pub struct Buffer {
 }
 
 impl Buffer {
-    /// A buffer of `size` bytes (at least 4) usable as storage and as copy source/target.
+    /// A buffer of `size` bytes (at least 4) usable as storage and as copy source/target (on
+    /// a device opened for the driver tracer also by device address, and as input of
+    /// acceleration-structure builds).
     pub fn new(gpu: &Arc<Gpu>, name: &str, size: u64, location: MemoryLocation) -> Result<Buffer> {
+        Self::with_usage(gpu, name, size, location, vk::BufferUsageFlags::empty())
+    }
+
+    /// [`Buffer::new`] usable also as `extra` says (acceleration-structure storage, a shader
+    /// binding table).
+    pub fn with_usage(
+        gpu: &Arc<Gpu>,
+        name: &str,
+        size: u64,
+        location: MemoryLocation,
+        extra: vk::BufferUsageFlags,
+    ) -> Result<Buffer> {
         let size = size.max(4);
-        let usage = vk::BufferUsageFlags::STORAGE_BUFFER
+        let mut usage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_SRC
-            | vk::BufferUsageFlags::TRANSFER_DST;
+            | vk::BufferUsageFlags::TRANSFER_DST
+            | extra;
+        if gpu.ray_tracing.is_ok() {
+            usage |= vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS
+                | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR;
+        }
         let info = vk::BufferCreateInfo::default()
             .size(size)
             .usage(usage)
@@ -66,6 +85,16 @@ impl Buffer {
         };
         bound.with_context(|| format!("binding memory of buffer {name}"))?;
         Ok(buffer)
+    }
+
+    /// The buffer's device address (a device opened for the driver tracer).
+    pub fn address(&self) -> vk::DeviceAddress {
+        // SAFETY: the buffer was made with SHADER_DEVICE_ADDRESS on such a device.
+        unsafe {
+            self.gpu
+                .device
+                .get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(self.raw))
+        }
     }
 
     /// Copies `data` into a host-visible buffer.

@@ -23,7 +23,17 @@ pub struct GpuOptions {
     /// Instance extensions a window surface needs (from `ash_window`); when not empty the
     /// device is also opened with VK_KHR_swapchain.
     pub window_extensions: Vec<&'static CStr>,
+    /// Open the device with the driver's acceleration structures and ray-tracing pipelines
+    /// (`--accel driver`) where it offers them; [`Gpu::ray_tracing`] says whether it did.
+    pub ray_tracing: bool,
 }
+
+/// The device extensions the driver tracer needs (`crate::gpu::driver`).
+pub const RAY_TRACING_EXTENSIONS: [&CStr; 3] = [
+    ash::khr::acceleration_structure::NAME,
+    ash::khr::ray_tracing_pipeline::NAME,
+    ash::khr::deferred_host_operations::NAME,
+];
 
 /// A Vulkan device the kernels can run on.
 #[derive(Clone, Debug)]
@@ -110,6 +120,10 @@ pub struct Gpu {
     pub kernel_stats: bool,
     /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
     pub swapchain: bool,
+    /// The device was opened with acceleration structures, ray-tracing pipelines and buffer
+    /// device addresses (`GpuOptions::ray_tracing`); else why not: `Err` names what the
+    /// device lacks, or that nobody asked.
+    pub ray_tracing: std::result::Result<(), String>,
     pub allocator: Mutex<Option<Allocator>>,
 }
 
@@ -224,7 +238,7 @@ impl Gpu {
     /// an instance: made once, and the driver loaded once).
     pub fn on(shared: &Arc<Instance>, opts: &GpuOptions) -> Result<Arc<Gpu>> {
         let instance = shared.instance.clone();
-        let (chosen, device, kernel_stats) = Self::open_device(&instance, opts)?;
+        let (chosen, device, kernel_stats, ray_tracing) = Self::open_device(&instance, opts)?;
         let DeviceInfo {
             physical,
             queue_family,
@@ -243,7 +257,7 @@ impl Gpu {
             device: device.clone(),
             physical_device: physical,
             debug_settings: Default::default(),
-            buffer_device_address: false,
+            buffer_device_address: ray_tracing.is_ok(),
             allocation_sizes: Default::default(),
         });
         let allocator = match allocator {
@@ -271,6 +285,7 @@ impl Gpu {
             max_binding,
             kernel_stats,
             swapchain: !opts.window_extensions.is_empty(),
+            ray_tracing,
             allocator: Mutex::new(Some(allocator)),
         }))
     }
@@ -342,7 +357,11 @@ impl Gpu {
         Ok(candidates)
     }
 
-    fn open_device(instance: &ash::Instance, opts: &GpuOptions) -> Result<(DeviceInfo, ash::Device, bool)> {
+    #[allow(clippy::type_complexity)]
+    fn open_device(
+        instance: &ash::Instance,
+        opts: &GpuOptions,
+    ) -> Result<(DeviceInfo, ash::Device, bool, std::result::Result<(), String>)> {
         // SAFETY: plain enumeration call on a live instance.
         let all = unsafe { instance.enumerate_physical_devices() }.context("enumerating Vulkan devices")?;
         if all.is_empty() {
@@ -371,7 +390,12 @@ impl Gpu {
         let (pd, name) = (chosen.physical, chosen.name.clone());
 
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
-        let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
+        let mut f_as = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
+        let mut f_rt = vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default();
+        let mut f2 = vk::PhysicalDeviceFeatures2::default()
+            .push_next(&mut f12)
+            .push_next(&mut f_as)
+            .push_next(&mut f_rt);
         // SAFETY: `pd` comes from this instance.
         unsafe { instance.get_physical_device_features2(pd, &mut f2) };
         let base = f2.features;
@@ -403,6 +427,27 @@ impl Gpu {
             }
             ext_ptrs.push(sc.as_ptr());
         }
+        // The driver tracer's extensions and features, where asked for and offered.
+        let has = |n: &CStr| exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|x| x == n));
+        let missing: Vec<String> = RAY_TRACING_EXTENSIONS
+            .iter()
+            .filter(|n| !has(n))
+            .map(|n| n.to_string_lossy().into_owned())
+            .chain((f_as.acceleration_structure == 0).then(|| "the accelerationStructure feature".to_string()))
+            .chain((f_rt.ray_tracing_pipeline == 0).then(|| "the rayTracingPipeline feature".to_string()))
+            .chain((f12.buffer_device_address == 0).then(|| "the bufferDeviceAddress feature".to_string()))
+            .collect();
+        let ray_tracing = if !opts.ray_tracing {
+            Err("the device was opened without them (GpuOptions::ray_tracing)".to_string())
+        } else if missing.is_empty() {
+            ext_ptrs.extend(RAY_TRACING_EXTENSIONS.iter().map(|n| n.as_ptr()));
+            want12 = want12.buffer_device_address(true);
+            Ok(())
+        } else {
+            Err(format!("{name} lacks {}", missing.join(", ")))
+        };
+        let mut want_as = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
+        let mut want_rt = vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default().ray_tracing_pipeline(true);
         let mut want_stats =
             vk::PhysicalDevicePipelineExecutablePropertiesFeaturesKHR::default().pipeline_executable_info(true);
         let prio = [1.0f32];
@@ -417,10 +462,13 @@ impl Gpu {
         if stats {
             info = info.push_next(&mut want_stats);
         }
+        if ray_tracing.is_ok() {
+            info = info.push_next(&mut want_as).push_next(&mut want_rt);
+        }
         // SAFETY: the create info points at live data; the features were checked above.
         let device = unsafe { instance.create_device(pd, &info, None) }
             .with_context(|| format!("creating the Vulkan device on {name}"))?;
-        Ok((chosen.clone(), device, stats))
+        Ok((chosen.clone(), device, stats, ray_tracing))
     }
 
     /// Validation errors reported so far (empty when validation is off).

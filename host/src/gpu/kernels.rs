@@ -82,7 +82,12 @@ impl Kernel {
         Kernel::DenoiseAtrous,
     ];
 
-    /// The entry point's name in the SPIR-V module.
+    /// The entry point's name in the SPIR-V module: its function's path in `shader-crate`.
+    pub fn symbol(self) -> String {
+        format!("compute::{}", self.entry())
+    }
+
+    /// The entry point's function name.
     pub fn entry(self) -> &'static str {
         match self {
             Kernel::BoundsReduce => "bounds_reduce",
@@ -148,6 +153,12 @@ impl Kernels {
         // `k` as soon as they exist, so an early return frees them.
         k.module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
             .context("creating the shader module")?;
+        // The driver tracer's shaders read the same sets (`crate::gpu::driver`).
+        let stages = if gpu.ray_tracing.is_ok() {
+            vk::ShaderStageFlags::COMPUTE | super::driver::STAGES
+        } else {
+            vk::ShaderStageFlags::COMPUTE
+        };
         for (set, count) in [BINDINGS as u32, RENDER_BINDINGS].into_iter().enumerate() {
             let bindings: Vec<_> = (0..count)
                 .map(|b| {
@@ -155,7 +166,7 @@ impl Kernels {
                         .binding(b)
                         .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
                         .descriptor_count(1)
-                        .stage_flags(vk::ShaderStageFlags::COMPUTE)
+                        .stage_flags(stages)
                 })
                 .collect();
             k.set_layouts[set] = unsafe {
@@ -199,7 +210,7 @@ impl Kernels {
 
     /// A pipeline of `kernel`, with specialisation constant 0 set to `constant` if given.
     fn create_pipeline(&self, kernel: Kernel, constant: Option<u32>) -> Result<vk::Pipeline> {
-        let name = std::ffi::CString::new(kernel.entry())?;
+        let name = std::ffi::CString::new(kernel.symbol())?;
         let entries = [vk::SpecializationMapEntry::default().constant_id(0).offset(0).size(4)];
         let data = constant.unwrap_or(0).to_ne_bytes();
         let spec = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
@@ -234,12 +245,22 @@ impl Kernels {
     /// `FEATURE_*` and `VARIANT_*` bits; the fit's ordering), made on first use and kept. On a
     /// device whose `fma` rounds twice [`VARIANT_SPLIT_PRODUCTS`] is added to a tracer's.
     pub fn specialised(&self, kernel: Kernel, constant: u32) -> Result<vk::Pipeline> {
-        let constant = if self.fused_fma || !kernel.is_tracer() {
-            constant
+        let constant = if kernel.is_tracer() {
+            self.tracer_constant(constant)
         } else {
-            constant | VARIANT_SPLIT_PRODUCTS
+            constant
         };
         self.made(kernel, Some(constant))
+    }
+
+    /// A tracer's specialisation constant on this device: `features`, with
+    /// [`VARIANT_SPLIT_PRODUCTS`] where the device's `fma` rounds twice.
+    pub fn tracer_constant(&self, features: u32) -> u32 {
+        if self.fused_fma {
+            features
+        } else {
+            features | VARIANT_SPLIT_PRODUCTS
+        }
     }
 
     /// The pipeline of `kernel` with `constant`, made if it is the first ask.

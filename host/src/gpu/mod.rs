@@ -7,6 +7,7 @@ mod buffer;
 mod commands;
 mod context;
 mod denoise;
+pub mod driver;
 mod kernels;
 mod lbvh;
 mod levels;
@@ -25,6 +26,9 @@ pub use swapchain::Swapchain;
 
 /// The SPIR-V module of `shader-crate`, compiled by `host/build.rs`.
 pub const SHADER_SPV: &[u8] = include_bytes!(env!("SHADER_SPV_PATH"));
+/// The SPIR-V module of the driver tracer's ray-tracing pipeline (`shader-crate` with its
+/// `driver` feature), loaded only on devices with ray-tracing pipelines.
+pub const DRIVER_SPV: &[u8] = include_bytes!(env!("DRIVER_SPV_PATH"));
 
 include!(concat!(env!("OUT_DIR"), "/entry_points.rs"));
 
@@ -34,9 +38,9 @@ mod tests {
     fn every_kernel_is_an_entry_point_of_the_module() {
         for k in super::Kernel::ALL {
             assert!(
-                super::ENTRY_POINTS.contains(&k.entry()),
+                super::ENTRY_POINTS.contains(&k.symbol().as_str()),
                 "{} missing from {:?}",
-                k.entry(),
+                k.symbol(),
                 super::ENTRY_POINTS
             );
         }

@@ -3,8 +3,10 @@
 //! image, and run the display pass; a timestamp after each stage.
 use crate::bvh::{BuildOptions, BuildResult, Levels, MortonBits};
 use crate::gpu::denoise::{guide_bytes, GpuDenoiser};
+use crate::gpu::driver::{DriverBuild, DriverTracer};
 use crate::gpu::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, GpuLevels, Kernel, Kernels};
 use crate::picture::{swap_red_blue, Picture};
+use crate::render::Accel;
 use crate::scene::SceneGpu;
 use anyhow::{bail, ensure, Context, Result};
 use bytemuck::Pod;
@@ -156,6 +158,10 @@ pub struct GpuRenderer {
     restarts: u32,
     /// The camera and objects of the last frame recorded (the denoiser's motion).
     shown: Option<(Camera, Vec<Object>)>,
+    /// The driver tracer, while frames trace through the driver's acceleration structures
+    /// (`--accel driver`), and how it builds them.
+    driver: Option<DriverTracer>,
+    driver_build: DriverBuild,
 }
 
 impl GpuRenderer {
@@ -181,7 +187,52 @@ impl GpuRenderer {
             denoised_last: false,
             restarts: 0,
             shown: None,
+            driver: None,
+            driver_build: DriverBuild::default(),
         })
+    }
+
+    /// What frames trace through from now on: the project's BVH, or the driver's
+    /// acceleration structures (an error naming what the device lacks where it has none),
+    /// built as `build` says. Accumulation starts again.
+    pub fn set_accel(&mut self, accel: Accel, build: DriverBuild) -> Result<()> {
+        self.samples = 0;
+        self.driver_build = build;
+        match accel {
+            Accel::Lbvh => self.driver = None,
+            Accel::Driver => {
+                let mut d = match self.driver.take() {
+                    Some(d) => d,
+                    None => DriverTracer::new(&self.gpu, &self.kernels)?,
+                };
+                if self.bufs.is_some() {
+                    self.load_driver(&mut d)?;
+                }
+                self.driver = Some(d);
+            }
+        }
+        Ok(())
+    }
+
+    /// Which tracer frames trace through.
+    pub fn accel(&self) -> Accel {
+        if self.driver.is_some() {
+            Accel::Driver
+        } else {
+            Accel::Lbvh
+        }
+    }
+
+    /// Makes the driver's structures for the scene loaded (flattened scenes only).
+    fn load_driver(&self, d: &mut DriverTracer) -> Result<()> {
+        ensure!(
+            self.levels.is_none(),
+            "--accel driver traces flattened scenes: this one is loaded in two levels (instances); --instancing off flattens it"
+        );
+        let (tris, _, _) = self.lbvh.buffers()?;
+        let f = &self.frame;
+        let features = self.kernels.tracer_constant(self.path_trace_constant());
+        d.load(tris, f.n_tris, f.n_prims - f.n_tris, features, self.driver_build)
     }
 
     /// How frames are denoised from now on (`shared::denoise`).
@@ -386,6 +437,11 @@ impl GpuRenderer {
         if self.denoise != Denoise::Off {
             self.make_denoiser()?;
         }
+        if let Some(mut d) = self.driver.take() {
+            let loaded = self.load_driver(&mut d);
+            self.driver = Some(d);
+            loaded?;
+        }
         Ok(())
     }
 
@@ -588,8 +644,12 @@ impl GpuRenderer {
             l.record_top(cmds)?;
         } else if rebuild || self.samples == 0 {
             transform(cmds, f.n_tris, f.n_prims)?;
-            self.lbvh.record(cmds, self.build, false, false)?;
+            match self.driver.as_mut() {
+                Some(d) => d.record_build(cmds, self.lbvh.buffers()?.0, sets)?,
+                None => self.lbvh.record(cmds, self.build, false, false)?,
+            }
         }
+        let driver_features = self.kernels.tracer_constant(self.path_trace_constant());
         let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));
         let mut done = 0;
         while done < samples {
@@ -600,8 +660,13 @@ impl GpuRenderer {
                 count: guides_from + done,
                 ..Default::default()
             };
-            cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(&push), gx, gy);
-            cmds.barrier();
+            match self.driver.as_mut() {
+                Some(d) => d.record_trace(cmds, driver_features, sets, &push, f.width, f.height)?,
+                None => {
+                    cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(&push), gx, gy);
+                    cmds.barrier();
+                }
+            }
             done += n;
         }
         cmds.timestamp("trace");
@@ -816,6 +881,11 @@ impl GpuRenderer {
         let (x, y) = grid((count as u32).div_ceil(WORKGROUP));
         let cast = self.kernels.specialised(Kernel::CastRays, self.tracer_constant())?;
         self.cmds.begin()?;
+        if self.driver.is_some() && self.levels.is_none() {
+            // Frames traced by the driver leave the project's BVH unbuilt: casts (picking)
+            // build it over the world the last frame transformed.
+            self.lbvh.record(&mut self.cmds, self.build, false, false)?;
+        }
         self.cmds.timestamp("start");
         for _ in 0..repeats {
             self.cmds

@@ -1,0 +1,805 @@
+//! The driver's acceleration structures as a second tracer (`--accel driver`,
+//! `shared::driver`): every frame a bottom-level structure over the transform stage's
+//! world-space triangles (geometry 0, read in place: 16-byte vertices, no index buffer) and
+//! the spheres' boxes (geometry 1, written by `sphere_boxes`), a top-level structure of one
+//! instance over it, and a ray-tracing pipeline whose ray generation runs `shared`'s path
+//! loop. Needs VK_KHR_acceleration_structure and VK_KHR_ray_tracing_pipeline (the device
+//! opened with `GpuOptions::ray_tracing`); elsewhere [`DriverTracer::new`] says what is
+//! missing.
+use super::{Buffer, Commands, Gpu, Kernels, DRIVER_SPV};
+use anyhow::{anyhow, bail, Context, Result};
+use ash::vk;
+use gpu_allocator::MemoryLocation;
+use shared::types::{grid, RenderPush, FEATURE_ALPHA, WORKGROUP};
+use std::collections::HashMap;
+use std::sync::Arc;
+
+/// The shader stages of the ray-tracing pipeline (they read sets 0 and 1 too).
+pub const STAGES: vk::ShaderStageFlags = vk::ShaderStageFlags::from_raw(
+    vk::ShaderStageFlags::RAYGEN_KHR.as_raw()
+        | vk::ShaderStageFlags::MISS_KHR.as_raw()
+        | vk::ShaderStageFlags::CLOSEST_HIT_KHR.as_raw()
+        | vk::ShaderStageFlags::ANY_HIT_KHR.as_raw()
+        | vk::ShaderStageFlags::INTERSECTION_KHR.as_raw(),
+);
+
+/// How the driver builds its bottom-level structure every frame (`--driver-build`).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+pub enum DriverBuild {
+    /// `PREFER_FAST_BUILD`: rebuilt from scratch.
+    #[default]
+    FastBuild,
+    /// `PREFER_FAST_TRACE`: rebuilt from scratch.
+    FastTrace,
+    /// `ALLOW_UPDATE | PREFER_FAST_BUILD`: built once, then updated in place (a refit: the
+    /// topology of the first frame's tree is kept).
+    Update,
+}
+
+/// The entry points of the driver module, in the pipeline's stage order.
+const RAYGEN: &str = "driver::path_trace_driver";
+const MISS: &str = "driver::miss_driver";
+const TRIANGLE_HIT: &str = "driver::triangle_hit_driver";
+const TRIANGLE_ALPHA: &str = "driver::triangle_alpha_driver";
+const SPHERE_TEST: &str = "driver::sphere_test_driver";
+const SPHERE_HIT: &str = "driver::sphere_hit_driver";
+const SPHERE_BOXES: &str = "driver::sphere_boxes";
+
+/// A ray-tracing pipeline specialised to one feature set, and its shader binding table.
+struct Pipeline {
+    raw: vk::Pipeline,
+    /// Kept while the pipeline is (the regions point into it).
+    _sbt: Buffer,
+    /// Raygen, miss and hit regions of `sbt` (the callable one is empty).
+    regions: [vk::StridedDeviceAddressRegionKHR; 3],
+}
+
+/// An acceleration structure and the buffer holding it.
+struct Accel {
+    raw: vk::AccelerationStructureKHR,
+    buffer: Buffer,
+    address: vk::DeviceAddress,
+}
+
+/// Hit groups, and the bottom levels' kinds.
+const TRIANGLES: u32 = 0;
+const SPHERES: u32 = 1;
+
+/// A bottom level of one kind of primitive (triangles or spheres' boxes).
+struct Bottom {
+    accel: Accel,
+    /// Its kind: [`TRIANGLES`] or [`SPHERES`], its instance's hit group.
+    group: u32,
+    count: u32,
+    /// Where its part of the scratch buffer starts (after the aligned start).
+    scratch_at: u64,
+}
+
+/// The structures of the scene loaded, and what building them needs.
+struct SceneAccel {
+    bottoms: Vec<Bottom>,
+    tlas: Accel,
+    scratch: Buffer,
+    /// The top level's one instance (host-visible).
+    instance: Buffer,
+    /// The spheres' boxes (`VkAabbPositionsKHR`, 24 bytes each).
+    boxes: Buffer,
+    /// Set 2: the top level (binding 0), the boxes (binding 1).
+    pool: vk::DescriptorPool,
+    set: vk::DescriptorSet,
+    n_spheres: u32,
+    alpha: bool,
+    build: DriverBuild,
+    /// Whether the bottom level was built once (an update needs a first build).
+    built: bool,
+    /// Where the top level's part of `scratch` starts (after the aligned start).
+    top_scratch_at: u64,
+}
+
+/// The driver tracer of one device.
+pub struct DriverTracer {
+    gpu: Arc<Gpu>,
+    accel: ash::khr::acceleration_structure::Device,
+    rt: ash::khr::ray_tracing_pipeline::Device,
+    module: vk::ShaderModule,
+    set_layout: vk::DescriptorSetLayout,
+    layout: vk::PipelineLayout,
+    boxes_pipeline: vk::Pipeline,
+    pipelines: HashMap<u32, Pipeline>,
+    scene: Option<SceneAccel>,
+    handle_size: u32,
+    handle_align: u32,
+    base_align: u32,
+    scratch_align: u64,
+}
+
+/// `x` rounded up to a multiple of `a` (a power of two).
+fn align(x: u64, a: u64) -> u64 {
+    x.div_ceil(a.max(1)) * a.max(1)
+}
+
+impl DriverTracer {
+    /// The driver tracer on `gpu`, or an error naming what the device lacks.
+    pub fn new(gpu: &Arc<Gpu>, kernels: &Kernels) -> Result<DriverTracer> {
+        if let Err(why) = &gpu.ray_tracing {
+            bail!(
+                "--accel driver needs the driver's acceleration structures and ray-tracing pipelines: {why} (lavapipe in Debian 12 has none); --accel lbvh traces with the project's own BVH"
+            );
+        }
+        let d = &gpu.device;
+        let mut rt_props = vk::PhysicalDeviceRayTracingPipelinePropertiesKHR::default();
+        let mut as_props = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
+        let mut props = vk::PhysicalDeviceProperties2::default()
+            .push_next(&mut rt_props)
+            .push_next(&mut as_props);
+        // SAFETY: a physical device of this instance.
+        unsafe { gpu.instance.get_physical_device_properties2(gpu.physical, &mut props) };
+        let mut t = DriverTracer {
+            gpu: gpu.clone(),
+            accel: ash::khr::acceleration_structure::Device::new(&gpu.instance, d),
+            rt: ash::khr::ray_tracing_pipeline::Device::new(&gpu.instance, d),
+            module: vk::ShaderModule::null(),
+            set_layout: vk::DescriptorSetLayout::null(),
+            layout: vk::PipelineLayout::null(),
+            boxes_pipeline: vk::Pipeline::null(),
+            pipelines: HashMap::new(),
+            scene: None,
+            handle_size: rt_props.shader_group_handle_size,
+            handle_align: rt_props.shader_group_handle_alignment,
+            base_align: rt_props.shader_group_base_alignment,
+            scratch_align: as_props.min_acceleration_structure_scratch_offset_alignment as u64,
+        };
+        let words =
+            ash::util::read_spv(&mut std::io::Cursor::new(DRIVER_SPV)).context("reading the driver module's SPIR-V")?;
+        // SAFETY (all below): valid create infos on a live device; each object is owned by
+        // `t` as soon as it exists, so an early return frees it.
+        t.module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
+            .context("creating the driver module")?;
+        let bindings = [
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(0)
+                .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR),
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(1)
+                .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::COMPUTE),
+        ];
+        t.set_layout = unsafe {
+            d.create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings), None)
+        }
+        .context("creating the driver tracer's set layout")?;
+        let sets = [kernels.set_layouts[0], kernels.set_layouts[1], t.set_layout];
+        let ranges = [vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR)
+            .size(size_of::<RenderPush>() as u32)];
+        t.layout = unsafe {
+            d.create_pipeline_layout(
+                &vk::PipelineLayoutCreateInfo::default()
+                    .set_layouts(&sets)
+                    .push_constant_ranges(&ranges),
+                None,
+            )
+        }
+        .context("creating the driver tracer's pipeline layout")?;
+        let name = std::ffi::CString::new(SPHERE_BOXES)?;
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(t.module)
+            .name(&name);
+        let info = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(t.layout)];
+        t.boxes_pipeline = unsafe { d.create_compute_pipelines(vk::PipelineCache::null(), &info, None) }
+            .map_err(|(_, e)| e)
+            .context("creating the sphere-box pipeline")?[0];
+        Ok(t)
+    }
+
+    /// The ray-tracing pipeline with specialisation constant `features`, made on first use.
+    fn pipeline(&mut self, features: u32) -> Result<&Pipeline> {
+        if !self.pipelines.contains_key(&features) {
+            let p = self.make_pipeline(features)?;
+            self.pipelines.insert(features, p);
+        }
+        self.pipelines.get(&features).context("pipeline cache")
+    }
+
+    fn make_pipeline(&self, features: u32) -> Result<Pipeline> {
+        let names: Vec<std::ffi::CString> = [RAYGEN, MISS, TRIANGLE_HIT, TRIANGLE_ALPHA, SPHERE_TEST, SPHERE_HIT]
+            .iter()
+            .map(|n| std::ffi::CString::new(*n))
+            .collect::<Result<_, _>>()?;
+        let kinds = [
+            vk::ShaderStageFlags::RAYGEN_KHR,
+            vk::ShaderStageFlags::MISS_KHR,
+            vk::ShaderStageFlags::CLOSEST_HIT_KHR,
+            vk::ShaderStageFlags::ANY_HIT_KHR,
+            vk::ShaderStageFlags::INTERSECTION_KHR,
+            vk::ShaderStageFlags::CLOSEST_HIT_KHR,
+        ];
+        let entries = [vk::SpecializationMapEntry::default().constant_id(0).offset(0).size(4)];
+        let data = features.to_ne_bytes();
+        let spec = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
+        let stages: Vec<_> = names
+            .iter()
+            .zip(kinds)
+            .map(|(n, k)| {
+                vk::PipelineShaderStageCreateInfo::default()
+                    .stage(k)
+                    .module(self.module)
+                    .name(n)
+                    .specialization_info(&spec)
+            })
+            .collect();
+        let general = |s: u32| {
+            vk::RayTracingShaderGroupCreateInfoKHR::default()
+                .ty(vk::RayTracingShaderGroupTypeKHR::GENERAL)
+                .general_shader(s)
+                .closest_hit_shader(vk::SHADER_UNUSED_KHR)
+                .any_hit_shader(vk::SHADER_UNUSED_KHR)
+                .intersection_shader(vk::SHADER_UNUSED_KHR)
+        };
+        let groups = [
+            general(0),
+            general(1),
+            vk::RayTracingShaderGroupCreateInfoKHR::default()
+                .ty(vk::RayTracingShaderGroupTypeKHR::TRIANGLES_HIT_GROUP)
+                .general_shader(vk::SHADER_UNUSED_KHR)
+                .closest_hit_shader(2)
+                .any_hit_shader(3)
+                .intersection_shader(vk::SHADER_UNUSED_KHR),
+            vk::RayTracingShaderGroupCreateInfoKHR::default()
+                .ty(vk::RayTracingShaderGroupTypeKHR::PROCEDURAL_HIT_GROUP)
+                .general_shader(vk::SHADER_UNUSED_KHR)
+                .closest_hit_shader(5)
+                .any_hit_shader(vk::SHADER_UNUSED_KHR)
+                .intersection_shader(4),
+        ];
+        let info = [vk::RayTracingPipelineCreateInfoKHR::default()
+            .stages(&stages)
+            .groups(&groups)
+            .max_pipeline_ray_recursion_depth(1)
+            .layout(self.layout)];
+        // SAFETY: valid create info on a device with ray-tracing pipelines.
+        let raw = unsafe {
+            self.rt.create_ray_tracing_pipelines(
+                vk::DeferredOperationKHR::null(),
+                vk::PipelineCache::null(),
+                &info,
+                None,
+            )
+        }
+        .map_err(|(_, e)| e)
+        .context("creating the driver tracer's ray-tracing pipeline")?[0];
+        // The shader binding table: raygen, miss, two hit groups, each region aligned to the
+        // base alignment, records to the handle alignment.
+        let (hs, ha, ba) = (
+            self.handle_size as u64,
+            self.handle_align as u64,
+            self.base_align as u64,
+        );
+        let stride = align(hs, ha);
+        let handles = match unsafe {
+            self.rt
+                .get_ray_tracing_shader_group_handles(raw, 0, groups.len() as u32, groups.len() * hs as usize)
+        } {
+            Ok(h) => h,
+            Err(e) => {
+                // SAFETY: the pipeline is unused.
+                unsafe { self.gpu.device.destroy_pipeline(raw, None) };
+                return Err(anyhow!("reading the shader group handles: {e}"));
+            }
+        };
+        let raygen_at = 0;
+        let miss_at = align(stride, ba);
+        let hit_at = miss_at + align(stride, ba);
+        let size = hit_at + 2 * stride;
+        let mut table = vec![0u8; size as usize];
+        let handle = |g: usize| &handles[g * hs as usize..(g + 1) * hs as usize];
+        for (g, at) in [(0, raygen_at), (1, miss_at), (2, hit_at), (3, hit_at + stride)] {
+            table[at as usize..(at + hs) as usize].copy_from_slice(handle(g));
+        }
+        let mut sbt = Buffer::with_usage(
+            &self.gpu,
+            "shader binding table",
+            size + ba,
+            MemoryLocation::CpuToGpu,
+            vk::BufferUsageFlags::SHADER_BINDING_TABLE_KHR,
+        )?;
+        // The table starts at the first base-aligned address of the buffer.
+        let base = align(sbt.address(), ba);
+        let skip = (base - sbt.address()) as usize;
+        let mut bytes = vec![0u8; skip];
+        bytes.extend_from_slice(&table);
+        sbt.write(&bytes)?;
+        let region = |at: u64, stride: u64, size: u64| {
+            vk::StridedDeviceAddressRegionKHR::default()
+                .device_address(base + at)
+                .stride(stride)
+                .size(size)
+        };
+        let raygen_size = align(stride, ba);
+        Ok(Pipeline {
+            raw,
+            _sbt: sbt,
+            regions: [
+                region(raygen_at, raygen_size, raygen_size),
+                region(miss_at, stride, stride),
+                region(hit_at, stride, 2 * stride),
+            ],
+        })
+    }
+
+    /// The one geometry of bottom level `group` (hit group 0: the `count` triangles of
+    /// `tris`; 1: the boxes of `count` spheres in `boxes`).
+    fn geometry(
+        group: u32,
+        count: u32,
+        tris: &Buffer,
+        boxes: &Buffer,
+        alpha: bool,
+    ) -> vk::AccelerationStructureGeometryKHR<'static> {
+        if group == TRIANGLES {
+            let data = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
+                .vertex_format(vk::Format::R32G32B32_SFLOAT)
+                .vertex_data(vk::DeviceOrHostAddressConstKHR {
+                    device_address: tris.address(),
+                })
+                .vertex_stride(16)
+                .max_vertex(3 * count - 1)
+                .index_type(vk::IndexType::NONE_KHR);
+            vk::AccelerationStructureGeometryKHR::default()
+                .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
+                .geometry(vk::AccelerationStructureGeometryDataKHR { triangles: data })
+                .flags(if alpha {
+                    vk::GeometryFlagsKHR::empty()
+                } else {
+                    vk::GeometryFlagsKHR::OPAQUE
+                })
+        } else {
+            let data = vk::AccelerationStructureGeometryAabbsDataKHR::default()
+                .data(vk::DeviceOrHostAddressConstKHR {
+                    device_address: boxes.address(),
+                })
+                .stride(24);
+            vk::AccelerationStructureGeometryKHR::default()
+                .geometry_type(vk::GeometryTypeKHR::AABBS)
+                .geometry(vk::AccelerationStructureGeometryDataKHR { aabbs: data })
+                .flags(vk::GeometryFlagsKHR::OPAQUE)
+        }
+    }
+
+    fn blas_flags(build: DriverBuild) -> vk::BuildAccelerationStructureFlagsKHR {
+        use vk::BuildAccelerationStructureFlagsKHR as F;
+        match build {
+            DriverBuild::FastBuild => F::PREFER_FAST_BUILD,
+            DriverBuild::FastTrace => F::PREFER_FAST_TRACE,
+            DriverBuild::Update => F::PREFER_FAST_BUILD | F::ALLOW_UPDATE,
+        }
+    }
+
+    /// The sizes of a structure of type `ty` over `geometry` (one geometry) of `count`
+    /// primitives or instances.
+    fn sizes(
+        &self,
+        ty: vk::AccelerationStructureTypeKHR,
+        flags: vk::BuildAccelerationStructureFlagsKHR,
+        geometry: &[vk::AccelerationStructureGeometryKHR],
+        count: u32,
+    ) -> vk::AccelerationStructureBuildSizesInfoKHR<'static> {
+        let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+            .ty(ty)
+            .flags(flags)
+            .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+            .geometries(geometry);
+        let mut size = vk::AccelerationStructureBuildSizesInfoKHR::default();
+        // SAFETY: valid build info on a device with acceleration structures.
+        unsafe {
+            self.accel.get_acceleration_structure_build_sizes(
+                vk::AccelerationStructureBuildTypeKHR::DEVICE,
+                &info,
+                &[count],
+                &mut size,
+            )
+        };
+        size
+    }
+
+    /// Makes an acceleration structure of `size` bytes.
+    fn make_accel(&self, name: &str, ty: vk::AccelerationStructureTypeKHR, size: u64) -> Result<Accel> {
+        let buffer = Buffer::with_usage(
+            &self.gpu,
+            name,
+            size,
+            MemoryLocation::GpuOnly,
+            vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
+        )?;
+        let info = vk::AccelerationStructureCreateInfoKHR::default()
+            .buffer(buffer.raw)
+            .size(size)
+            .ty(ty);
+        // SAFETY: the buffer was made for acceleration-structure storage on this device.
+        let raw = unsafe { self.accel.create_acceleration_structure(&info, None) }
+            .with_context(|| format!("creating the {name}"))?;
+        // SAFETY: as above.
+        let address = unsafe {
+            self.accel.get_acceleration_structure_device_address(
+                &vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(raw),
+            )
+        };
+        Ok(Accel { raw, buffer, address })
+    }
+
+    /// Makes the structures for a scene of `n_tris` triangles (read from `tris`, set 0's
+    /// world buffer) and `n_spheres` spheres, built as `build` says; accumulation restarts.
+    pub fn load(
+        &mut self,
+        tris: &Buffer,
+        n_tris: u32,
+        n_spheres: u32,
+        features: u32,
+        build: DriverBuild,
+    ) -> Result<()> {
+        self.drop_scene();
+        let alpha = features & FEATURE_ALPHA != 0;
+        let boxes = Buffer::new(
+            &self.gpu,
+            "sphere boxes",
+            24 * n_spheres as u64,
+            MemoryLocation::GpuOnly,
+        )?;
+        let kinds: Vec<(u32, u32)> = [(TRIANGLES, n_tris), (SPHERES, n_spheres)]
+            .into_iter()
+            .filter(|&(_, n)| n > 0)
+            .collect();
+        if kinds.is_empty() {
+            bail!("--accel driver: the scene has no primitives");
+        }
+        // A bottom level per kind (one level holds geometries of one type), each with its
+        // part of the scratch buffer; the top level's part after them.
+        let mut bottoms = Vec::new();
+        let mut scratch_end = 0;
+        for (group, count) in kinds {
+            let geometry = [Self::geometry(group, count, tris, &boxes, alpha)];
+            let size = self.sizes(
+                vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+                Self::blas_flags(build),
+                &geometry,
+                count,
+            );
+            let name = if group == TRIANGLES {
+                "driver's bottom level of triangles"
+            } else {
+                "driver's bottom level of spheres"
+            };
+            bottoms.push(Bottom {
+                accel: self.make_accel(
+                    name,
+                    vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+                    size.acceleration_structure_size,
+                )?,
+                group,
+                count,
+                scratch_at: scratch_end,
+            });
+            scratch_end += align(
+                size.build_scratch_size.max(size.update_scratch_size),
+                self.scratch_align,
+            );
+        }
+        let n = bottoms.len() as u32;
+        let top = [Self::instance_geometry(0)];
+        let top_size = self.sizes(
+            vk::AccelerationStructureTypeKHR::TOP_LEVEL,
+            vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_BUILD,
+            &top,
+            n,
+        );
+        let tlas = self.make_accel(
+            "driver's top level",
+            vk::AccelerationStructureTypeKHR::TOP_LEVEL,
+            top_size.acceleration_structure_size,
+        )?;
+        let top_scratch_at = scratch_end;
+        let scratch_bytes = self.scratch_align + top_scratch_at + top_size.build_scratch_size;
+        let scratch = Buffer::new(
+            &self.gpu,
+            "driver's build scratch",
+            scratch_bytes,
+            MemoryLocation::GpuOnly,
+        )?;
+        // An instance per bottom level (`VkAccelerationStructureInstanceKHR`, 64 bytes): the
+        // identity transform; custom index 0, mask 0xff; its kind's hit group; opaque flags
+        // left to the geometries; the bottom level's address.
+        let mut instance = Buffer::new(&self.gpu, "driver's instances", 64 * n as u64, MemoryLocation::CpuToGpu)?;
+        let mut words = Vec::new();
+        for b in &bottoms {
+            let mut w = [0u32; 16];
+            for row in 0..3 {
+                w[row * 4 + row] = 1.0f32.to_bits();
+            }
+            w[12] = 0xff << 24;
+            w[13] = b.group;
+            w[14] = b.accel.address as u32;
+            w[15] = (b.accel.address >> 32) as u32;
+            words.extend(w);
+        }
+        instance.write(&words)?;
+        let d = &self.gpu.device;
+        let sizes = [
+            vk::DescriptorPoolSize::default()
+                .ty(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+                .descriptor_count(1),
+            vk::DescriptorPoolSize::default()
+                .ty(vk::DescriptorType::STORAGE_BUFFER)
+                .descriptor_count(1),
+        ];
+        // SAFETY: valid create and allocate infos; the pool is owned by the scene below.
+        let pool = unsafe {
+            d.create_descriptor_pool(
+                &vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes),
+                None,
+            )
+        }
+        .context("creating the driver tracer's descriptor pool")?;
+        let layouts = [self.set_layout];
+        // SAFETY: as above.
+        let set = match unsafe {
+            d.allocate_descriptor_sets(
+                &vk::DescriptorSetAllocateInfo::default()
+                    .descriptor_pool(pool)
+                    .set_layouts(&layouts),
+            )
+        } {
+            Ok(s) => s[0],
+            Err(e) => {
+                // SAFETY: nothing uses the pool.
+                unsafe { d.destroy_descriptor_pool(pool, None) };
+                return Err(anyhow!("allocating the driver tracer's descriptor set: {e}"));
+            }
+        };
+        let structures = [tlas.raw];
+        let mut as_write =
+            vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&structures);
+        let box_info = [vk::DescriptorBufferInfo::default()
+            .buffer(boxes.raw)
+            .range(vk::WHOLE_SIZE)];
+        let writes = [
+            vk::WriteDescriptorSet::default()
+                .dst_set(set)
+                .dst_binding(0)
+                .descriptor_count(1)
+                .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+                .push_next(&mut as_write),
+            vk::WriteDescriptorSet::default()
+                .dst_set(set)
+                .dst_binding(1)
+                .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                .buffer_info(&box_info),
+        ];
+        // SAFETY: the writes name live objects and a set of this device.
+        unsafe { d.update_descriptor_sets(&writes, &[]) };
+        self.scene = Some(SceneAccel {
+            bottoms,
+            tlas,
+            scratch,
+            instance,
+            boxes,
+            pool,
+            set,
+            n_spheres,
+            alpha,
+            build,
+            built: false,
+            top_scratch_at,
+        });
+        Ok(())
+    }
+
+    /// The top level's one geometry: instances at `address`.
+    fn instance_geometry(address: vk::DeviceAddress) -> vk::AccelerationStructureGeometryKHR<'static> {
+        vk::AccelerationStructureGeometryKHR::default()
+            .geometry_type(vk::GeometryTypeKHR::INSTANCES)
+            .geometry(vk::AccelerationStructureGeometryDataKHR {
+                instances: vk::AccelerationStructureGeometryInstancesDataKHR::default().data(
+                    vk::DeviceOrHostAddressConstKHR {
+                        device_address: address,
+                    },
+                ),
+            })
+    }
+
+    /// Device bytes of the structures, their scratch and the spheres' boxes.
+    pub fn memory(&self) -> u64 {
+        self.scene.as_ref().map_or(0, |s| {
+            s.bottoms.iter().map(|b| b.accel.buffer.size).sum::<u64>()
+                + s.tlas.buffer.size
+                + s.scratch.size
+                + s.boxes.size
+                + s.instance.size
+        })
+    }
+
+    /// Records the frame's builds into `cmds` after the transform stage wrote `tris` and set
+    /// 0's spheres (`sets`: sets 0 and 1): the spheres' boxes, the bottom level (rebuilt, or
+    /// updated after the first build with [`DriverBuild::Update`]), the top level.
+    pub fn record_build(&mut self, cmds: &mut Commands, tris: &Buffer, sets: [vk::DescriptorSet; 2]) -> Result<()> {
+        let s = self.scene.as_mut().context("no scene loaded for the driver tracer")?;
+        let d = &self.gpu.device;
+        let cb = cmds.cb;
+        if s.n_spheres > 0 {
+            let (x, y) = grid(s.n_spheres.div_ceil(WORKGROUP));
+            // SAFETY: recording state; pipeline, layout and sets belong to this device.
+            unsafe {
+                d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.boxes_pipeline);
+                d.cmd_bind_descriptor_sets(
+                    cb,
+                    vk::PipelineBindPoint::COMPUTE,
+                    self.layout,
+                    0,
+                    &[sets[0], sets[1], s.set],
+                    &[],
+                );
+                d.cmd_dispatch(cb, x, y, 1);
+            }
+        }
+        full_barrier(&self.gpu, cb);
+        let update = s.build == DriverBuild::Update && s.built;
+        let scratch = align(s.scratch.address(), self.scratch_align);
+        let geometries: Vec<_> = s
+            .bottoms
+            .iter()
+            .map(|b| [Self::geometry(b.group, b.count, tris, &s.boxes, s.alpha)])
+            .collect();
+        let infos: Vec<_> = s
+            .bottoms
+            .iter()
+            .zip(&geometries)
+            .map(|(b, g)| {
+                vk::AccelerationStructureBuildGeometryInfoKHR::default()
+                    .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
+                    .flags(Self::blas_flags(s.build))
+                    .mode(if update {
+                        vk::BuildAccelerationStructureModeKHR::UPDATE
+                    } else {
+                        vk::BuildAccelerationStructureModeKHR::BUILD
+                    })
+                    .src_acceleration_structure(if update {
+                        b.accel.raw
+                    } else {
+                        vk::AccelerationStructureKHR::null()
+                    })
+                    .dst_acceleration_structure(b.accel.raw)
+                    .geometries(g)
+                    .scratch_data(vk::DeviceOrHostAddressKHR {
+                        device_address: scratch + b.scratch_at,
+                    })
+            })
+            .collect();
+        let ranges: Vec<[vk::AccelerationStructureBuildRangeInfoKHR; 1]> = s
+            .bottoms
+            .iter()
+            .map(|b| [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(b.count)])
+            .collect();
+        let range_refs: Vec<&[vk::AccelerationStructureBuildRangeInfoKHR]> = ranges.iter().map(|r| &r[..]).collect();
+        // SAFETY: recording state; every address names a live buffer of this device, and the
+        // builds' scratch regions are disjoint.
+        unsafe { self.accel.cmd_build_acceleration_structures(cb, &infos, &range_refs) };
+        s.built = true;
+        full_barrier(&self.gpu, cb);
+        let top = [Self::instance_geometry(s.instance.address())];
+        let top_scratch = scratch + s.top_scratch_at;
+        let top_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+            .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
+            .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_BUILD)
+            .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+            .dst_acceleration_structure(s.tlas.raw)
+            .geometries(&top)
+            .scratch_data(vk::DeviceOrHostAddressKHR {
+                device_address: top_scratch,
+            });
+        let top_range = [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(s.bottoms.len() as u32)];
+        // SAFETY: as above.
+        unsafe {
+            self.accel
+                .cmd_build_acceleration_structures(cb, &[top_info], &[&top_range])
+        };
+        full_barrier(&self.gpu, cb);
+        cmds.timestamp("build");
+        Ok(())
+    }
+
+    /// Records one trace of `push.samples` samples per pixel over `width` x `height` pixels
+    /// with the pipeline specialised to `features` (`sets`: sets 0 and 1).
+    pub fn record_trace(
+        &mut self,
+        cmds: &mut Commands,
+        features: u32,
+        sets: [vk::DescriptorSet; 2],
+        push: &RenderPush,
+        width: u32,
+        height: u32,
+    ) -> Result<()> {
+        let set = self
+            .scene
+            .as_ref()
+            .context("no scene loaded for the driver tracer")?
+            .set;
+        let layout = self.layout;
+        let (raw, regions) = {
+            let p = self.pipeline(features)?;
+            (p.raw, p.regions)
+        };
+        let d = &self.gpu.device;
+        let cb = cmds.cb;
+        let callable = vk::StridedDeviceAddressRegionKHR::default();
+        // SAFETY: recording state; pipeline, layout, sets and table belong to this device.
+        unsafe {
+            d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::RAY_TRACING_KHR, raw);
+            d.cmd_bind_descriptor_sets(
+                cb,
+                vk::PipelineBindPoint::RAY_TRACING_KHR,
+                layout,
+                0,
+                &[sets[0], sets[1], set],
+                &[],
+            );
+            d.cmd_push_constants(
+                cb,
+                layout,
+                vk::ShaderStageFlags::RAYGEN_KHR,
+                0,
+                bytemuck::bytes_of(push),
+            );
+            self.rt
+                .cmd_trace_rays(cb, &regions[0], &regions[1], &regions[2], &callable, width, height, 1);
+        }
+        full_barrier(&self.gpu, cb);
+        Ok(())
+    }
+
+    fn drop_scene(&mut self) {
+        if let Some(s) = self.scene.take() {
+            // SAFETY: owners wait for GPU work before loading again or dropping.
+            unsafe {
+                self.gpu.device.destroy_descriptor_pool(s.pool, None);
+                for b in &s.bottoms {
+                    self.accel.destroy_acceleration_structure(b.accel.raw, None);
+                }
+                self.accel.destroy_acceleration_structure(s.tlas.raw, None);
+            }
+        }
+    }
+}
+
+/// Every earlier write (shaders, transfers, acceleration-structure builds) visible to every
+/// later command: the driver tracer's stages between the compute kernels.
+fn full_barrier(gpu: &Gpu, cb: vk::CommandBuffer) {
+    let m = [vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
+        .dst_access_mask(vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE)];
+    let all = vk::PipelineStageFlags::ALL_COMMANDS;
+    // SAFETY: recording state.
+    unsafe {
+        gpu.device
+            .cmd_pipeline_barrier(cb, all, all, vk::DependencyFlags::empty(), &m, &[], &[])
+    };
+}
+
+impl Drop for DriverTracer {
+    fn drop(&mut self) {
+        self.drop_scene();
+        let d = &self.gpu.device;
+        // SAFETY: owners wait for GPU work before dropping.
+        unsafe {
+            for p in self.pipelines.values() {
+                d.destroy_pipeline(p.raw, None);
+            }
+            d.destroy_pipeline(self.boxes_pipeline, None);
+            d.destroy_pipeline_layout(self.layout, None);
+            d.destroy_descriptor_set_layout(self.set_layout, None);
+            d.destroy_shader_module(self.module, None);
+        }
+    }
+}

@@ -1,0 +1,509 @@
+//! The compute module's entry points. Each is a few lines that call into `shared`: per-item
+//! steps with `global_invocation_id.x`, cooperative kernels as phases between barriers.
+//! Bindings follow the table in `shared::types`.
+
+use shared::bounds::{self, BoundsState};
+use shared::denoise::{self, DenoisePush};
+use shared::envmap::EnvEntry;
+use shared::instance::Instance;
+use shared::path;
+use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
+use shared::refit::{FitState, RefitState};
+use shared::scan;
+use shared::texture::TextureInfo;
+use shared::types::{
+    flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, PunctualLight, Ray,
+    RenderPush, Sphere, Triangle, VertexAttrs, FEATURES_ALL,
+};
+use shared::wide::{self, MarkState, ScanState, WideNode};
+
+// The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
+const _: () = assert!(FEATURES_ALL == 130111);
+use shared::{display, karras, morton, refit, transform as xform};
+use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
+use spirv_std::glam::UVec3;
+use spirv_std::spirv;
+
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn bounds_reduce(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut OrderedBounds,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &mut [[f32; 4]],
+    #[spirv(workgroup)] st: &mut BoundsState,
+) {
+    bounds::clear(lid.x, st);
+    barrier();
+    bounds::accumulate(lid.x, flat_group(gid.x, gid.y), st, p, tris, spheres, summaries);
+    barrier();
+    bounds::flush(lid.x, st, out);
+}
+
+/// A refit entry point: `ORDERED` visit counters or relaxed ones (lavapipe only, see
+/// `shared::refit`), with or without treelet restructuring (see `shared::treelet`).
+macro_rules! refit_kernel {
+    ($name:ident, $ordered:literal, $treelets:literal) => {
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $name(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+            #[spirv(workgroup)] st: &mut RefitState,
+        ) {
+            refit::clear(lid.x, st);
+            barrier();
+            let group = flat_group(gid.x, gid.y);
+            let prims = refit::Prims { order, tris, spheres };
+            refit::refit::<$ordered, $treelets>(lid.x, group, st, p, prims, parents, visits, node_words);
+        }
+    };
+}
+
+refit_kernel!(refit_treelets, true, true);
+refit_kernel!(refit_treelets_relaxed, false, true);
+
+/// The box fit (`shared::refit::fit`); specialisation constant 0 is 1 for its ordered
+/// variant, 0 for the relaxed one (lavapipe).
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn fit(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
+    #[spirv(spec_constant(id = 0, default = 1))] ordered: u32,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &[u32],
+    #[spirv(workgroup)] st: &mut FitState,
+) {
+    let group = flat_group(gid.x, gid.y);
+    refit::fit_clear(lid.x, st);
+    barrier();
+    refit::fit_links(lid.x, group, st, p, visits, node_words);
+    barrier();
+    let prims = refit::Prims { order, tris, spheres };
+    if ordered != 0 {
+        refit::fit::<true>(lid.x, group, st, p, prims, parents, visits, node_words);
+    } else {
+        refit::fit::<false>(lid.x, group, st, p, prims, parents, visits, node_words);
+    }
+}
+
+/// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
+macro_rules! key_kernels {
+    ($k:ty, $morton:ident, $morton_counted:ident, $scatter:ident, $rank:ident, $build:ident) => {
+        #[spirv(compute(threads(256)))]
+        pub fn $morton(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] b: &OrderedBounds,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &[[f32; 4]],
+        ) {
+            morton::$morton(flat_index(id.x, id.y), p, b, summaries, keys, vals);
+        }
+
+        /// Morton codes and every sort pass's digit counts (see `shared::radix_sort`).
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $morton_counted(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] b: &OrderedBounds,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
+            #[spirv(workgroup)] st: &mut DigitCounts,
+        ) {
+            let group = flat_group(gid.x, gid.y);
+            sort::digits_clear(lid.x, st);
+            barrier();
+            sort::count_codes(lid.x, group, st, p, b, summaries, keys, vals, morton::$morton);
+            barrier();
+            sort::digits_store(lid.x, st, p, totals);
+        }
+
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $scatter(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys_in: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals_in: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
+            #[spirv(workgroup)] st: &mut ScatterState,
+        ) {
+            sort::scatter_claim(lid.x, st, p, totals);
+            barrier();
+            let owned = sort::scatter_count(lid.x, st, p, keys_in, vals_in, totals);
+            barrier();
+            sort::scatter_sums(lid.x, st);
+            barrier();
+            scan::rake(lid.x, &mut st.scan);
+            barrier();
+            scan::rake_totals(lid.x, &mut st.scan);
+            barrier();
+            sort::scatter_offsets(lid.x, st, p, counts);
+            barrier();
+            while sort::looking_back(st) {
+                sort::lookback_load(lid.x, st, p, counts);
+                barrier();
+                sort::lookback_sum(lid.x, st, p, counts);
+                barrier();
+            }
+            let staged = sort::scatter_rank(lid.x, st, p, owned);
+            barrier();
+            sort::scatter_stage_keys(st, &staged);
+            barrier();
+            let at = sort::scatter_write_keys(lid.x, st, p, keys_out);
+            barrier();
+            sort::scatter_stage_vals(st, &staged);
+            barrier();
+            sort::scatter_write_vals(lid.x, st, &at, vals_out);
+        }
+
+        /// The sort of at most `RANK_MAX` keys, in place, by one workgroup (see
+        /// `shared::radix_sort::RANK_MAX`).
+        #[spirv(compute(threads(256)))]
+        pub fn $rank(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
+        ) {
+            let ranked = sort::rank(lid.x, p, keys, vals);
+            storage_barrier();
+            sort::place(lid.x, p, &ranked, keys, vals);
+        }
+
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $build(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &mut [Node],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] bounds: &mut [OrderedBounds],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
+        ) {
+            let i = flat_index(id.x, id.y);
+            karras::build(i, p, keys, nodes, parents, visits);
+            // The sort and the Morton stage are done with these: reset for the next build.
+            sort::clear_tables(i, p, counts, totals);
+            bounds::publish(i, bounds);
+        }
+    };
+}
+
+key_kernels!(
+    u32,
+    morton30,
+    morton30_counted,
+    sort_scatter_u32,
+    sort_rank_u32,
+    karras_build_u32
+);
+key_kernels!(
+    u64,
+    morton63,
+    morton63_counted,
+    sort_scatter_u64,
+    sort_rank_u64,
+    karras_build_u64
+);
+
+/// The wide collapse's first stage: frontier sizes, bottom-up (`shared::wide`);
+/// specialisation constant 0 is 1 for the ordered counters, 0 for relaxed ones (lavapipe).
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn wide_climb(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(spec_constant(id = 0, default = 1))] ordered: u32,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
+) {
+    let k = flat_index(id.x, id.y);
+    if ordered != 0 {
+        wide::climb::<true>(k, p, nodes, parents, visits, scratch);
+    } else {
+        wide::climb::<false>(k, p, nodes, parents, visits, scratch);
+    }
+}
+
+/// The wide collapse's second stage: which binary nodes root wide nodes.
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn wide_mark(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ends: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
+    #[spirv(workgroup)] st: &mut MarkState,
+) {
+    let group = flat_group(gid.x, gid.y);
+    wide::mark_clear(lid.x, st);
+    barrier();
+    wide::mark(lid.x, group, st, p, nodes, parents, ends, scratch);
+    barrier();
+    wide::mark_words(lid.x, group, st, p, scratch);
+    barrier();
+    wide::mark_counts(lid.x, group, st, p, scratch);
+}
+
+/// The wide collapse's third stage (one workgroup of `wide::SCAN_LANES`): where each
+/// group's wide nodes start.
+#[spirv(compute(threads(64)))]
+pub fn wide_scan(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
+    #[spirv(workgroup)] st: &mut ScanState,
+) {
+    wide::scan_sum(lid.x, st, p, scratch);
+    barrier();
+    wide::scan_lanes(lid.x, st, p, scratch);
+    barrier();
+    wide::scan_write(lid.x, st, p, scratch);
+}
+
+/// The wide collapse's last stage: every root writes its wide node.
+#[spirv(compute(threads(256)))]
+pub fn wide_write(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ends: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] out: &mut [WideNode],
+) {
+    wide::write(flat_index(id.x, id.y), p, nodes, ends, scratch, out);
+}
+
+/// A workgroup barrier that also orders this workgroup's storage-buffer accesses (the rank
+/// sort writes in place what other lanes read before).
+fn storage_barrier() {
+    use spirv_std::memory::{Scope, Semantics};
+    const WG: u32 = Scope::Workgroup as u32;
+    const SEMANTICS: u32 =
+        Semantics::ACQUIRE_RELEASE.bits() | Semantics::UNIFORM_MEMORY.bits() | Semantics::WORKGROUP_MEMORY.bits();
+    spirv_std::arch::control_barrier::<WG, WG, SEMANTICS>();
+}
+
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn transform(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &mut [Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &mut [Sphere],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 1)] model_tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 2)] model_spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+) {
+    let i = flat_index(id.x, id.y);
+    xform::transform(i, p, objects, prim_object, model_tris, model_spheres, tris, spheres);
+}
+
+/// The top level's inputs: each instance's world box (`shared::instance::instance_box`) into
+/// set 0's triangles, which the top level's build then reads.
+#[spirv(compute(threads(256)))]
+pub fn instance_boxes(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] boxes: &mut [Triangle],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
+) {
+    shared::instance::instance_box(flat_index(id.x, id.y), p.n, instances, objects, boxes);
+}
+
+#[spirv(compute(threads(8, 8)))]
+#[allow(clippy::too_many_arguments)]
+pub fn path_trace(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &RenderPush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 16)] guides: &mut [[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
+    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
+) {
+    let w = world!(
+        tris,
+        spheres,
+        nodes,
+        wide,
+        order,
+        instances,
+        objects,
+        prim_object,
+        materials,
+        lights,
+        frame,
+        attrs,
+        punctual,
+        env,
+        textures,
+        texels,
+        features
+    );
+    path::render_pixel(id.x, id.y, p, &w, &mut path::Walk, accum, guides);
+}
+
+// The denoiser (`shared::denoise`): its own buffers in set 0 (a set of the build's layout:
+// guides, history, filter, output), the frame and display image of set 1.
+
+#[spirv(compute(threads(8, 8)))]
+pub fn denoise_temporal(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &DenoisePush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+) {
+    if id.x < frame.width {
+        denoise::temporal(id.y * frame.width + id.x, p, frame, guides, history, filter);
+    }
+}
+
+#[spirv(compute(threads(8, 8)))]
+pub fn denoise_variance(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &DenoisePush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+) {
+    if id.x < frame.width {
+        denoise::variance(id.y * frame.width + id.x, p, frame, history, filter);
+    }
+}
+
+#[spirv(compute(threads(8, 8)))]
+#[allow(clippy::too_many_arguments)]
+pub fn denoise_atrous(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &DenoisePush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] guides: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] history: &mut [[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] filter: &mut [[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] output: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32],
+) {
+    if id.x < frame.width {
+        let i = id.y * frame.width + id.x;
+        denoise::atrous(i, p, frame, guides, history, filter, output, image);
+    }
+}
+
+#[spirv(compute(threads(256)))]
+pub fn display_image(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &RenderPush,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32],
+) {
+    display::display(flat_index(id.x, id.y), p, frame, accum, image);
+}
+
+/// Closest hits of a batch of rays (tests and benchmarks of the traversal).
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn cast_rays(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &RenderPush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] rays: &[Ray],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
+    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
+) {
+    let w = world!(
+        tris,
+        spheres,
+        nodes,
+        wide,
+        order,
+        instances,
+        objects,
+        prim_object,
+        materials,
+        lights,
+        frame,
+        attrs,
+        punctual,
+        env,
+        textures,
+        texels,
+        features
+    );
+    path::cast(flat_index(id.x, id.y), p, &w, rays, hits);
+}
+
+/// `io[3] = fma(io[0], io[1], io[2])`: whether the device's `fma` rounds once
+/// (`Kernels::probe_fma`).
+#[spirv(compute(threads(1)))]
+pub fn fma_probe(#[spirv(storage_buffer, descriptor_set = 0, binding = 0)] io: &mut [f32]) {
+    io[3] = shared::math::fma(io[0], io[1], io[2]);
+}

@@ -1,0 +1,154 @@
+//! The driver module's entry points (`--accel driver`, `shared::driver`): the ray-tracing
+//! pipeline's shaders and the compute kernel that boxes the spheres for its bottom level.
+//! Sets 0 and 1 are the compute kernels' (the world primitives, the scene); set 2 holds the
+//! top-level acceleration structure (binding 0) and the spheres' boxes (binding 1).
+use shared::driver::{self, Driver};
+use shared::envmap::EnvEntry;
+use shared::instance::Instance;
+use shared::path;
+use shared::texture::TextureInfo;
+use shared::types::{
+    flat_index, Frame, Hit, Material, Node, Object, PunctualLight, RenderPush, Sphere, Triangle, VertexAttrs,
+};
+use shared::wide::WideNode;
+use spirv_std::glam::{UVec3, Vec2, Vec3};
+use spirv_std::ray_tracing::AccelerationStructure;
+use spirv_std::spirv;
+
+/// Ray generation: `path::render_pixel` for the launch's pixel, its rays traced by the
+/// driver (the compute module's `path_trace` with another [`path::Trace`]).
+#[spirv(ray_generation)]
+#[allow(clippy::too_many_arguments)]
+pub fn path_trace_driver(
+    #[spirv(launch_id)] id: UVec3,
+    #[spirv(push_constant)] p: &RenderPush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 16)] guides: &mut [[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
+    #[spirv(descriptor_set = 2, binding = 0)] accel: &AccelerationStructure,
+    #[spirv(ray_payload)] hit: &mut Hit,
+    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
+) {
+    let w = world!(
+        tris,
+        spheres,
+        nodes,
+        wide,
+        order,
+        instances,
+        objects,
+        prim_object,
+        materials,
+        lights,
+        frame,
+        attrs,
+        punctual,
+        env,
+        textures,
+        texels,
+        features
+    );
+    let mut tracer = Driver { accel, hit };
+    path::render_pixel(id.x, id.y, p, &w, &mut tracer, accum, guides);
+}
+
+#[spirv(miss)]
+pub fn miss_driver(#[spirv(incoming_ray_payload)] out: &mut Hit) {
+    *out = Hit::MISS;
+}
+
+#[spirv(closest_hit)]
+pub fn triangle_hit_driver(
+    #[spirv(primitive_id)] prim: u32,
+    #[spirv(ray_tmax)] t: f32,
+    #[spirv(hit_attribute)] bary: &mut Vec2,
+    #[spirv(incoming_ray_payload)] out: &mut Hit,
+) {
+    *out = driver::triangle_hit(prim, t, *bary);
+}
+
+/// Alpha-tested triangles (geometry 0 is not opaque where the scene has them).
+#[spirv(any_hit)]
+#[allow(clippy::too_many_arguments)]
+pub fn triangle_alpha_driver(
+    #[spirv(primitive_id)] prim: u32,
+    #[spirv(world_ray_origin)] origin: Vec3,
+    #[spirv(world_ray_direction)] dir: Vec3,
+    #[spirv(hit_attribute)] bary: &mut Vec2,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
+) {
+    let c = shared::alpha::Coverage {
+        objects,
+        prim_object,
+        materials,
+        attrs,
+        textures,
+        texels,
+    };
+    if !driver::covers(&c, prim, *bary, origin, dir, features) {
+        // SAFETY: called from an any-hit shader.
+        unsafe { spirv_std::arch::ignore_intersection() };
+    }
+}
+
+#[spirv(intersection)]
+pub fn sphere_test_driver(
+    #[spirv(primitive_id)] sphere: u32,
+    #[spirv(world_ray_origin)] origin: Vec3,
+    #[spirv(world_ray_direction)] dir: Vec3,
+    #[spirv(ray_tmax)] t_max: f32,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
+) {
+    let t = driver::sphere_t(spheres, sphere, origin, dir, t_max, features);
+    if t < t_max {
+        // SAFETY: called from an intersection shader.
+        unsafe { spirv_std::arch::report_intersection(t, 0) };
+    }
+}
+
+#[spirv(closest_hit)]
+pub fn sphere_hit_driver(
+    #[spirv(primitive_id)] sphere: u32,
+    #[spirv(ray_tmax)] t: f32,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(incoming_ray_payload)] out: &mut Hit,
+) {
+    *out = driver::sphere_hit(frame, sphere, t);
+}
+
+/// The spheres' boxes for geometry 1 of the bottom level, after the transform stage.
+#[spirv(compute(threads(256)))]
+pub fn sphere_boxes(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 2, binding = 1)] boxes: &mut [[f32; 6]],
+) {
+    let i = flat_index(id.x, id.y);
+    let n = frame.n_prims - frame.n_tris;
+    if i < n {
+        boxes[i as usize] = driver::sphere_box(&spheres[i as usize]);
+    }
+}
