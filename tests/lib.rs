@@ -29,6 +29,33 @@ pub fn gpu(test: &str) -> Option<Arc<Gpu>> {
     }
 }
 
+/// [`gpu`] opened with the driver's ray tracing (`--accel driver`), or `None` after a skip
+/// line where there is no device or the device has no ray-tracing pipelines (lavapipe): a
+/// missing extension is no failure even with `REQUIRE_VULKAN=1`; a present one that breaks
+/// fails the tests that use it.
+pub fn ray_tracing_gpu(test: &str) -> Option<Arc<Gpu>> {
+    let opts = GpuOptions {
+        validation: true,
+        ray_tracing: true,
+        ..Default::default()
+    };
+    let gpu = match Gpu::new(&opts) {
+        Ok(g) => g,
+        Err(e) => {
+            if std::env::var("REQUIRE_VULKAN").is_ok_and(|v| v == "1") {
+                panic!("{test}: REQUIRE_VULKAN=1 but no Vulkan device: {e:#}");
+            }
+            eprintln!("SKIPPED {test}: no Vulkan device ({e:#})");
+            return None;
+        }
+    };
+    if let Err(why) = &gpu.ray_tracing {
+        eprintln!("SKIPPED {test}: no ray tracing on this device ({why})");
+        return None;
+    }
+    Some(gpu)
+}
+
 /// [`gpu`] with a path tracer on it (all kernels built), or `None` where [`gpu`] skips.
 pub fn renderer(test: &str) -> Option<(Arc<Gpu>, GpuRenderer)> {
     let gpu = self::gpu(test)?;

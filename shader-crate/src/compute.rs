@@ -498,7 +498,7 @@ pub fn cast_rays(
         texels,
         features
     );
-    path::cast(flat_index(id.x, id.y), p, &w, rays, hits);
+    path::cast(flat_index(id.x, id.y), p, &w, &mut path::Walk, rays, hits);
 }
 
 /// `io[3] = fma(io[0], io[1], io[2])`: whether the device's `fma` rounds once

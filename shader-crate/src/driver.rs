@@ -8,7 +8,7 @@ use shared::instance::Instance;
 use shared::path;
 use shared::texture::TextureInfo;
 use shared::types::{
-    flat_index, Frame, Hit, Material, Node, Object, PunctualLight, RenderPush, Sphere, Triangle, VertexAttrs,
+    flat_index, Frame, Hit, Material, Node, Object, PunctualLight, Ray, RenderPush, Sphere, Triangle, VertexAttrs,
 };
 use shared::wide::WideNode;
 use spirv_std::glam::{UVec3, Vec2, Vec3};
@@ -65,6 +65,58 @@ pub fn path_trace_driver(
     );
     let mut tracer = Driver { accel, hit };
     path::render_pixel(id.x, id.y, p, &w, &mut tracer, accum, guides);
+}
+
+/// Ray generation of the ray casts (`path::cast`: picking, the tests' ray sets): one
+/// launch per query, `launch_id.x`.
+#[spirv(ray_generation)]
+#[allow(clippy::too_many_arguments)]
+pub fn cast_rays_driver(
+    #[spirv(launch_id)] id: UVec3,
+    #[spirv(push_constant)] p: &RenderPush,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] rays: &[Ray],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
+    #[spirv(descriptor_set = 2, binding = 0)] accel: &AccelerationStructure,
+    #[spirv(ray_payload)] hit: &mut Hit,
+    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
+) {
+    let w = world!(
+        tris,
+        spheres,
+        nodes,
+        wide,
+        order,
+        instances,
+        objects,
+        prim_object,
+        materials,
+        lights,
+        frame,
+        attrs,
+        punctual,
+        env,
+        textures,
+        texels,
+        features
+    );
+    let mut tracer = Driver { accel, hit };
+    path::cast(id.x, p, &w, &mut tracer, rays, hits);
 }
 
 #[spirv(miss)]

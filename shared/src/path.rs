@@ -74,6 +74,10 @@ pub trait Trace {
     fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found;
     /// [`World::any`]: whether anything lies in `(0, t_max)`.
     fn any(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool;
+    /// [`World::closest`]: the closest hit in `(0, t_max)`.
+    fn closest(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
+        self.found(w, origin, dir, t_max).hit
+    }
 }
 
 /// The project's own traversal: the BVH (or brute force without [`FLAG_BVH`]).
@@ -86,6 +90,10 @@ impl Trace for Walk {
 
     fn any(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
         w.any(origin, dir, t_max)
+    }
+
+    fn closest(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
+        w.closest(origin, dir, t_max)
     }
 }
 
@@ -759,7 +767,7 @@ fn first_hit_guide(x: u32, y: u32, p: &RenderPush, w: &World, first: &Found) -> 
 /// Closest hit of ray `i` of `rays` (origin `w`: unused, direction `w`: largest distance).
 /// With [`CAST_ANY`] an any-hit query; with [`CAST_OBJECT`] the hit names its object; with [`CAST_SPAWN`] query `i` is the pair of rays
 /// `2 i`, `2 i + 1`: see there.
-pub fn cast(i: u32, p: &RenderPush, w: &World, rays: &[Ray], hits: &mut [Hit]) {
+pub fn cast<T: Trace>(i: u32, p: &RenderPush, w: &World, tr: &mut T, rays: &[Ray], hits: &mut [Hit]) {
     if i >= p.count {
         return;
     }
@@ -767,14 +775,14 @@ pub fn cast(i: u32, p: &RenderPush, w: &World, rays: &[Ray], hits: &mut [Hit]) {
         let r = rays[i as usize];
         let (o, d) = (xyz(r.origin), xyz(r.dir));
         hits[i as usize] = if p.flags & CAST_OBJECT != 0 {
-            let found = w.found(o, d, r.dir[3]);
+            let found = tr.found(w, o, d, r.dir[3]);
             Hit {
                 prim: found.at.object,
                 ..found.hit
             }
         } else if p.flags & CAST_ANY == 0 {
-            w.closest(o, d, r.dir[3])
-        } else if w.any(o, d, r.dir[3]) {
+            tr.closest(w, o, d, r.dir[3])
+        } else if tr.any(w, o, d, r.dir[3]) {
             Hit {
                 t: 0.0,
                 prim: 0,
@@ -788,7 +796,7 @@ pub fn cast(i: u32, p: &RenderPush, w: &World, rays: &[Ray], hits: &mut [Hit]) {
     }
     let (first, second) = (rays[2 * i as usize], rays[2 * i as usize + 1]);
     let (o, d) = (xyz(first.origin), xyz(first.dir));
-    let found = w.found(o, d, first.dir[3]);
+    let found = tr.found(w, o, d, first.dir[3]);
     let h = found.hit;
     hits[2 * i as usize] = h;
     hits[2 * i as usize + 1] = if h.prim == INVALID {
@@ -796,6 +804,6 @@ pub fn cast(i: u32, p: &RenderPush, w: &World, rays: &[Ray], hits: &mut [Hit]) {
     } else {
         let (q, ng, scale) = traverse::surface_at(&w.scene, w.objects, found.at, o, d, &h);
         let d2 = xyz(second.dir);
-        w.closest(leave(q, ng, scale, d2), d2, second.dir[3])
+        tr.closest(w, leave(q, ng, scale, d2), d2, second.dir[3])
     };
 }

@@ -37,7 +37,9 @@ pub enum DriverBuild {
 }
 
 /// The entry points of the driver module, in the pipeline's stage order.
-const RAYGEN: &str = "driver::path_trace_driver";
+/// Ray generation of the path tracer, and of the ray casts.
+pub const PATH_TRACE: &str = "driver::path_trace_driver";
+pub const CAST_RAYS: &str = "driver::cast_rays_driver";
 const MISS: &str = "driver::miss_driver";
 const TRIANGLE_HIT: &str = "driver::triangle_hit_driver";
 const TRIANGLE_ALPHA: &str = "driver::triangle_alpha_driver";
@@ -105,7 +107,9 @@ pub struct DriverTracer {
     set_layout: vk::DescriptorSetLayout,
     layout: vk::PipelineLayout,
     boxes_pipeline: vk::Pipeline,
-    pipelines: HashMap<u32, Pipeline>,
+    /// Ray-tracing pipelines by ray generation ([`PATH_TRACE`], [`CAST_RAYS`]) and
+    /// specialisation constant.
+    pipelines: HashMap<(&'static str, u32), Pipeline>,
     scene: Option<SceneAccel>,
     handle_size: u32,
     handle_align: u32,
@@ -196,17 +200,19 @@ impl DriverTracer {
         Ok(t)
     }
 
-    /// The ray-tracing pipeline with specialisation constant `features`, made on first use.
-    fn pipeline(&mut self, features: u32) -> Result<&Pipeline> {
-        if !self.pipelines.contains_key(&features) {
-            let p = self.make_pipeline(features)?;
-            self.pipelines.insert(features, p);
+    /// The ray-tracing pipeline of ray generation `raygen` with specialisation constant
+    /// `features`, made on first use.
+    fn pipeline(&mut self, raygen: &'static str, features: u32) -> Result<&Pipeline> {
+        let key = (raygen, features);
+        if !self.pipelines.contains_key(&key) {
+            let p = self.make_pipeline(raygen, features)?;
+            self.pipelines.insert(key, p);
         }
-        self.pipelines.get(&features).context("pipeline cache")
+        self.pipelines.get(&key).context("pipeline cache")
     }
 
-    fn make_pipeline(&self, features: u32) -> Result<Pipeline> {
-        let names: Vec<std::ffi::CString> = [RAYGEN, MISS, TRIANGLE_HIT, TRIANGLE_ALPHA, SPHERE_TEST, SPHERE_HIT]
+    fn make_pipeline(&self, raygen: &str, features: u32) -> Result<Pipeline> {
+        let names: Vec<std::ffi::CString> = [raygen, MISS, TRIANGLE_HIT, TRIANGLE_ALPHA, SPHERE_TEST, SPHERE_HIT]
             .iter()
             .map(|n| std::ffi::CString::new(*n))
             .collect::<Result<_, _>>()?;
@@ -610,6 +616,38 @@ impl DriverTracer {
             })
     }
 
+    /// Device bytes of the structures themselves (bottom and top levels).
+    pub fn structure_bytes(&self) -> u64 {
+        self.scene.as_ref().map_or(0, |s| {
+            s.bottoms.iter().map(|b| b.accel.buffer.size).sum::<u64>() + s.tlas.buffer.size
+        })
+    }
+
+    /// GPU milliseconds of `runs` builds of both levels over the `n_tris` triangles in `tris`
+    /// (no spheres), as `build` says (`bench peer`'s build rows); the structures stay loaded
+    /// for the next call with the same input.
+    pub fn time_builds(&mut self, tris: &Buffer, n_tris: u32, build: DriverBuild, runs: usize) -> Result<Vec<f64>> {
+        let loaded = self
+            .scene
+            .as_ref()
+            .is_some_and(|s| s.build == build && s.n_spheres == 0 && s.bottoms.iter().map(|b| b.count).eq([n_tris]));
+        if !loaded {
+            self.load(tris, n_tris, 0, 0, build)?;
+        }
+        let mut cmds = Commands::new(&self.gpu)?;
+        let mut out = Vec::with_capacity(runs);
+        for _ in 0..runs {
+            cmds.begin()?;
+            cmds.timestamp("start");
+            // No spheres: the sphere-box kernel, the only user of the sets, does not run.
+            self.record_build(&mut cmds, tris, [vk::DescriptorSet::null(); 2])?;
+            cmds.submit_wait().context("building the driver's structures")?;
+            let t = cmds.timings()?;
+            out.push(t.iter().filter(|(l, _)| *l == "build").map(|(_, ns)| ns * 1e-6).sum());
+        }
+        Ok(out)
+    }
+
     /// Device bytes of the structures, their scratch and the spheres' boxes.
     pub fn memory(&self) -> u64 {
         self.scene.as_ref().map_or(0, |s| {
@@ -710,11 +748,19 @@ impl DriverTracer {
         Ok(())
     }
 
-    /// Records one trace of `push.samples` samples per pixel over `width` x `height` pixels
-    /// with the pipeline specialised to `features` (`sets`: sets 0 and 1).
-    pub fn record_trace(
+    /// Whether the structures were built (a frame recorded since the scene was loaded).
+    pub fn built(&self) -> bool {
+        self.scene.as_ref().is_some_and(|s| s.built)
+    }
+
+    /// Records a launch of ray generation `raygen` ([`PATH_TRACE`]: `push.samples` samples
+    /// per pixel over `width` x `height` pixels; [`CAST_RAYS`]: `push.count` queries over
+    /// `width`) with the pipeline specialised to `features` (`sets`: sets 0 and 1).
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_launch(
         &mut self,
         cmds: &mut Commands,
+        raygen: &'static str,
         features: u32,
         sets: [vk::DescriptorSet; 2],
         push: &RenderPush,
@@ -728,7 +774,7 @@ impl DriverTracer {
             .set;
         let layout = self.layout;
         let (raw, regions) = {
-            let p = self.pipeline(features)?;
+            let p = self.pipeline(raygen, features)?;
             (p.raw, p.regions)
         };
         let d = &self.gpu.device;

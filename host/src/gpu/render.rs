@@ -3,7 +3,7 @@
 //! image, and run the display pass; a timestamp after each stage.
 use crate::bvh::{BuildOptions, BuildResult, Levels, MortonBits};
 use crate::gpu::denoise::{guide_bytes, GpuDenoiser};
-use crate::gpu::driver::{DriverBuild, DriverTracer};
+use crate::gpu::driver::{DriverBuild, DriverTracer, CAST_RAYS, PATH_TRACE};
 use crate::gpu::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, GpuLevels, Kernel, Kernels};
 use crate::picture::{swap_red_blue, Picture};
 use crate::render::Accel;
@@ -462,6 +462,16 @@ impl GpuRenderer {
         }
     }
 
+    /// Device bytes of what the tracer walks: the BVH's nodes (both levels where instanced),
+    /// or the driver's bottom and top levels (`--accel driver`).
+    pub fn structure_bytes(&self) -> u64 {
+        match (&self.driver, &self.levels) {
+            (Some(d), _) => d.structure_bytes(),
+            (None, Some(l)) => l.memory(),
+            (None, None) => self.lbvh.memory().0,
+        }
+    }
+
     /// With two levels: how many meshes' BVHs the last [`Self::load`] built, and how many it
     /// kept from the scene loaded before.
     pub fn meshes_built(&self) -> Option<(usize, usize)> {
@@ -661,7 +671,7 @@ impl GpuRenderer {
                 ..Default::default()
             };
             match self.driver.as_mut() {
-                Some(d) => d.record_trace(cmds, driver_features, sets, &push, f.width, f.height)?,
+                Some(d) => d.record_launch(cmds, PATH_TRACE, driver_features, sets, &push, f.width, f.height)?,
                 None => {
                     cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(&push), gx, gy);
                     cmds.barrier();
@@ -880,17 +890,25 @@ impl GpuRenderer {
         let sets = [self.trace_set()?, b.set()?];
         let (x, y) = grid((count as u32).div_ceil(WORKGROUP));
         let cast = self.kernels.specialised(Kernel::CastRays, self.tracer_constant())?;
-        self.cmds.begin()?;
-        if self.driver.is_some() && self.levels.is_none() {
-            // Frames traced by the driver leave the project's BVH unbuilt: casts (picking)
-            // build it over the world the last frame transformed.
-            self.lbvh.record(&mut self.cmds, self.build, false, false)?;
+        let driver_features = self.kernels.tracer_constant(self.tracer_constant());
+        if let Some(d) = &self.driver {
+            // Through the structures the last frame built.
+            ensure!(
+                d.built(),
+                "ray casts through the driver's structures need a frame rendered first"
+            );
         }
+        self.cmds.begin()?;
         self.cmds.timestamp("start");
         for _ in 0..repeats {
-            self.cmds
-                .dispatch_pipeline(&self.kernels, cast, &sets, bytemuck::bytes_of(&push), x, y);
-            self.cmds.barrier();
+            match self.driver.as_mut() {
+                Some(d) => d.record_launch(&mut self.cmds, CAST_RAYS, driver_features, sets, &push, count as u32, 1)?,
+                None => {
+                    self.cmds
+                        .dispatch_pipeline(&self.kernels, cast, &sets, bytemuck::bytes_of(&push), x, y);
+                    self.cmds.barrier();
+                }
+            }
         }
         self.cmds.timestamp("cast");
         self.cmds.submit_wait().context("casting rays")?;

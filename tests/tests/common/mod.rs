@@ -3,7 +3,10 @@
 //! last place; and a chi-square critical value.
 #![allow(dead_code)]
 
+pub mod rays;
+
 use raytrace::bvh::{BuildOptions, MortonBits};
+#[allow(unused_imports)]
 pub use raytrace::inputs::hard_cases::{cube, icosphere, octahedron, rays_at_vertices_and_edges, Mesh, OFFSETS};
 use shared::glam::Vec3;
 use shared::rng::Rng;
@@ -175,6 +178,23 @@ impl GpuWorld {
         })
     }
 
+    /// [`GpuWorld::open`] with the queries traced by the driver's acceleration structures
+    /// (`--accel driver`), or `None` (after a skip line) where the device has none.
+    #[allow(dead_code)]
+    pub fn open_driver(test: &str) -> Option<GpuWorld> {
+        let gpu = integration_tests::ray_tracing_gpu(test)?;
+        let kernels = std::sync::Arc::new(raytrace::gpu::Kernels::new(&gpu).expect("kernels"));
+        let mut renderer = raytrace::gpu::GpuRenderer::new(&gpu, &kernels).expect("renderer");
+        renderer
+            .set_accel(raytrace::render::Accel::Driver, Default::default())
+            .expect("the driver tracer");
+        Some(GpuWorld {
+            gpu,
+            renderer,
+            frame: Default::default(),
+        })
+    }
+
     /// Loads the primitives as a scene (`hard_cases::scene_of`) with every feature; its frame.
     fn load_primitives(&mut self, tris: &[Triangle], spheres: &[Sphere]) -> shared::types::Frame {
         let scene = raytrace::inputs::hard_cases::scene_of(tris, spheres);
@@ -197,6 +217,11 @@ impl GpuWorld {
             tris == w.tris && spheres == w.spheres,
             "the transform stage moved the primitives"
         );
+        if r.accel() == raytrace::render::Accel::Driver {
+            // The driver built its own structures: nothing of the project's to check.
+            self.frame = frame;
+            return;
+        }
         let bvh = r.bvh().expect("BVH");
         if let Err(e) = raytrace::bvh::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
             panic!("the GPU's BVH is invalid: {e}");
