@@ -199,6 +199,41 @@ fn objects_are_added_picked_moved_and_removed_in_the_window() {
     assert_eq!(png(&shot).dimensions(), (64, 64));
 }
 
+/// The T key's action switches to the driver's acceleration structures where the device has
+/// ray-tracing pipelines (picking then casts through them), and elsewhere (lavapipe) says
+/// what the device lacks and keeps tracing with the project's BVH; either way the viewer
+/// goes on, edits and picks.
+#[test]
+fn the_tracer_switch_goes_to_the_driver_or_says_why_not() {
+    let test = "the_tracer_switch_goes_to_the_driver_or_says_why_not";
+    let args = [
+        "--validation",
+        "view",
+        "cornell",
+        "--size",
+        "64x64",
+        "--frames",
+        "9",
+        "--script",
+        "1:tracer=driver,3:add-sphere,5:pick=32;32,7:tracer=lbvh",
+    ];
+    let Some(o) = run_windowed(test, &args) else {
+        return;
+    };
+    let stdout = check(test, &o);
+    assert!(
+        stdout.contains("tracer: Driver") || stdout.contains("--accel driver needs"),
+        "{test}: neither switched nor said why not:\n{stdout}"
+    );
+    for want in [
+        "new object added sphere 1 (selected)",
+        "selected added sphere 1",
+        "tracer: Lbvh",
+    ] {
+        assert!(stdout.contains(want), "{test}: expected {want:?} in\n{stdout}");
+    }
+}
+
 /// What the viewer prints for the edits both window tests script on the Cornell box.
 const EDITED: [&str; 5] = [
     "new object added sphere 1 (selected)",

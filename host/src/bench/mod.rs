@@ -2,7 +2,8 @@
 //! BVH build (`build`), the thesis's tables (`table2`), real-time frames (`realtime`), trace
 //! throughput per BVH layout (`trace`), specialised kernels (`features`), what accuracy costs
 //! in time (`accuracy`, and for the real-time denoiser `denoise`), one render on several
-//! devices (`devices`), instancing's two levels (`levels`), and README's performance section
+//! devices (`devices`), instancing's two levels (`levels`), our tracer against the driver's
+//! acceleration structures (`peer`), and README's performance section
 //! made from their results (`readme`). Results go to `bench/results`, each file naming the GPU
 //! and driver; `plot` draws their charts.
 use anyhow::{Context, Result};
@@ -14,6 +15,7 @@ pub mod denoise;
 pub mod devices;
 pub mod features;
 pub mod levels;
+pub mod peer;
 pub mod plot;
 pub mod readme;
 pub mod realtime;

@@ -37,6 +37,16 @@ pub(super) enum Bench {
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
+    /// The project's tracer against the driver's acceleration structures (`--accel driver`)
+    /// on the built-in scenes at real-time and thesis settings: build, trace, frame, rays per
+    /// second, bytes; and builds alone over random triangles. Needs a device with ray-tracing
+    /// pipelines.
+    Peer {
+        #[command(flatten)]
+        options: bench::peer::Options,
+        #[arg(long, default_value = "bench/results")]
+        out: PathBuf,
+    },
     /// Rewrites README.md's performance section from the newest H100 results in
     /// bench/results (run from the repository's root).
     Readme {
@@ -180,6 +190,13 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
             let r = bench::trace::run(&gpu, &options)?;
             publish(&out, "trace", &r.date, &gpu, bench::trace::markdown(&r), &r)?;
             let plot = bench::trace::plot(&r, &out, &format!("trace-{}-{}", r.date, slug(&gpu.name)))?;
+            println!("wrote {}", plot.display());
+        }
+        Bench::Peer { options, out } => {
+            let gpu = Gpu::new(opts)?;
+            let r = bench::peer::run(&gpu, &options)?;
+            publish(&out, "peer", &r.date, &gpu, bench::peer::markdown(&r), &r)?;
+            let plot = bench::peer::plot(&r, &out, &format!("peer-{}-{}", r.date, slug(&gpu.name)))?;
             println!("wrote {}", plot.display());
         }
         Bench::Realtime { options, out } => {

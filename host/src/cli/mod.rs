@@ -123,6 +123,9 @@ pub fn run() -> Result<()> {
     let accel = match &cli.cmd {
         Some(Command::Render { scene, .. } | Command::Compare { scene, .. }) => scene.accel,
         Some(Command::View(args)) => args.scene.accel,
+        Some(Command::Bench {
+            what: bench::Bench::Peer { .. },
+        }) => Accel::Driver,
         _ => Accel::Lbvh,
     };
     let opts = GpuOptions {

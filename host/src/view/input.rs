@@ -28,6 +28,8 @@ Keys and mouse:
   3 / 4              lower / raise the maximum depth
   N                  next-event estimation on / off
   B                  BVH on / off (off: brute force, the thesis's comparison)
+  T                  trace with the project's BVH / the driver's acceleration structures
+                     (where the device has ray-tracing pipelines; flattened scenes)
   V                  vsync on / off
   L                  denoiser on / off (on: denoised while the image moves, raw once still
                      past 96 samples per pixel)
@@ -53,6 +55,8 @@ pub(super) enum Action {
     Denoise(bool),
     /// What the I key prints.
     Stats,
+    /// What traces the rays (`--accel`).
+    Tracer(crate::render::Accel),
 }
 
 pub(super) fn parse_action(s: &str) -> Result<(u64, Action)> {
@@ -88,6 +92,11 @@ pub(super) fn parse_action(s: &str) -> Result<(u64, Action)> {
         "restore" => Action::Restore,
         "denoise" => Action::Denoise(switch(s, arg)?),
         "stats" => Action::Stats,
+        "tracer" => Action::Tracer(match arg {
+            "lbvh" => crate::render::Accel::Lbvh,
+            "driver" => crate::render::Accel::Driver,
+            _ => bail!("script step {s:?}: tracer=lbvh or tracer=driver"),
+        }),
         other => bail!("script step {s:?}: unknown action {other:?}"),
     };
     Ok((frame, a))
@@ -142,6 +151,14 @@ impl App {
                 }
             }
             KeyCode::KeyL => self.act(&Action::Denoise(!self.denoise))?,
+            KeyCode::KeyT => {
+                use crate::render::Accel;
+                let next = match self.renderer.accel() {
+                    Accel::Lbvh => Accel::Driver,
+                    Accel::Driver => Accel::Lbvh,
+                };
+                self.act(&Action::Tracer(next))?;
+            }
             KeyCode::KeyI => self.print_statistics()?,
             KeyCode::KeyP => self.screenshot()?,
             KeyCode::KeyF => self.act(&Action::AddSphere)?,
@@ -199,6 +216,25 @@ impl App {
                 println!("denoiser {}", on(d));
             }
             Action::Stats => self.print_statistics()?,
+            Action::Tracer(a) => {
+                // A device without ray tracing, or a scene in two levels, keeps the tracer
+                // it has: the message says why.
+                if a == crate::render::Accel::Driver && self.live.data().instancing.is_some() {
+                    println!("the driver's acceleration structures take flattened scenes: this one is in two levels (view it with --instancing off)");
+                } else {
+                    match self.renderer.set_accel(a, Default::default()) {
+                        Ok(()) => {
+                            // Edits keep the scene flattened while the driver traces.
+                            self.live.instancing = match a {
+                                crate::render::Accel::Driver => crate::scene::InstancingMode::Off,
+                                crate::render::Accel::Lbvh => self.args.scene.instancing,
+                            };
+                            println!("tracer: {a:?}");
+                        }
+                        Err(e) => println!("{e:#}"),
+                    }
+                }
+            }
         }
         Ok(())
     }
@@ -318,10 +354,15 @@ mod tests {
         );
         assert_eq!(parse_action("4:denoise=off").unwrap(), (4, Action::Denoise(false)));
         assert_eq!(parse_action("5:denoise=on").unwrap(), (5, Action::Denoise(true)));
+        assert_eq!(
+            parse_action("6:tracer=driver").unwrap(),
+            (6, Action::Tracer(crate::render::Accel::Driver))
+        );
         for bad in [
             "x:add-sphere",
             "3:fly",
             "3:remove=1",
+            "3:tracer=optix",
             "3:move=a;b;c",
             "add-sphere",
             "3:denoise=maybe",

@@ -60,7 +60,7 @@ pub struct ViewArgs {
     /// Actions at given frames, for tests and demos: `FRAME:ACTION,...` with ACTION one of
     /// add-sphere, add-mesh, pick=X;Y, remove=X;Y, move=DX;DY;DZ, rotate=DEG, resize=WxH,
     /// fly=RIGHT;UP;FORWARD (the camera, world units), minimize, restore, denoise=on|off, stats
-    /// (what the I key prints).
+    /// (what the I key prints), tracer=lbvh|driver (the T key).
     #[arg(long, value_delimiter = ',')]
     pub script: Vec<String>,
 }
@@ -92,6 +92,8 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
     let exts =
         ash_window::enumerate_required_extensions(display).context("asking Vulkan which window extensions it needs")?;
     let mut opts = opts.clone();
+    // Ray tracing where the device has it, so that the T key can switch tracers.
+    opts.ray_tracing = true;
     // SAFETY: ash_window returns pointers to static, NUL-terminated extension names.
     opts.window_extensions = exts.iter().map(|&p| unsafe { CStr::from_ptr(p) }).collect();
     let gpu = Gpu::new(&opts)?;
