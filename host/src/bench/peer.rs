@@ -355,7 +355,7 @@ pub fn plot(r: &Report, dir: &Path, stem: &str) -> Result<PathBuf> {
         "1080p, 1 spp, depth 4: ours against the driver (fb: fast build, ft: fast trace, up: update), {}",
         r.device
     );
-    stacked_bars(&path, &title, "GPU ms per frame", &["build", "trace"], &bars, 1600, 600)?;
+    stacked_bars(&path, &title, "GPU ms per frame", &["build", "trace"], &bars, 2000, 600)?;
     Ok(path)
 }
 

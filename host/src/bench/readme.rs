@@ -168,6 +168,70 @@ pub fn section(dir: &Path) -> Result<String> {
         }
         s.push('\n');
     }
+    if let Some((path, v)) = newest(dir, "peer")? {
+        let _ = writeln!(
+            s,
+            "Against the driver's acceleration structures (`--accel driver`: the driver builds a bottom \
+             level over the same world-space primitives every frame and traces them through a \
+             ray-tracing pipeline running the same path loop and shading), GPU ms per frame \
+             (source: {}):\n",
+            source(&path)
+        );
+        let _ = writeln!(
+            s,
+            "| scene | 1080p, 1 spp, depth 4: ours | driver, fast build | driver, update | 800x800, 32 spp, depth 16, trace: ours | driver, fast build |"
+        );
+        let _ = writeln!(s, "|---|---|---|---|---|---|");
+        let find = |scene: &Value, setting: &str, tracer: &str| {
+            rows(&v)
+                .iter()
+                .find(|r| &r["scene"] == scene && r["setting"] == setting && tracer_name(&r["tracer"]) == tracer)
+        };
+        let mut seen = Vec::new();
+        for r in rows(&v) {
+            let scene = &r["scene"];
+            if seen.contains(&scene) {
+                continue;
+            }
+            seen.push(scene);
+            let cell = |setting: &str, tracer: &str, key: &str| {
+                find(scene, setting, tracer).map_or("-".to_string(), |r| format!("{:.3}", num(r, key)))
+            };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {} |",
+                scene.as_str().unwrap_or("?"),
+                cell("real time", "Ours", "frame_ms"),
+                cell("real time", "FastBuild", "frame_ms"),
+                cell("real time", "Update", "frame_ms"),
+                cell("thesis", "Ours", "trace_ms"),
+                cell("thesis", "FastBuild", "trace_ms"),
+            );
+        }
+        let builds: Vec<String> = v["builds"]
+            .as_array()
+            .map(|b| b.as_slice())
+            .unwrap_or(&[])
+            .iter()
+            .map(|b| {
+                format!(
+                    "{} ours {:.2} ms, driver {:.2} / {:.2} ms",
+                    b["input"].as_str().unwrap_or("?"),
+                    num(b, "ours_ms"),
+                    num(b, "fast_build_ms"),
+                    num(b, "fast_trace_ms")
+                )
+            })
+            .collect();
+        if !builds.is_empty() {
+            let _ = writeln!(
+                s,
+                "\nBuilds alone (driver: fast build / fast trace): {}.",
+                builds.join("; ")
+            );
+        }
+        s.push('\n');
+    }
     if let Some((path, v)) = newest(dir, "trace")? {
         let _ = writeln!(s, "Trace throughput, 1920x1080, Grays/s (source: {}):\n", source(&path));
         let _ = writeln!(s, "| scene | BVH | primary | diffuse, depth 4 | shadow |");
@@ -189,6 +253,14 @@ pub fn section(dir: &Path) -> Result<String> {
         bail!("no {DEVICE} results in {}", dir.display());
     }
     Ok(format!("Measured on {device}.\n\n{}", s.trim_end()))
+}
+
+/// A `bench peer` row's tracer as serde wrote it: `"Ours"`, or the driver's build
+/// (`{"Driver": "FastBuild"}` gives `FastBuild`).
+fn tracer_name(v: &Value) -> &str {
+    v.as_str()
+        .or_else(|| v.get("Driver").and_then(|d| d.as_str()))
+        .unwrap_or("?")
 }
 
 /// `readme` with the part between the markers replaced by `section`.
