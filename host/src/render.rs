@@ -26,7 +26,7 @@ pub enum Accel {
     Lbvh,
     /// The Vulkan driver's acceleration structures, built by the driver every frame and
     /// traversed by its ray-tracing pipeline (`crate::gpu::driver`): GPU only, on devices
-    /// with VK_KHR_ray_tracing_pipeline; flattened scenes.
+    /// with VK_KHR_ray_tracing_pipeline.
     Driver,
 }
 

@@ -63,9 +63,15 @@ fn the_driver_tracer_names_what_the_device_lacks() {
     integration_tests::assert_no_validation_errors(&gpu);
 }
 
-/// Every built-in scene that flattens (the forest's billion triangles do not), traced by the
-/// driver, against the CPU executor's picture with the same random streams, each way the
-/// driver builds.
+/// The scene files beside the built-ins: `scenes/NAME.toml` of the source tree.
+fn scene_file(name: &str) -> String {
+    format!("{}/../scenes/{name}.toml", env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Every built-in scene (the forest's billion triangles in two levels, the herd's ten
+/// million), the sixteen bunnies in two levels too, and the pond (a waving world-space group
+/// beside instances), traced by the driver, against the CPU executor's picture with the same
+/// random streams; a flattened and an instanced scene each way the driver builds.
 #[test]
 fn driver_pictures_agree_with_the_project_tracer() {
     let test = "driver_pictures_agree_with_the_project_tracer";
@@ -73,27 +79,35 @@ fn driver_pictures_agree_with_the_project_tracer() {
         return;
     };
     let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    let pond = scene_file("pond");
+    let mut cases: Vec<(&str, Vec<&str>)> = raytrace::scene::Scene::BUILTINS
+        .iter()
+        .map(|s| (*s, vec!["--driver-build", "fast-build"]))
+        .collect();
+    cases.push((pond.as_str(), vec!["--time", "0.7"]));
+    for build in ["fast-trace", "update"] {
+        cases.push(("spheres", vec!["--driver-build", build]));
+        cases.push(("instances", vec!["--instancing", "on", "--driver-build", build]));
+    }
     let mut worst = Vec::new();
-    for scene in raytrace::scene::Scene::BUILTINS.iter().filter(|s| **s != "forest") {
-        for build in ["fast-build", "fast-trace", "update"] {
-            let args = [
-                "raytrace",
-                scene,
-                "--size",
-                "128x96",
-                "--spp",
-                "16",
-                "--accel",
-                "driver",
-                "--driver-build",
-                build,
-            ];
-            let p = <SceneArgs as clap::Parser>::parse_from(args).prepare().expect("scene");
-            let c = compare(&p, &gpu, &kernels, true).expect("compare");
-            eprintln!("{scene} ({build}): relative RMSE {:.4}", c.stats.relative_rmse);
-            if c.stats.relative_rmse > 0.05 {
-                worst.push(format!("{scene} ({build}): {:.4}", c.stats.relative_rmse));
-            }
+    for (scene, extra) in &cases {
+        let mut args = vec![
+            "raytrace", scene, "--size", "128x96", "--spp", "16", "--accel", "driver",
+        ];
+        args.extend(extra);
+        let p = <SceneArgs as clap::Parser>::parse_from(args).prepare().expect("scene");
+        let c = compare(&p, &gpu, &kernels, true).expect("compare");
+        let layout = if p.data.instancing.is_some() {
+            "two levels"
+        } else {
+            "flattened"
+        };
+        eprintln!(
+            "{scene} {extra:?} ({layout}): relative RMSE {:.4}",
+            c.stats.relative_rmse
+        );
+        if c.stats.relative_rmse > 0.05 {
+            worst.push(format!("{scene} {extra:?}: {:.4}", c.stats.relative_rmse));
         }
     }
     integration_tests::assert_no_validation_errors(&gpu);
@@ -102,7 +116,8 @@ fn driver_pictures_agree_with_the_project_tracer() {
 
 /// A bottom level updated in place (`--driver-build update`: built at the first frame, refit
 /// after the objects move) finds the same hits as one built afresh for the new positions:
-/// the sixteen spinning bunnies, half a second on.
+/// the sixteen spinning bunnies flattened, and the pond's waving group beside its instances,
+/// half a second on.
 #[test]
 fn updated_structures_trace_as_rebuilt_ones() {
     let test = "updated_structures_trace_as_rebuilt_ones";
@@ -110,29 +125,31 @@ fn updated_structures_trace_as_rebuilt_ones() {
         return;
     };
     let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
-    let args = ["raytrace", "instances", "--size", "128x96", "--accel", "driver"];
-    let p = <SceneArgs as clap::Parser>::parse_from(args).prepare().expect("scene");
-    let later = p.scene.objects_in(&p.data, 0.5);
-    let mut pictures = Vec::new();
-    for build in [DriverBuild::Update, DriverBuild::FastBuild] {
-        let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
-        r.set_accel(Accel::Driver, build).expect("the driver tracer");
-        r.load(&p.data, &p.frame).expect("load");
-        if build == DriverBuild::Update {
-            // The first frame builds; the objects move; the next frame updates.
-            r.render(1, true).expect("first frame");
+    for scene in ["instances".to_string(), scene_file("pond")] {
+        let args = ["raytrace", &scene, "--size", "128x96", "--accel", "driver"];
+        let p = <SceneArgs as clap::Parser>::parse_from(args).prepare().expect("scene");
+        let later = p.scene.objects_in(&p.data, 0.5);
+        let mut pictures = Vec::new();
+        for build in [DriverBuild::Update, DriverBuild::FastBuild] {
+            let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+            r.set_accel(Accel::Driver, build).expect("the driver tracer");
+            r.load(&p.data, &p.frame).expect("load");
+            if build == DriverBuild::Update {
+                // The first frame builds; the objects move; the next frame updates.
+                r.render(1, true).expect("first frame");
+            }
+            r.set_objects(&later).expect("move");
+            r.render(4, true).expect("frame");
+            pictures.push(r.picture().expect("picture"));
         }
-        r.set_objects(&later).expect("move");
-        r.render(4, true).expect("frame");
-        pictures.push(r.picture().expect("picture"));
+        let d = raytrace::picture::diff_stats(&pictures[0], &pictures[1]).expect("diff");
+        assert!(
+            d.relative_rmse < 1e-3,
+            "{scene}: updated against rebuilt: relative RMSE {}",
+            d.relative_rmse
+        );
     }
-    let d = raytrace::picture::diff_stats(&pictures[0], &pictures[1]).expect("diff");
     integration_tests::assert_no_validation_errors(&gpu);
-    assert!(
-        d.relative_rmse < 1e-3,
-        "updated against rebuilt: relative RMSE {}",
-        d.relative_rmse
-    );
 }
 
 /// The watertightness rays (aimed exactly at every vertex and edge midpoint of closed meshes

@@ -171,10 +171,11 @@ pub fn section(dir: &Path) -> Result<String> {
     if let Some((path, v)) = newest(dir, "peer")? {
         let _ = writeln!(
             s,
-            "Against the driver's acceleration structures (`--accel driver`: the driver builds a bottom \
-             level over the same world-space primitives every frame and traces them through a \
-             ray-tracing pipeline running the same path loop and shading), GPU ms per frame \
-             (source: {}):\n",
+            "Against the driver's acceleration structures (`--accel driver`: the driver builds bottom \
+             levels over the same primitives and a top level every frame, and traces them through a \
+             ray-tracing pipeline running the same path loop and shading; each scene laid out as \
+             `--instancing auto` chooses, the same on both sides, with its own settings: next-event \
+             estimation on), GPU ms per frame (source: {}):\n",
             source(&path)
         );
         let _ = writeln!(

@@ -70,9 +70,10 @@ pub struct SceneArgs {
     #[arg(long, value_enum, default_value = "auto")]
     pub instancing: InstancingMode,
     /// What finds the rays' hits on the GPU: the project's own BVH (lbvh), or the Vulkan
-    /// driver's acceleration structures, built by the driver every frame and traced by a
-    /// ray-tracing pipeline running the same path loop and shading (driver: devices with
-    /// VK_KHR_ray_tracing_pipeline; scenes flattened into one BVH).
+    /// driver's acceleration structures, built by the driver every frame (an instanced
+    /// scene's meshes once, its top level every frame) and traced by a ray-tracing pipeline
+    /// running the same path loop and shading (driver: devices with
+    /// VK_KHR_ray_tracing_pipeline).
     #[arg(long, value_enum, default_value = "lbvh")]
     pub accel: Accel,
     /// How the driver builds its bottom level every frame (with --accel driver).
@@ -249,8 +250,10 @@ impl SceneArgs {
             }
         }
         self.apply_environment(&mut scene)?;
-        let instancing = self.instancing_for_accel()?;
-        let data = scene.gpu_data_as(self.time, instancing).map_err(anyhow::Error::msg)?;
+        self.check_accel()?;
+        let data = scene
+            .gpu_data_as(self.time, self.instancing)
+            .map_err(anyhow::Error::msg)?;
         let mut frame = render::with_bvh(scene.frame(&data), !self.no_bvh);
         if self.denoise {
             frame.flags |= FLAG_DENOISE;
@@ -271,22 +274,15 @@ impl SceneArgs {
         })
     }
 
-    /// `--instancing` as `--accel` allows it: the driver tracer traces flattened scenes
-    /// (`auto` flattens), and options of the project's BVH do not combine with it.
-    fn instancing_for_accel(&self) -> Result<InstancingMode> {
-        if self.accel == Accel::Lbvh {
-            return Ok(self.instancing);
-        }
-        if self.instancing == InstancingMode::On {
-            bail!("--accel driver traces flattened scenes (one bottom level over the world-space primitives): not with --instancing on");
-        }
-        if self.no_bvh {
+    /// Refuses options of the project's BVH with `--accel driver`.
+    fn check_accel(&self) -> Result<()> {
+        if self.accel == Accel::Driver && self.no_bvh {
             bail!("--no-bvh traces by brute force: not with --accel driver");
         }
-        if self.bvh == Layout::Wide {
+        if self.accel == Accel::Driver && self.bvh == Layout::Wide {
             bail!("--bvh wide picks the project's BVH layout: not with --accel driver");
         }
-        Ok(InstancingMode::Off)
+        Ok(())
     }
 }
 

@@ -7,10 +7,10 @@
 //! opened with `GpuOptions::ray_tracing`); elsewhere [`DriverTracer::new`] says what is
 //! missing.
 use super::{Buffer, Commands, Gpu, Kernels, DRIVER_SPV};
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, ensure, Context, Result};
 use ash::vk;
 use gpu_allocator::MemoryLocation;
-use shared::types::{grid, RenderPush, FEATURE_ALPHA, WORKGROUP};
+use shared::types::{grid, RenderPush, WORKGROUP};
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -67,12 +67,73 @@ struct Accel {
 const TRIANGLES: u32 = 0;
 const SPHERES: u32 = 1;
 
-/// A bottom level of one kind of primitive (triangles or spheres' boxes).
+/// A mesh of the bottom levels: its triangles in the triangle buffer and its spheres in set
+/// 0's sphere buffer (whose boxes `sphere_boxes` writes), and whether it changes every frame
+/// (a flattened scene's world, an instanced scene's world-space group: built every frame;
+/// the rest once).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct DriverMesh {
+    pub tri0: u32,
+    pub n_tris: u32,
+    pub sphere0: u32,
+    pub n_spheres: u32,
+    pub dynamic: bool,
+}
+
+/// An instance of the top level: a mesh placed by `rows` (model to world, 3x4 row-major),
+/// the custom index the hit shaders read (`shared::driver::FLAT`, or the instance's number).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct DriverInstance {
+    pub mesh: usize,
+    pub rows: [[f32; 4]; 3],
+    pub custom: u32,
+}
+
+/// What the structures are made of.
+pub struct DriverScene<'a> {
+    /// The triangles the meshes index (world space, or the meshes' model space).
+    pub tris: &'a Buffer,
+    pub meshes: Vec<DriverMesh>,
+    pub instances: Vec<DriverInstance>,
+    /// Spheres in set 0's sphere buffer (all boxed).
+    pub n_spheres: u32,
+    /// The scene has alpha-tested materials: triangles are not opaque (the any-hit shader).
+    pub alpha: bool,
+}
+
+impl DriverScene<'_> {
+    /// A flattened scene: the world-space `n_tris` triangles of `tris` and `n_spheres`
+    /// spheres, one mesh built every frame, placed by the identity.
+    pub fn flattened(tris: &Buffer, n_tris: u32, n_spheres: u32, alpha: bool) -> DriverScene<'_> {
+        DriverScene {
+            tris,
+            meshes: vec![DriverMesh {
+                tri0: 0,
+                n_tris,
+                sphere0: 0,
+                n_spheres,
+                dynamic: true,
+            }],
+            instances: vec![DriverInstance {
+                mesh: 0,
+                rows: shared::instance::IDENTITY,
+                custom: shared::driver::FLAT,
+            }],
+            n_spheres,
+            alpha,
+        }
+    }
+}
+
+/// A bottom level of one kind of primitive (triangles or spheres' boxes) of one mesh.
 struct Bottom {
     accel: Accel,
-    /// Its kind: [`TRIANGLES`] or [`SPHERES`], its instance's hit group.
+    /// Its kind: [`TRIANGLES`] or [`SPHERES`], its instances' hit group.
     group: u32,
     count: u32,
+    /// The device address of its first vertex or box.
+    data: vk::DeviceAddress,
+    dynamic: bool,
     /// Where its part of the scratch buffer starts (after the aligned start).
     scratch_at: u64,
 }
@@ -80,9 +141,14 @@ struct Bottom {
 /// The structures of the scene loaded, and what building them needs.
 struct SceneAccel {
     bottoms: Vec<Bottom>,
+    /// Each mesh's bottom levels (indices into `bottoms`).
+    mesh_bottoms: Vec<Vec<usize>>,
+    instances: Vec<DriverInstance>,
     tlas: Accel,
+    /// Top-level instances (one per instance and bottom level of its mesh).
+    n_top: u32,
     scratch: Buffer,
-    /// The top level's one instance (host-visible).
+    /// The top level's instances (host-visible, `VkAccelerationStructureInstanceKHR`).
     instance: Buffer,
     /// The spheres' boxes (`VkAabbPositionsKHR`, 24 bytes each).
     boxes: Buffer,
@@ -92,7 +158,8 @@ struct SceneAccel {
     n_spheres: u32,
     alpha: bool,
     build: DriverBuild,
-    /// Whether the bottom level was built once (an update needs a first build).
+    /// Whether the bottom levels were built once (the static ones are then kept; an update
+    /// needs a first build).
     built: bool,
     /// Where the top level's part of `scratch` starts (after the aligned start).
     top_scratch_at: u64,
@@ -337,21 +404,19 @@ impl DriverTracer {
         })
     }
 
-    /// The one geometry of bottom level `group` (hit group 0: the `count` triangles of
-    /// `tris`; 1: the boxes of `count` spheres in `boxes`).
+    /// The one geometry of a bottom level of kind `group` over `count` primitives from
+    /// device address `data` (triangles: 16-byte vertices; spheres: 24-byte boxes).
     fn geometry(
         group: u32,
         count: u32,
-        tris: &Buffer,
-        boxes: &Buffer,
+        data: vk::DeviceAddress,
         alpha: bool,
     ) -> vk::AccelerationStructureGeometryKHR<'static> {
+        let address = vk::DeviceOrHostAddressConstKHR { device_address: data };
         if group == TRIANGLES {
             let data = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
                 .vertex_format(vk::Format::R32G32B32_SFLOAT)
-                .vertex_data(vk::DeviceOrHostAddressConstKHR {
-                    device_address: tris.address(),
-                })
+                .vertex_data(address)
                 .vertex_stride(16)
                 .max_vertex(3 * count - 1)
                 .index_type(vk::IndexType::NONE_KHR);
@@ -365,9 +430,7 @@ impl DriverTracer {
                 })
         } else {
             let data = vk::AccelerationStructureGeometryAabbsDataKHR::default()
-                .data(vk::DeviceOrHostAddressConstKHR {
-                    device_address: boxes.address(),
-                })
+                .data(address)
                 .stride(24);
             vk::AccelerationStructureGeometryKHR::default()
                 .geometry_type(vk::GeometryTypeKHR::AABBS)
@@ -437,70 +500,69 @@ impl DriverTracer {
         Ok(Accel { raw, buffer, address })
     }
 
-    /// Makes the structures for a scene of `n_tris` triangles (read from `tris`, set 0's
-    /// world buffer) and `n_spheres` spheres, built as `build` says; accumulation restarts.
-    pub fn load(
-        &mut self,
-        tris: &Buffer,
-        n_tris: u32,
-        n_spheres: u32,
-        features: u32,
-        build: DriverBuild,
-    ) -> Result<()> {
+    /// Makes the structures for scene `d` (built by the next [`Self::record_build`]).
+    pub fn load(&mut self, d: &DriverScene, build: DriverBuild) -> Result<()> {
         self.drop_scene();
-        let alpha = features & FEATURE_ALPHA != 0;
         let boxes = Buffer::new(
             &self.gpu,
             "sphere boxes",
-            24 * n_spheres as u64,
+            24 * d.n_spheres as u64,
             MemoryLocation::GpuOnly,
         )?;
-        let kinds: Vec<(u32, u32)> = [(TRIANGLES, n_tris), (SPHERES, n_spheres)]
-            .into_iter()
-            .filter(|&(_, n)| n > 0)
-            .collect();
-        if kinds.is_empty() {
+        // A bottom level per mesh and kind (one level holds geometries of one type), each
+        // with its part of the scratch buffer; the top level's part after them.
+        let (tri_bytes, box_bytes) = (size_of::<shared::types::Triangle>() as u64, 24);
+        let mut bottoms = Vec::new();
+        let mut mesh_bottoms = Vec::new();
+        let mut scratch_end = 0;
+        for m in &d.meshes {
+            let mut mine = Vec::new();
+            let kinds = [
+                (TRIANGLES, m.n_tris, d.tris.address() + m.tri0 as u64 * tri_bytes),
+                (SPHERES, m.n_spheres, boxes.address() + m.sphere0 as u64 * box_bytes),
+            ];
+            for (group, count, data) in kinds.into_iter().filter(|k| k.1 > 0) {
+                let geometry = [Self::geometry(group, count, data, d.alpha)];
+                let size = self.sizes(
+                    vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+                    Self::blas_flags(build),
+                    &geometry,
+                    count,
+                );
+                mine.push(bottoms.len());
+                bottoms.push(Bottom {
+                    accel: self.make_accel(
+                        "driver's bottom level",
+                        vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+                        size.acceleration_structure_size,
+                    )?,
+                    group,
+                    count,
+                    data,
+                    dynamic: m.dynamic,
+                    scratch_at: scratch_end,
+                });
+                scratch_end += align(
+                    size.build_scratch_size.max(size.update_scratch_size),
+                    self.scratch_align,
+                );
+            }
+            mesh_bottoms.push(mine);
+        }
+        let n_top: u32 = d
+            .instances
+            .iter()
+            .map(|i| mesh_bottoms.get(i.mesh).map_or(0, |b| b.len() as u32))
+            .sum();
+        if n_top == 0 {
             bail!("--accel driver: the scene has no primitives");
         }
-        // A bottom level per kind (one level holds geometries of one type), each with its
-        // part of the scratch buffer; the top level's part after them.
-        let mut bottoms = Vec::new();
-        let mut scratch_end = 0;
-        for (group, count) in kinds {
-            let geometry = [Self::geometry(group, count, tris, &boxes, alpha)];
-            let size = self.sizes(
-                vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
-                Self::blas_flags(build),
-                &geometry,
-                count,
-            );
-            let name = if group == TRIANGLES {
-                "driver's bottom level of triangles"
-            } else {
-                "driver's bottom level of spheres"
-            };
-            bottoms.push(Bottom {
-                accel: self.make_accel(
-                    name,
-                    vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
-                    size.acceleration_structure_size,
-                )?,
-                group,
-                count,
-                scratch_at: scratch_end,
-            });
-            scratch_end += align(
-                size.build_scratch_size.max(size.update_scratch_size),
-                self.scratch_align,
-            );
-        }
-        let n = bottoms.len() as u32;
         let top = [Self::instance_geometry(0)];
         let top_size = self.sizes(
             vk::AccelerationStructureTypeKHR::TOP_LEVEL,
             vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_BUILD,
             &top,
-            n,
+            n_top,
         );
         let tlas = self.make_accel(
             "driver's top level",
@@ -515,24 +577,13 @@ impl DriverTracer {
             scratch_bytes,
             MemoryLocation::GpuOnly,
         )?;
-        // An instance per bottom level (`VkAccelerationStructureInstanceKHR`, 64 bytes): the
-        // identity transform; custom index 0, mask 0xff; its kind's hit group; opaque flags
-        // left to the geometries; the bottom level's address.
-        let mut instance = Buffer::new(&self.gpu, "driver's instances", 64 * n as u64, MemoryLocation::CpuToGpu)?;
-        let mut words = Vec::new();
-        for b in &bottoms {
-            let mut w = [0u32; 16];
-            for row in 0..3 {
-                w[row * 4 + row] = 1.0f32.to_bits();
-            }
-            w[12] = 0xff << 24;
-            w[13] = b.group;
-            w[14] = b.accel.address as u32;
-            w[15] = (b.accel.address >> 32) as u32;
-            words.extend(w);
-        }
-        instance.write(&words)?;
-        let d = &self.gpu.device;
+        let instance = Buffer::new(
+            &self.gpu,
+            "driver's instances",
+            64 * n_top as u64,
+            MemoryLocation::CpuToGpu,
+        )?;
+        let dev = &self.gpu.device;
         let sizes = [
             vk::DescriptorPoolSize::default()
                 .ty(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
@@ -543,7 +594,7 @@ impl DriverTracer {
         ];
         // SAFETY: valid create and allocate infos; the pool is owned by the scene below.
         let pool = unsafe {
-            d.create_descriptor_pool(
+            dev.create_descriptor_pool(
                 &vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes),
                 None,
             )
@@ -552,7 +603,7 @@ impl DriverTracer {
         let layouts = [self.set_layout];
         // SAFETY: as above.
         let set = match unsafe {
-            d.allocate_descriptor_sets(
+            dev.allocate_descriptor_sets(
                 &vk::DescriptorSetAllocateInfo::default()
                     .descriptor_pool(pool)
                     .set_layouts(&layouts),
@@ -561,7 +612,7 @@ impl DriverTracer {
             Ok(s) => s[0],
             Err(e) => {
                 // SAFETY: nothing uses the pool.
-                unsafe { d.destroy_descriptor_pool(pool, None) };
+                unsafe { dev.destroy_descriptor_pool(pool, None) };
                 return Err(anyhow!("allocating the driver tracer's descriptor set: {e}"));
             }
         };
@@ -585,22 +636,58 @@ impl DriverTracer {
                 .buffer_info(&box_info),
         ];
         // SAFETY: the writes name live objects and a set of this device.
-        unsafe { d.update_descriptor_sets(&writes, &[]) };
+        unsafe { dev.update_descriptor_sets(&writes, &[]) };
         self.scene = Some(SceneAccel {
             bottoms,
+            mesh_bottoms,
+            instances: d.instances.clone(),
             tlas,
+            n_top,
             scratch,
             instance,
             boxes,
             pool,
             set,
-            n_spheres,
-            alpha,
+            n_spheres: d.n_spheres,
+            alpha: d.alpha,
             build,
             built: false,
             top_scratch_at,
         });
-        Ok(())
+        self.write_instances()
+    }
+
+    /// New transforms of the instances (the same instances as loaded, in order): the next
+    /// [`Self::record_build`] builds the top level over them.
+    pub fn set_instances(&mut self, instances: &[DriverInstance]) -> Result<()> {
+        let s = self.scene.as_mut().context("no scene loaded for the driver tracer")?;
+        ensure!(
+            instances.len() == s.instances.len() && instances.iter().zip(&s.instances).all(|(a, b)| a.mesh == b.mesh),
+            "the driver tracer's instances changed: load the scene again"
+        );
+        s.instances = instances.to_vec();
+        self.write_instances()
+    }
+
+    /// Writes the top level's instances (`VkAccelerationStructureInstanceKHR`, 64 bytes): the
+    /// transform, the custom index and mask 0xff, the hit group of the bottom level's kind,
+    /// opaque flags left to the geometries, the bottom level's address.
+    fn write_instances(&mut self) -> Result<()> {
+        let s = self.scene.as_mut().context("no scene loaded for the driver tracer")?;
+        let mut words = Vec::with_capacity(16 * s.n_top as usize);
+        for inst in &s.instances {
+            for &b in s.mesh_bottoms.get(inst.mesh).map_or(&[][..], |b| b.as_slice()) {
+                let bottom = &s.bottoms[b];
+                for row in inst.rows {
+                    words.extend(row.map(f32::to_bits));
+                }
+                words.push(inst.custom & 0xff_ffff | 0xff << 24);
+                words.push(bottom.group);
+                words.push(bottom.accel.address as u32);
+                words.push((bottom.accel.address >> 32) as u32);
+            }
+        }
+        s.instance.write(&words)
     }
 
     /// The top level's one geometry: instances at `address`.
@@ -632,7 +719,7 @@ impl DriverTracer {
             .as_ref()
             .is_some_and(|s| s.build == build && s.n_spheres == 0 && s.bottoms.iter().map(|b| b.count).eq([n_tris]));
         if !loaded {
-            self.load(tris, n_tris, 0, 0, build)?;
+            self.load(&DriverScene::flattened(tris, n_tris, 0, false), build)?;
         }
         let mut cmds = Commands::new(&self.gpu)?;
         let mut out = Vec::with_capacity(runs);
@@ -640,7 +727,7 @@ impl DriverTracer {
             cmds.begin()?;
             cmds.timestamp("start");
             // No spheres: the sphere-box kernel, the only user of the sets, does not run.
-            self.record_build(&mut cmds, tris, [vk::DescriptorSet::null(); 2])?;
+            self.record_build(&mut cmds, [vk::DescriptorSet::null(); 2])?;
             cmds.submit_wait().context("building the driver's structures")?;
             let t = cmds.timings()?;
             out.push(t.iter().filter(|(l, _)| *l == "build").map(|(_, ns)| ns * 1e-6).sum());
@@ -659,10 +746,11 @@ impl DriverTracer {
         })
     }
 
-    /// Records the frame's builds into `cmds` after the transform stage wrote `tris` and set
-    /// 0's spheres (`sets`: sets 0 and 1): the spheres' boxes, the bottom level (rebuilt, or
-    /// updated after the first build with [`DriverBuild::Update`]), the top level.
-    pub fn record_build(&mut self, cmds: &mut Commands, tris: &Buffer, sets: [vk::DescriptorSet; 2]) -> Result<()> {
+    /// Records the frame's builds into `cmds` after the transform stage (`sets`: sets 0
+    /// and 1): the spheres' boxes; the bottom levels that change every frame (rebuilt, or
+    /// updated after the first build with [`DriverBuild::Update`]), and at the first frame
+    /// all; the top level.
+    pub fn record_build(&mut self, cmds: &mut Commands, sets: [vk::DescriptorSet; 2]) -> Result<()> {
         let s = self.scene.as_mut().context("no scene loaded for the driver tracer")?;
         let d = &self.gpu.device;
         let cb = cmds.cb;
@@ -683,15 +771,14 @@ impl DriverTracer {
             }
         }
         full_barrier(&self.gpu, cb);
-        let update = s.build == DriverBuild::Update && s.built;
         let scratch = align(s.scratch.address(), self.scratch_align);
-        let geometries: Vec<_> = s
-            .bottoms
+        let todo: Vec<&Bottom> = s.bottoms.iter().filter(|b| b.dynamic || !s.built).collect();
+        let update = s.build == DriverBuild::Update && s.built;
+        let geometries: Vec<_> = todo
             .iter()
-            .map(|b| [Self::geometry(b.group, b.count, tris, &s.boxes, s.alpha)])
+            .map(|b| [Self::geometry(b.group, b.count, b.data, s.alpha)])
             .collect();
-        let infos: Vec<_> = s
-            .bottoms
+        let infos: Vec<_> = todo
             .iter()
             .zip(&geometries)
             .map(|(b, g)| {
@@ -715,15 +802,16 @@ impl DriverTracer {
                     })
             })
             .collect();
-        let ranges: Vec<[vk::AccelerationStructureBuildRangeInfoKHR; 1]> = s
-            .bottoms
+        let ranges: Vec<[vk::AccelerationStructureBuildRangeInfoKHR; 1]> = todo
             .iter()
             .map(|b| [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(b.count)])
             .collect();
         let range_refs: Vec<&[vk::AccelerationStructureBuildRangeInfoKHR]> = ranges.iter().map(|r| &r[..]).collect();
-        // SAFETY: recording state; every address names a live buffer of this device, and the
-        // builds' scratch regions are disjoint.
-        unsafe { self.accel.cmd_build_acceleration_structures(cb, &infos, &range_refs) };
+        if !infos.is_empty() {
+            // SAFETY: recording state; every address names a live buffer of this device, and
+            // the builds' scratch regions are disjoint.
+            unsafe { self.accel.cmd_build_acceleration_structures(cb, &infos, &range_refs) };
+        }
         s.built = true;
         full_barrier(&self.gpu, cb);
         let top = [Self::instance_geometry(s.instance.address())];
@@ -737,7 +825,7 @@ impl DriverTracer {
             .scratch_data(vk::DeviceOrHostAddressKHR {
                 device_address: top_scratch,
             });
-        let top_range = [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(s.bottoms.len() as u32)];
+        let top_range = [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(s.n_top)];
         // SAFETY: as above.
         unsafe {
             self.accel

@@ -242,6 +242,28 @@ impl GpuLevels {
         Ok(())
     }
 
+    /// Records the copy of a mixed scene's world-space group's `n` triangles, just
+    /// transformed into `builder`'s world buffer, to where the layout put mesh 0 (the driver
+    /// tracer builds its own structure over them; [`Self::record_world`] for the project's).
+    pub fn record_world_tris(&self, cmds: &mut Commands, builder: &GpuLbvh, n: u32) -> Result<()> {
+        let (b_tris, _, _) = builder.buffers()?;
+        let tri = size_of::<Triangle>() as u64;
+        cmds.copy_range(
+            b_tris,
+            0,
+            &self.tris,
+            self.layout.mesh_tris[0] as u64 * tri,
+            n as u64 * tri,
+        );
+        cmds.barrier();
+        Ok(())
+    }
+
+    /// The meshes' model-space triangles (set 0's binding 0 of the tracers).
+    pub fn triangles(&self) -> &Buffer {
+        &self.tris
+    }
+
     /// Records the top level's build into `cmds` (which must be recording): the instances'
     /// world boxes, the build over them, its nodes copied after the meshes'.
     pub fn record_top(&self, cmds: &mut Commands) -> Result<()> {

@@ -3,7 +3,7 @@
 //! image, and run the display pass; a timestamp after each stage.
 use crate::bvh::{BuildOptions, BuildResult, Levels, MortonBits};
 use crate::gpu::denoise::{guide_bytes, GpuDenoiser};
-use crate::gpu::driver::{DriverBuild, DriverTracer, CAST_RAYS, PATH_TRACE};
+use crate::gpu::driver::{DriverBuild, DriverInstance, DriverMesh, DriverScene, DriverTracer, CAST_RAYS, PATH_TRACE};
 use crate::gpu::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, GpuLevels, Kernel, Kernels};
 use crate::picture::{swap_red_blue, Picture};
 use crate::render::Accel;
@@ -15,7 +15,8 @@ use shared::denoise::GUIDE_PLANES;
 use shared::envmap::EnvEntry;
 use shared::types::{
     grid, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_OBJECT,
-    CAST_SPAWN, DISPLAY_BGRA, FEATURE_GUIDES, FEATURE_INSTANCES, FLAG_BVH, TILE_SIDE, WORKGROUP,
+    CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FLAG_BVH, INVALID, TILE_SIDE,
+    WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -223,16 +224,86 @@ impl GpuRenderer {
         }
     }
 
-    /// Makes the driver's structures for the scene loaded (flattened scenes only).
+    /// Makes the driver's structures for the scene loaded: a flattened scene's world, or an
+    /// instanced scene's meshes (the world-space group's built every frame) and instances.
     fn load_driver(&self, d: &mut DriverTracer) -> Result<()> {
-        ensure!(
-            self.levels.is_none(),
-            "--accel driver traces flattened scenes: this one is loaded in two levels (instances); --instancing off flattens it"
-        );
-        let (tris, _, _) = self.lbvh.buffers()?;
         let f = &self.frame;
-        let features = self.kernels.tracer_constant(self.path_trace_constant());
-        d.load(tris, f.n_tris, f.n_prims - f.n_tris, features, self.driver_build)
+        let alpha = f.features & FEATURE_ALPHA != 0;
+        match &self.levels {
+            None => {
+                let (tris, _, _) = self.lbvh.buffers()?;
+                let scene = DriverScene::flattened(tris, f.n_tris, f.n_prims - f.n_tris, alpha);
+                d.load(&scene, self.driver_build)
+            }
+            Some(l) => {
+                let layout = l.layout();
+                let mut meshes: Vec<Option<DriverMesh>> = vec![None; layout.mesh_nodes.len()];
+                for inst in &layout.instances {
+                    let m = Self::mesh_of(layout, inst)?;
+                    meshes[m] = Some(DriverMesh {
+                        tri0: inst.tri0,
+                        n_tris: inst.n_tris,
+                        sphere0: inst.sphere0,
+                        n_spheres: inst.n_spheres,
+                        dynamic: inst.object == INVALID && self.world_tris > 0,
+                    });
+                }
+                let scene = DriverScene {
+                    tris: l.triangles(),
+                    // A mesh no instance shows has nothing to build.
+                    meshes: meshes
+                        .into_iter()
+                        .map(|m| {
+                            m.unwrap_or(DriverMesh {
+                                tri0: 0,
+                                n_tris: 0,
+                                sphere0: 0,
+                                n_spheres: 0,
+                                dynamic: false,
+                            })
+                        })
+                        .collect(),
+                    instances: self.driver_instances()?,
+                    n_spheres: layout.n_spheres,
+                    alpha,
+                };
+                d.load(&scene, self.driver_build)
+            }
+        }
+    }
+
+    /// The mesh (its index in the layout) instance `inst` shows.
+    fn mesh_of(layout: &crate::bvh::LevelsLayout, inst: &shared::instance::Instance) -> Result<usize> {
+        layout
+            .mesh_nodes
+            .iter()
+            .position(|&n| n == inst.nodes)
+            .context("an instance of no mesh in the levels' layout")
+    }
+
+    /// The driver's top-level instances of the two levels loaded, as the objects are placed
+    /// now (the world-space group's by the identity).
+    fn driver_instances(&self) -> Result<Vec<DriverInstance>> {
+        let Some(l) = &self.levels else {
+            return Ok(Vec::new());
+        };
+        let layout = l.layout();
+        layout
+            .instances
+            .iter()
+            .enumerate()
+            .map(|(k, inst)| {
+                Ok(DriverInstance {
+                    mesh: Self::mesh_of(layout, inst)?,
+                    rows: if inst.object == INVALID {
+                        shared::instance::IDENTITY
+                    } else {
+                        layout.objects[inst.object as usize].rows
+                    },
+                    custom: k as u32,
+                })
+            })
+            .collect()
     }
 
     /// How frames are denoised from now on (`shared::denoise`).
@@ -573,6 +644,12 @@ impl GpuRenderer {
             l.set_transforms(&rows)?;
         }
         b.objects.write(objects)?;
+        if self.levels.is_some() && self.driver.is_some() {
+            let instances = self.driver_instances()?;
+            if let Some(d) = self.driver.as_mut() {
+                d.set_instances(&instances)?;
+            }
+        }
         self.objects = objects.to_vec();
         self.samples = 0;
         Ok(())
@@ -644,18 +721,25 @@ impl GpuRenderer {
             // The world-space group, as a flattened scene's world, then the top level.
             if self.world_tris > 0 {
                 transform(cmds, self.world_tris, self.world_tris)?;
-                let build = BuildOptions {
-                    wide: false,
-                    ..self.build
-                };
-                self.lbvh.record(cmds, build, false, false)?;
-                l.record_world(cmds, &self.lbvh, self.world_tris)?;
+                if self.driver.is_some() {
+                    l.record_world_tris(cmds, &self.lbvh, self.world_tris)?;
+                } else {
+                    let build = BuildOptions {
+                        wide: false,
+                        ..self.build
+                    };
+                    self.lbvh.record(cmds, build, false, false)?;
+                    l.record_world(cmds, &self.lbvh, self.world_tris)?;
+                }
             }
-            l.record_top(cmds)?;
+            match self.driver.as_mut() {
+                Some(d) => d.record_build(cmds, sets)?,
+                None => l.record_top(cmds)?,
+            }
         } else if rebuild || self.samples == 0 {
             transform(cmds, f.n_tris, f.n_prims)?;
             match self.driver.as_mut() {
-                Some(d) => d.record_build(cmds, self.lbvh.buffers()?.0, sets)?,
+                Some(d) => d.record_build(cmds, sets)?,
                 None => self.lbvh.record(cmds, self.build, false, false)?,
             }
         }

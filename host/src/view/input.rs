@@ -29,7 +29,7 @@ Keys and mouse:
   N                  next-event estimation on / off
   B                  BVH on / off (off: brute force, the thesis's comparison)
   T                  trace with the project's BVH / the driver's acceleration structures
-                     (where the device has ray-tracing pipelines; flattened scenes)
+                     (where the device has ray-tracing pipelines)
   V                  vsync on / off
   L                  denoiser on / off (on: denoised while the image moves, raw once still
                      past 96 samples per pixel)
@@ -217,22 +217,10 @@ impl App {
             }
             Action::Stats => self.print_statistics()?,
             Action::Tracer(a) => {
-                // A device without ray tracing, or a scene in two levels, keeps the tracer
-                // it has: the message says why.
-                if a == crate::render::Accel::Driver && self.live.data().instancing.is_some() {
-                    println!("the driver's acceleration structures take flattened scenes: this one is in two levels (view it with --instancing off)");
-                } else {
-                    match self.renderer.set_accel(a, Default::default()) {
-                        Ok(()) => {
-                            // Edits keep the scene flattened while the driver traces.
-                            self.live.instancing = match a {
-                                crate::render::Accel::Driver => crate::scene::InstancingMode::Off,
-                                crate::render::Accel::Lbvh => self.args.scene.instancing,
-                            };
-                            println!("tracer: {a:?}");
-                        }
-                        Err(e) => println!("{e:#}"),
-                    }
+                // A device without ray tracing keeps the tracer it has: the message says why.
+                match self.renderer.set_accel(a, Default::default()) {
+                    Ok(()) => println!("tracer: {a:?}"),
+                    Err(e) => println!("{e:#}"),
                 }
             }
         }

@@ -21,8 +21,6 @@ pub use live::LiveScene;
 
 use crate::cli::SceneArgs;
 use crate::gpu::{Gpu, GpuOptions, GpuRenderer, Kernels};
-use crate::render::Accel;
-use crate::scene::InstancingMode;
 use anyhow::{anyhow, bail, Context, Result};
 use raw_window_handle::HasDisplayHandle;
 use std::ffi::CStr;
@@ -101,12 +99,7 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
     let mut renderer = GpuRenderer::new(&gpu, &kernels)?;
     renderer.set_build(prepared.build(1));
     renderer.set_accel(prepared.accel, prepared.driver_build)?;
-    // The driver tracer takes flattened scenes (`SceneArgs::prepare` flattened this one).
-    let instancing = match prepared.accel {
-        Accel::Lbvh => args.scene.instancing,
-        Accel::Driver => InstancingMode::Off,
-    };
-    let mut live = LiveScene::with_instancing(prepared.scene, instancing);
+    let mut live = LiveScene::with_instancing(prepared.scene, args.scene.instancing);
     live.bvh = !args.scene.no_bvh;
     live.time = args.scene.time;
     live.forced = crate::features::Forced::parse(&args.scene.features)?;
