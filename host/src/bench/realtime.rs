@@ -44,6 +44,9 @@ pub struct Row {
     pub nee: bool,
     /// The BVH built and traced.
     pub bvh: crate::bvh::Layout,
+    /// What traced the rays, and how the driver built its structures where it did.
+    pub accel: crate::render::Accel,
+    pub driver_build: crate::gpu::driver::DriverBuild,
     /// Objects as instances of their meshes: two levels, the top level rebuilt every frame
     /// instead of the whole scene.
     pub instanced: bool,
@@ -128,6 +131,13 @@ pub struct Options {
     /// Objects as instances of their meshes, or flattened (see `raytrace render --help`).
     #[arg(long, value_enum, default_value = "auto")]
     pub instancing: crate::scene::InstancingMode,
+    /// What traces the rays: the project's BVH, or the driver's acceleration structures
+    /// (see `raytrace render --help`; results then go to `realtime-driver-*`).
+    #[arg(long, value_enum, default_value = "lbvh")]
+    pub accel: crate::render::Accel,
+    /// How the driver builds its bottom levels (with `--accel driver`).
+    #[arg(long, value_enum, default_value = "fast-build")]
+    pub driver_build: crate::gpu::driver::DriverBuild,
 }
 
 /// Runs every scene of `o` and returns the report.
@@ -158,11 +168,15 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             if !nee {
                 args.push("--no-nee");
             }
+            if o.accel == crate::render::Accel::Driver {
+                args.extend(["--accel", "driver"]);
+            }
             let mut p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
             p.treelets = o.treelets;
             p.layout = o.bvh;
             let mut r = GpuRenderer::new(gpu, &kernels)?;
             r.set_build(p.build(o.spf));
+            r.set_accel(o.accel, o.driver_build)?;
             let mut live = LiveScene::with_instancing(p.scene, o.instancing);
             rows.push(run_scene(gpu, &mut r, &mut live, o, nee).with_context(|| format!("scene {scene}"))?);
             eprintln!("{}", row_line(rows.last().context("no row")?));
@@ -261,9 +275,14 @@ fn run_scene(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Opti
         } else {
             crate::bvh::Layout::Binary
         },
+        accel: o.accel,
+        driver_build: o.driver_build,
         instanced: data.instancing.is_some(),
         distinct: (data.model_tris.len() + data.model_spheres.len()) as u64,
-        bvh_bytes: r.bvh_memory(),
+        bvh_bytes: match o.accel {
+            crate::render::Accel::Lbvh => r.bvh_memory(),
+            crate::render::Accel::Driver => r.structure_bytes(),
+        },
         fps: 1e3 / gpu_ms.p50,
         gpu_ms,
         build_ms: Percentiles::of(plain.build),
@@ -285,7 +304,10 @@ fn row_line(r: &Row) -> String {
         r.triangles + r.spheres,
         if r.animated { "yes" } else { "no" },
         if r.nee { "on" } else { "off" },
-        if r.instanced {
+        if r.accel == crate::render::Accel::Driver {
+            let levels = if r.instanced { "two levels" } else { "flattened" };
+            format!("driver's, {levels}, {:?} ({:.1} MB)", r.driver_build, r.bvh_bytes as f64 * 1e-6)
+        } else if r.instanced {
             format!("two levels ({} distinct, {:.1} MB)", r.distinct, r.bvh_bytes as f64 * 1e-6)
         } else {
             format!("{:?} ({:.1} MB)", r.bvh, r.bvh_bytes as f64 * 1e-6)

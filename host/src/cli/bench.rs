@@ -202,7 +202,11 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
         Bench::Realtime { options, out } => {
             let gpu = Gpu::new(opts)?;
             let r = bench::realtime::run(&gpu, &options)?;
-            publish(&out, "realtime", &r.date, &gpu, bench::realtime::markdown(&r), &r)?;
+            let kind = match options.accel {
+                crate::render::Accel::Lbvh => "realtime",
+                crate::render::Accel::Driver => "realtime-driver",
+            };
+            publish(&out, kind, &r.date, &gpu, bench::realtime::markdown(&r), &r)?;
         }
         Bench::Accuracy { options, out } => {
             let gpu = Gpu::new(opts)?;

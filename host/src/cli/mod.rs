@@ -126,6 +126,9 @@ pub fn run() -> Result<()> {
         Some(Command::Bench {
             what: bench::Bench::Peer { .. },
         }) => Accel::Driver,
+        Some(Command::Bench {
+            what: bench::Bench::Realtime { options, .. },
+        }) => options.accel,
         _ => Accel::Lbvh,
     };
     let opts = GpuOptions {

@@ -500,8 +500,10 @@ impl DriverTracer {
         Ok(Accel { raw, buffer, address })
     }
 
-    /// Makes the structures for scene `d` (built by the next [`Self::record_build`]).
-    pub fn load(&mut self, d: &DriverScene, build: DriverBuild) -> Result<()> {
+    /// Makes the structures for scene `d` (`sets`: sets 0 and 1 of the scene loaded): the
+    /// meshes that never change built and compacted now ([`Self::build_static`]), the rest by
+    /// every [`Self::record_build`].
+    pub fn load(&mut self, d: &DriverScene, build: DriverBuild, sets: [vk::DescriptorSet; 2]) -> Result<()> {
         self.drop_scene();
         let boxes = Buffer::new(
             &self.gpu,
@@ -654,7 +656,151 @@ impl DriverTracer {
             built: false,
             top_scratch_at,
         });
+        self.build_static(sets)?;
         self.write_instances()
+    }
+
+    /// Builds the bottom levels of the meshes that never change (an instanced scene's, all
+    /// but the world-space group) once, with `ALLOW_COMPACTION`, and compacts them: the
+    /// driver's size query read back, each copied into a structure of that size (the
+    /// forest's and the herd's levels shrink; `bench peer` reports the bytes).
+    fn build_static(&mut self, sets: [vk::DescriptorSet; 2]) -> Result<()> {
+        let s = self.scene.as_ref().context("no scene loaded for the driver tracer")?;
+        let statics: Vec<usize> = (0..s.bottoms.len()).filter(|&i| !s.bottoms[i].dynamic).collect();
+        if statics.is_empty() {
+            return Ok(());
+        }
+        let d = &self.gpu.device;
+        let mut cmds = Commands::new(&self.gpu)?;
+        cmds.begin()?;
+        self.record_sphere_boxes(&cmds, sets);
+        let scratch = align(s.scratch.address(), self.scratch_align);
+        let flags = Self::blas_flags(s.build) | vk::BuildAccelerationStructureFlagsKHR::ALLOW_COMPACTION;
+        let geometries: Vec<_> = statics
+            .iter()
+            .map(|&i| {
+                [Self::geometry(
+                    s.bottoms[i].group,
+                    s.bottoms[i].count,
+                    s.bottoms[i].data,
+                    s.alpha,
+                )]
+            })
+            .collect();
+        let infos: Vec<_> = statics
+            .iter()
+            .zip(&geometries)
+            .map(|(&i, g)| {
+                vk::AccelerationStructureBuildGeometryInfoKHR::default()
+                    .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
+                    .flags(flags)
+                    .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+                    .dst_acceleration_structure(s.bottoms[i].accel.raw)
+                    .geometries(g)
+                    .scratch_data(vk::DeviceOrHostAddressKHR {
+                        device_address: scratch + s.bottoms[i].scratch_at,
+                    })
+            })
+            .collect();
+        let ranges: Vec<[vk::AccelerationStructureBuildRangeInfoKHR; 1]> = statics
+            .iter()
+            .map(|&i| [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(s.bottoms[i].count)])
+            .collect();
+        let range_refs: Vec<&[vk::AccelerationStructureBuildRangeInfoKHR]> = ranges.iter().map(|r| &r[..]).collect();
+        let n = statics.len() as u32;
+        // SAFETY (all below): valid create infos and commands on a live device; the pool is
+        // destroyed before returning, the old structures once nothing uses them.
+        let pool = unsafe {
+            d.create_query_pool(
+                &vk::QueryPoolCreateInfo::default()
+                    .query_type(vk::QueryType::ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR)
+                    .query_count(n),
+                None,
+            )
+        }
+        .context("creating the compaction query pool")?;
+        let handles: Vec<_> = statics.iter().map(|&i| s.bottoms[i].accel.raw).collect();
+        let built = (|| -> Result<Vec<u64>> {
+            unsafe {
+                self.accel
+                    .cmd_build_acceleration_structures(cmds.cb, &infos, &range_refs);
+                full_barrier(&self.gpu, cmds.cb);
+                d.cmd_reset_query_pool(cmds.cb, pool, 0, n);
+                self.accel.cmd_write_acceleration_structures_properties(
+                    cmds.cb,
+                    &handles,
+                    vk::QueryType::ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR,
+                    pool,
+                    0,
+                );
+            }
+            cmds.submit_wait()
+                .context("building the driver's static bottom levels")?;
+            let mut sizes = vec![0u64; n as usize];
+            unsafe {
+                d.get_query_pool_results(
+                    pool,
+                    0,
+                    &mut sizes,
+                    vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+                )
+            }
+            .context("reading the compacted sizes")?;
+            Ok(sizes)
+        })();
+        unsafe { d.destroy_query_pool(pool, None) };
+        let sizes = built?;
+        let mut compacted = Vec::with_capacity(statics.len());
+        for &size in &sizes {
+            compacted.push(self.make_accel(
+                "driver's compacted bottom level",
+                vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+                size,
+            )?);
+        }
+        cmds.begin()?;
+        for (&i, c) in statics.iter().zip(&compacted) {
+            let info = vk::CopyAccelerationStructureInfoKHR::default()
+                .src(s.bottoms[i].accel.raw)
+                .dst(c.raw)
+                .mode(vk::CopyAccelerationStructureModeKHR::COMPACT);
+            unsafe { self.accel.cmd_copy_acceleration_structure(cmds.cb, &info) };
+        }
+        full_barrier(&self.gpu, cmds.cb);
+        cmds.submit_wait().context("compacting the driver's bottom levels")?;
+        let s = self.scene.as_mut().context("no scene loaded for the driver tracer")?;
+        for (&i, c) in statics.iter().zip(compacted) {
+            let old = std::mem::replace(&mut s.bottoms[i].accel, c);
+            unsafe { self.accel.destroy_acceleration_structure(old.raw, None) };
+        }
+        Ok(())
+    }
+
+    /// Records `sphere_boxes` over every sphere of set 0 (`sets`: sets 0 and 1) and a
+    /// barrier after it.
+    fn record_sphere_boxes(&self, cmds: &Commands, sets: [vk::DescriptorSet; 2]) {
+        let Some(s) = self.scene.as_ref() else {
+            return;
+        };
+        let d = &self.gpu.device;
+        let cb = cmds.cb;
+        if s.n_spheres > 0 {
+            let (x, y) = grid(s.n_spheres.div_ceil(WORKGROUP));
+            // SAFETY: recording state; pipeline, layout and sets belong to this device.
+            unsafe {
+                d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.boxes_pipeline);
+                d.cmd_bind_descriptor_sets(
+                    cb,
+                    vk::PipelineBindPoint::COMPUTE,
+                    self.layout,
+                    0,
+                    &[sets[0], sets[1], s.set],
+                    &[],
+                );
+                d.cmd_dispatch(cb, x, y, 1);
+            }
+        }
+        full_barrier(&self.gpu, cb);
     }
 
     /// New transforms of the instances (the same instances as loaded, in order): the next
@@ -719,7 +865,11 @@ impl DriverTracer {
             .as_ref()
             .is_some_and(|s| s.build == build && s.n_spheres == 0 && s.bottoms.iter().map(|b| b.count).eq([n_tris]));
         if !loaded {
-            self.load(&DriverScene::flattened(tris, n_tris, 0, false), build)?;
+            self.load(
+                &DriverScene::flattened(tris, n_tris, 0, false),
+                build,
+                [vk::DescriptorSet::null(); 2],
+            )?;
         }
         let mut cmds = Commands::new(&self.gpu)?;
         let mut out = Vec::with_capacity(runs);
@@ -748,31 +898,14 @@ impl DriverTracer {
 
     /// Records the frame's builds into `cmds` after the transform stage (`sets`: sets 0
     /// and 1): the spheres' boxes; the bottom levels that change every frame (rebuilt, or
-    /// updated after the first build with [`DriverBuild::Update`]), and at the first frame
-    /// all; the top level.
+    /// updated after the first build with [`DriverBuild::Update`]); the top level.
     pub fn record_build(&mut self, cmds: &mut Commands, sets: [vk::DescriptorSet; 2]) -> Result<()> {
+        self.record_sphere_boxes(cmds, sets);
         let s = self.scene.as_mut().context("no scene loaded for the driver tracer")?;
-        let d = &self.gpu.device;
         let cb = cmds.cb;
-        if s.n_spheres > 0 {
-            let (x, y) = grid(s.n_spheres.div_ceil(WORKGROUP));
-            // SAFETY: recording state; pipeline, layout and sets belong to this device.
-            unsafe {
-                d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.boxes_pipeline);
-                d.cmd_bind_descriptor_sets(
-                    cb,
-                    vk::PipelineBindPoint::COMPUTE,
-                    self.layout,
-                    0,
-                    &[sets[0], sets[1], s.set],
-                    &[],
-                );
-                d.cmd_dispatch(cb, x, y, 1);
-            }
-        }
-        full_barrier(&self.gpu, cb);
         let scratch = align(s.scratch.address(), self.scratch_align);
-        let todo: Vec<&Bottom> = s.bottoms.iter().filter(|b| b.dynamic || !s.built).collect();
+        // The static levels were built (and compacted) when the scene was loaded.
+        let todo: Vec<&Bottom> = s.bottoms.iter().filter(|b| b.dynamic).collect();
         let update = s.build == DriverBuild::Update && s.built;
         let geometries: Vec<_> = todo
             .iter()

@@ -233,7 +233,7 @@ impl GpuRenderer {
             None => {
                 let (tris, _, _) = self.lbvh.buffers()?;
                 let scene = DriverScene::flattened(tris, f.n_tris, f.n_prims - f.n_tris, alpha);
-                d.load(&scene, self.driver_build)
+                d.load(&scene, self.driver_build, self.driver_sets()?)
             }
             Some(l) => {
                 let layout = l.layout();
@@ -267,9 +267,15 @@ impl GpuRenderer {
                     n_spheres: layout.n_spheres,
                     alpha,
                 };
-                d.load(&scene, self.driver_build)
+                d.load(&scene, self.driver_build, self.driver_sets()?)
             }
         }
+    }
+
+    /// Sets 0 and 1 of the tracers for the scene loaded.
+    fn driver_sets(&self) -> Result<[ash::vk::DescriptorSet; 2]> {
+        let b = self.bufs.as_ref().context("no scene loaded")?;
+        Ok([self.trace_set()?, b.set()?])
     }
 
     /// The mesh (its index in the layout) instance `inst` shows.
