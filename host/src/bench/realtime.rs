@@ -119,7 +119,8 @@ pub struct Options {
     /// Also run every scene with next-event estimation on.
     #[arg(long = "nee")]
     pub both_nee: bool,
-    /// Treelet restructuring of every frame's BVH (`auto`: from 16 samples per frame).
+    /// Treelet restructuring of every frame's BVH (`auto`: from 16 samples per pixel and 32
+    /// samples per primitive a frame).
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: crate::cli::Treelets,
     /// Which BVH every frame builds and traces (see `raytrace render --help`).

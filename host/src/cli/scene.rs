@@ -58,7 +58,8 @@ pub struct SceneArgs {
     #[arg(long, value_enum, default_value = "binary")]
     pub bvh: Layout,
     /// Restructure BVH treelets for surface-area cost (binary BVH only): a slower build, a
-    /// faster trace. `auto` does when a frame has at least 16 samples per pixel.
+    /// faster trace. `auto` does when a frame has at least 16 samples per pixel and traces at
+    /// least 32 samples per primitive.
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: Treelets,
     /// Objects as instances of their meshes (two-level BVH: each mesh built once, the top
@@ -150,10 +151,19 @@ impl Treelets {
     /// 1920x1080 breaks even near 9 samples, the Cornell box at 800x800 near 7).
     pub const AUTO_FROM_SPP: u32 = 16;
 
-    /// The choice for frames of `spp` samples per pixel.
-    pub fn resolve(self, spp: u32) -> bool {
+    /// Samples a frame traces (pixels times samples per pixel) per primitive from which
+    /// `Auto` restructures: restructuring costs about 8 ns a primitive on the H100 and saves
+    /// 0.2 to 1.3 ns a sample, so large scenes need many samples to pay for it (800x800, 32
+    /// spp, depth 16, the frame with and without: the herd's 10M primitives 232 against 184
+    /// ms, the sixteen bunnies' 1.1M 100.6 against 99.5, the bunny 56.4 against 59.2, the
+    /// Cornell box 28.7 against 30.9; bench/NOTES.md session 26).
+    pub const AUTO_SAMPLES_PER_PRIM: u64 = 32;
+
+    /// The choice for frames of `spp` samples per pixel over `pixels` pixels of a scene of
+    /// `prims` primitives.
+    pub fn resolve(self, spp: u32, pixels: u64, prims: u64) -> bool {
         match self {
-            Treelets::Auto => spp >= Self::AUTO_FROM_SPP,
+            Treelets::Auto => spp >= Self::AUTO_FROM_SPP && pixels * spp as u64 >= Self::AUTO_SAMPLES_PER_PRIM * prims,
             Treelets::On => true,
             Treelets::Off => false,
         }
@@ -317,7 +327,11 @@ impl Prepared {
     pub fn build(&self, spp: u32) -> BuildOptions {
         BuildOptions {
             bits: self.bits,
-            treelets: self.treelets.resolve(spp),
+            treelets: self.treelets.resolve(
+                spp,
+                self.frame.width as u64 * self.frame.height as u64,
+                self.frame.n_prims as u64,
+            ),
             wide: self.layout == Layout::Wide,
         }
     }
@@ -326,6 +340,19 @@ impl Prepared {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn auto_treelets_need_many_samples_and_enough_of_them_per_primitive() {
+        let px = 800 * 800;
+        // The Cornell box and the bunny at 32 spp restructure; the sixteen bunnies and the
+        // herd do not; below 16 spp nothing does.
+        assert!(Treelets::Auto.resolve(32, px, 36));
+        assert!(Treelets::Auto.resolve(32, px, 69_678));
+        assert!(!Treelets::Auto.resolve(32, px, 1_114_659));
+        assert!(!Treelets::Auto.resolve(32, px, 10_031_907));
+        assert!(!Treelets::Auto.resolve(8, px, 36));
+        assert!(Treelets::On.resolve(1, 1, u64::MAX / 64) && !Treelets::Off.resolve(64, px, 1));
+    }
 
     #[test]
     fn camera_option_parses_and_bad_ones_are_named() {
