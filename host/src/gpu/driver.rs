@@ -150,8 +150,9 @@ struct SceneAccel {
     scratch: Buffer,
     /// The top level's instances (host-visible, `VkAccelerationStructureInstanceKHR`).
     instance: Buffer,
-    /// The spheres' boxes (`VkAabbPositionsKHR`, 24 bytes each).
-    boxes: Buffer,
+    /// The spheres' boxes (`VkAabbPositionsKHR`, 24 bytes each): the bottom levels of
+    /// spheres read them, set 2 names them; kept while they are.
+    _boxes: Buffer,
     /// Set 2: the top level (binding 0), the boxes (binding 1).
     pool: vk::DescriptorPool,
     set: vk::DescriptorSet,
@@ -647,7 +648,7 @@ impl DriverTracer {
             n_top,
             scratch,
             instance,
-            boxes,
+            _boxes: boxes,
             pool,
             set,
             n_spheres: d.n_spheres,
@@ -674,39 +675,7 @@ impl DriverTracer {
         let mut cmds = Commands::new(&self.gpu)?;
         cmds.begin()?;
         self.record_sphere_boxes(&cmds, sets);
-        let scratch = align(s.scratch.address(), self.scratch_align);
         let flags = Self::blas_flags(s.build) | vk::BuildAccelerationStructureFlagsKHR::ALLOW_COMPACTION;
-        let geometries: Vec<_> = statics
-            .iter()
-            .map(|&i| {
-                [Self::geometry(
-                    s.bottoms[i].group,
-                    s.bottoms[i].count,
-                    s.bottoms[i].data,
-                    s.alpha,
-                )]
-            })
-            .collect();
-        let infos: Vec<_> = statics
-            .iter()
-            .zip(&geometries)
-            .map(|(&i, g)| {
-                vk::AccelerationStructureBuildGeometryInfoKHR::default()
-                    .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
-                    .flags(flags)
-                    .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
-                    .dst_acceleration_structure(s.bottoms[i].accel.raw)
-                    .geometries(g)
-                    .scratch_data(vk::DeviceOrHostAddressKHR {
-                        device_address: scratch + s.bottoms[i].scratch_at,
-                    })
-            })
-            .collect();
-        let ranges: Vec<[vk::AccelerationStructureBuildRangeInfoKHR; 1]> = statics
-            .iter()
-            .map(|&i| [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(s.bottoms[i].count)])
-            .collect();
-        let range_refs: Vec<&[vk::AccelerationStructureBuildRangeInfoKHR]> = ranges.iter().map(|r| &r[..]).collect();
         let n = statics.len() as u32;
         // SAFETY (all below): valid create infos and commands on a live device; the pool is
         // destroyed before returning, the old structures once nothing uses them.
@@ -721,9 +690,8 @@ impl DriverTracer {
         .context("creating the compaction query pool")?;
         let handles: Vec<_> = statics.iter().map(|&i| s.bottoms[i].accel.raw).collect();
         let built = (|| -> Result<Vec<u64>> {
+            self.record_bottoms(cmds.cb, s, &statics, flags, false);
             unsafe {
-                self.accel
-                    .cmd_build_acceleration_structures(cmds.cb, &infos, &range_refs);
                 full_barrier(&self.gpu, cmds.cb);
                 d.cmd_reset_query_pool(cmds.cb, pool, 0, n);
                 self.accel.cmd_write_acceleration_structures_properties(
@@ -885,49 +853,45 @@ impl DriverTracer {
         Ok(out)
     }
 
-    /// Device bytes of the structures, their scratch and the spheres' boxes.
-    pub fn memory(&self) -> u64 {
-        self.scene.as_ref().map_or(0, |s| {
-            s.bottoms.iter().map(|b| b.accel.buffer.size).sum::<u64>()
-                + s.tlas.buffer.size
-                + s.scratch.size
-                + s.boxes.size
-                + s.instance.size
-        })
-    }
-
-    /// Records the frame's builds into `cmds` after the transform stage (`sets`: sets 0
-    /// and 1): the spheres' boxes; the bottom levels that change every frame (rebuilt, or
-    /// updated after the first build with [`DriverBuild::Update`]); the top level.
-    pub fn record_build(&mut self, cmds: &mut Commands, sets: [vk::DescriptorSet; 2]) -> Result<()> {
-        self.record_sphere_boxes(cmds, sets);
-        let s = self.scene.as_mut().context("no scene loaded for the driver tracer")?;
-        let cb = cmds.cb;
+    /// Records the builds of bottom levels `which` of `s` (disjoint scratch parts), with
+    /// `flags`; `update`: in place from their last build.
+    fn record_bottoms(
+        &self,
+        cb: vk::CommandBuffer,
+        s: &SceneAccel,
+        which: &[usize],
+        flags: vk::BuildAccelerationStructureFlagsKHR,
+        update: bool,
+    ) {
+        if which.is_empty() {
+            return;
+        }
         let scratch = align(s.scratch.address(), self.scratch_align);
-        // The static levels were built (and compacted) when the scene was loaded.
-        let todo: Vec<&Bottom> = s.bottoms.iter().filter(|b| b.dynamic).collect();
-        let update = s.build == DriverBuild::Update && s.built;
-        let geometries: Vec<_> = todo
+        let geometries: Vec<_> = which
             .iter()
-            .map(|b| [Self::geometry(b.group, b.count, b.data, s.alpha)])
+            .map(|&i| {
+                let b = &s.bottoms[i];
+                [Self::geometry(b.group, b.count, b.data, s.alpha)]
+            })
             .collect();
-        let infos: Vec<_> = todo
+        let infos: Vec<_> = which
             .iter()
             .zip(&geometries)
-            .map(|(b, g)| {
+            .map(|(&i, g)| {
+                let b = &s.bottoms[i];
+                let (mode, src) = if update {
+                    (vk::BuildAccelerationStructureModeKHR::UPDATE, b.accel.raw)
+                } else {
+                    (
+                        vk::BuildAccelerationStructureModeKHR::BUILD,
+                        vk::AccelerationStructureKHR::null(),
+                    )
+                };
                 vk::AccelerationStructureBuildGeometryInfoKHR::default()
                     .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
-                    .flags(Self::blas_flags(s.build))
-                    .mode(if update {
-                        vk::BuildAccelerationStructureModeKHR::UPDATE
-                    } else {
-                        vk::BuildAccelerationStructureModeKHR::BUILD
-                    })
-                    .src_acceleration_structure(if update {
-                        b.accel.raw
-                    } else {
-                        vk::AccelerationStructureKHR::null()
-                    })
+                    .flags(flags)
+                    .mode(mode)
+                    .src_acceleration_structure(src)
                     .dst_acceleration_structure(b.accel.raw)
                     .geometries(g)
                     .scratch_data(vk::DeviceOrHostAddressKHR {
@@ -935,16 +899,35 @@ impl DriverTracer {
                     })
             })
             .collect();
-        let ranges: Vec<[vk::AccelerationStructureBuildRangeInfoKHR; 1]> = todo
+        let ranges: Vec<[vk::AccelerationStructureBuildRangeInfoKHR; 1]> = which
             .iter()
-            .map(|b| [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(b.count)])
+            .map(|&i| [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(s.bottoms[i].count)])
             .collect();
         let range_refs: Vec<&[vk::AccelerationStructureBuildRangeInfoKHR]> = ranges.iter().map(|r| &r[..]).collect();
-        if !infos.is_empty() {
-            // SAFETY: recording state; every address names a live buffer of this device, and
-            // the builds' scratch regions are disjoint.
-            unsafe { self.accel.cmd_build_acceleration_structures(cb, &infos, &range_refs) };
+        // SAFETY: recording state; every address names a live buffer of this device, and the
+        // builds' scratch regions are disjoint.
+        unsafe { self.accel.cmd_build_acceleration_structures(cb, &infos, &range_refs) };
+    }
+
+    /// Records the frame's builds into `cmds` after the transform stage (`sets`: sets 0
+    /// and 1): the spheres' boxes; the bottom levels that change every frame (rebuilt, or
+    /// updated after the first build with [`DriverBuild::Update`]); the top level.
+    pub fn record_build(&mut self, cmds: &mut Commands, sets: [vk::DescriptorSet; 2]) -> Result<()> {
+        let s = self.scene.as_ref().context("no scene loaded for the driver tracer")?;
+        // The static levels were built (and compacted, their spheres boxed) when the scene
+        // was loaded: only the levels that change are built again.
+        let todo: Vec<usize> = (0..s.bottoms.len()).filter(|&i| s.bottoms[i].dynamic).collect();
+        if todo.iter().any(|&i| s.bottoms[i].group == SPHERES) {
+            self.record_sphere_boxes(cmds, sets);
+        } else {
+            // The transform stage's writes, before the builds read them.
+            full_barrier(&self.gpu, cmds.cb);
         }
+        let update = s.build == DriverBuild::Update && s.built;
+        self.record_bottoms(cmds.cb, s, &todo, Self::blas_flags(s.build), update);
+        let s = self.scene.as_mut().context("no scene loaded for the driver tracer")?;
+        let cb = cmds.cb;
+        let scratch = align(s.scratch.address(), self.scratch_align);
         s.built = true;
         full_barrier(&self.gpu, cb);
         let top = [Self::instance_geometry(s.instance.address())];
