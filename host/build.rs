@@ -10,11 +10,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("cargo::rustc-env=RAYTRACE_COMMIT={}", commit());
     watch_git_head();
     let out_dir = PathBuf::from(std::env::var("OUT_DIR")?);
+    // A module per entry point: a driver reads the whole module for each pipeline it makes
+    // (about 20 ms each for one module of every kernel on the H100, with its shader cache
+    // warm), and a render makes eight.
     let compute = SpirvBuilder::new(shader_crate(), "spirv-unknown-vulkan1.2")
         .capability(Capability::VulkanMemoryModelDeviceScope)
         .capability(Capability::Int64)
-        .capability(Capability::Int64Atomics);
-    let names = build_module(compute, &out_dir.join("shader_crate_precise.spv"), "SHADER_SPV_PATH")?;
+        .capability(Capability::Int64Atomics)
+        .multimodule(true);
+    let names = build_modules(compute, &out_dir, "shader_modules.rs")?;
     // The ray-tracing pipeline's module: its own target folder, so that the two builds'
     // different flags do not rebuild each other's artefacts.
     let driver = SpirvBuilder::new(shader_crate(), "spirv-unknown-vulkan1.2")
@@ -50,17 +54,51 @@ fn build_module(mut builder: SpirvBuilder, path: &Path, var: &str) -> Result<Vec
     let ModuleResult::SingleModule(module) = &result.module else {
         return Err("expected a single SPIR-V module".into());
     };
-    let bytes = std::fs::read(module)?;
+    precise_copy(module, path)?;
+    println!("cargo::rustc-env={var}={}", path.display());
+    Ok(result.entry_points.iter().map(|e| format!("{e:?}")).collect())
+}
+
+/// Builds `shader-crate` as a module per entry point, writes each to `out_dir` with every
+/// float operation marked `NoContraction` (see [`no_contraction`]), and the Rust file `list`
+/// there: `SHADER_MODULES`, each entry point's name and its module's bytes. Returns the
+/// entry points (quoted).
+fn build_modules(
+    mut builder: SpirvBuilder,
+    out_dir: &Path,
+    list: &str,
+) -> Result<Vec<String>, Box<dyn std::error::Error>> {
+    builder.build_script.defaults = true;
+    let result = builder.build()?;
+    let ModuleResult::MultiModule(modules) = &result.module else {
+        return Err("expected a SPIR-V module per entry point".into());
+    };
+    let mut rows = String::new();
+    for (k, (entry, module)) in modules.iter().enumerate() {
+        let path = out_dir.join(format!("kernel_{k}.spv"));
+        precise_copy(module, &path)?;
+        rows += &format!("    ({entry:?}, include_bytes!({:?})),\n", path.display().to_string());
+    }
+    std::fs::write(
+        out_dir.join(list),
+        format!("/// Each entry point of `shader-crate` and its SPIR-V module, compiled by `host/build.rs`.\npub const SHADER_MODULES: &[(&str, &[u8])] = &[\n{rows}];\n"),
+    )?;
+    Ok(modules.keys().map(|e| format!("{e:?}")).collect())
+}
+
+/// Copies the SPIR-V module `from` to `to` with every float operation marked
+/// `NoContraction` and without its source text and line numbers ([`strip_lines`]).
+fn precise_copy(from: &Path, to: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let bytes = std::fs::read(from)?;
     let words: Vec<u32> = bytes
         .as_chunks::<4>()
         .0
         .iter()
         .map(|w| u32::from_le_bytes(*w))
         .collect();
-    let precise = no_contraction(&words)?;
-    std::fs::write(path, precise.iter().flat_map(|w| w.to_le_bytes()).collect::<Vec<u8>>())?;
-    println!("cargo::rustc-env={var}={}", path.display());
-    Ok(result.entry_points.iter().map(|e| format!("{e:?}")).collect())
+    let precise = no_contraction(&strip_lines(&words)?)?;
+    std::fs::write(to, precise.iter().flat_map(|w| w.to_le_bytes()).collect::<Vec<u8>>())?;
+    Ok(())
 }
 
 /// `git ARGS` run in this crate's folder: its trimmed output, or `None` where git is missing,
@@ -103,6 +141,32 @@ fn watch_git_head() {
             println!("cargo::rerun-if-changed={path}");
         }
     }
+}
+
+/// OpSourceContinued, OpSource, OpLine, OpNoLine: debug information no instruction refers to.
+const SOURCE_AND_LINES: [u32; 4] = [2, 3, 8, 317];
+
+/// The module without its source text and line numbers ([`SOURCE_AND_LINES`]), which the
+/// release profile's line tables put there: a third of the path tracer's module, and
+/// 97% of a small kernel's (the source of every file it uses), bytes a driver reads
+/// whenever it makes a pipeline.
+fn strip_lines(words: &[u32]) -> Result<Vec<u32>, Box<dyn std::error::Error>> {
+    if words.len() < 5 || words[0] != 0x0723_0203 {
+        return Err("not a little-endian SPIR-V module".into());
+    }
+    let mut out = words[..5].to_vec();
+    let mut i = 5;
+    while i < words.len() {
+        let (count, op) = ((words[i] >> 16) as usize, words[i] & 0xffff);
+        if count == 0 || i + count > words.len() {
+            return Err(format!("malformed SPIR-V instruction at word {i}").into());
+        }
+        if !SOURCE_AND_LINES.contains(&op) {
+            out.extend_from_slice(&words[i..i + count]);
+        }
+        i += count;
+    }
+    Ok(out)
 }
 
 /// SPIR-V opcodes and operands `no_contraction` reads and writes.

@@ -323,7 +323,7 @@ pub fn merge(paths: &[PathBuf]) -> Result<Picture> {
         "the shards hold {next} samples per pixel of {}",
         first.total
     );
-    let parts: Vec<&[[f32; 4]]> = shards.iter().map(|s| s.accum.as_slice()).collect();
+    let total = first.total;
     let frame = Frame {
         width: first.width,
         height: first.height,
@@ -331,23 +331,33 @@ pub fn merge(paths: &[PathBuf]) -> Result<Picture> {
         flags: if first.gamma2 { FLAG_GAMMA2 } else { 0 },
         ..Default::default()
     };
-    Ok(sum_pictures(&parts, first.total, &frame))
+    Ok(sum_pictures(
+        shards.into_iter().map(|s| s.accum).collect(),
+        total,
+        &frame,
+    ))
 }
 
-/// The picture of the sums `parts` (of `samples` samples per pixel in all) added in the
-/// order given, its display image made as the renderers make it for `frame` (its size,
-/// exposure and gamma).
-pub fn sum_pictures(parts: &[&[[f32; 4]]], samples: u32, frame: &Frame) -> Picture {
+/// The picture of the sums `parts` (of `samples` samples per pixel in all, each part a sum
+/// for every pixel of `frame`) added in the order given, its display image made as the
+/// renderers make it for `frame` (its size, exposure and gamma).
+pub fn sum_pictures(parts: Vec<Vec<[f32; 4]>>, samples: u32, frame: &Frame) -> Picture {
     let (w, h) = (frame.width, frame.height);
+    let mut parts = parts.into_iter();
+    // The first part is the start of the sum: a renderer's sums start at +0, and +0 + x is
+    // x for every sum (none is -0), so this is the same as adding it to zeros, without
+    // making and touching another image's memory.
+    let mut accum = parts.next().unwrap_or_default();
+    accum.resize((w * h) as usize, [0.0; 4]);
+    let rest: Vec<Vec<[f32; 4]>> = parts.collect();
     // Pixels in parallel, each one's parts added in the parts' order (the same bits as one
     // pass after another).
-    let mut accum = vec![[0f32; 4]; (w * h) as usize];
     accum
         .par_chunks_mut(w.max(1) as usize)
         .enumerate()
         .for_each(|(y, row)| {
             let at = y * w as usize;
-            for part in parts {
+            for part in &rest {
                 for (a, b) in row.iter_mut().zip(&part[at..]) {
                     *a = [a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3]];
                 }

@@ -427,3 +427,34 @@ fn samples_in_one_dispatch_equal_samples_one_at_a_time() {
     }
     assert_no_validation_errors(&gpu);
 }
+
+/// A pipeline asked for by several threads at once (the path tracer's is started on a thread
+/// of its own while the build is recorded, `Kernels::make_soon`) is made once, and every
+/// ask gets it.
+#[test]
+fn a_pipeline_asked_for_at_once_is_made_once() {
+    let Some(gpu) = gpu("a_pipeline_asked_for_at_once_is_made_once") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    let constant = shared::types::FEATURE_TRIANGLES;
+    kernels.make_soon(raytrace::gpu::Kernel::PathTrace, constant);
+    let asks: Vec<_> = std::thread::scope(|scope| {
+        let threads: Vec<_> = (0..4)
+            .map(|_| scope.spawn(|| kernels.specialised(raytrace::gpu::Kernel::PathTrace, constant)))
+            .collect();
+        threads
+            .into_iter()
+            .map(|t| t.join().expect("thread").expect("pipeline"))
+            .collect()
+    });
+    assert!(asks.iter().all(|&p| p == asks[0]), "different pipelines: {asks:?}");
+    // Every ask has returned, so the one that made it (any thread) has logged it.
+    let made: Vec<_> = kernels
+        .made_log()
+        .into_iter()
+        .filter(|(k, _)| *k == raytrace::gpu::Kernel::PathTrace)
+        .collect();
+    assert_eq!(made.len(), 1, "made {made:?}");
+    assert_no_validation_errors(&gpu);
+}

@@ -22,14 +22,20 @@ pub struct Options {
     /// commas.
     #[arg(long, default_value = "all")]
     pub devices: String,
+    /// Renders per number of devices: each row is the run of median wall time.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
+    pub runs: u32,
 }
 
 /// The render on the first `devices` devices.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Row {
     pub devices: usize,
-    /// Host clock around the whole render (devices opened, scene uploaded, traced, summed).
+    /// Host clock from the start of the render to its image (devices opened, scene uploaded,
+    /// traced, summed), the median of the runs.
     pub wall_s: f64,
+    /// Every run's wall clock, in the order run.
+    pub runs_s: Vec<f64>,
     /// Where the wall clock went, and each device's GPU time.
     pub times: DevicesTimes,
     /// The slowest device's GPU time.
@@ -70,19 +76,26 @@ pub fn run(o: &Options, opts: &GpuOptions) -> Result<Report> {
         devices.len(),
         p.spp
     );
-    // Warm-up: every device has rendered the scene once, at the same size, one sample (the
-    // driver caches the pipelines it made).
-    let once = SceneArgs::try_parse_from(["raytrace", o.scene.as_str(), "--size", &size, "--spp", "1"])?.prepare()?;
+    // Warm-up: every device has rendered the first sample of the same frame (the same
+    // pipelines: the driver caches those it made).
     for d in &devices {
-        render_devices(&once, 0, 1, std::slice::from_ref(d), opts)?;
+        render_devices(&p, 0, 1, std::slice::from_ref(d), opts)?;
     }
     let mut rows: Vec<Row> = Vec::new();
     let mut one: Option<(Vec<[f32; 3]>, f64)> = None;
     for k in 1..=devices.len() {
-        eprintln!("{} on {k} device(s)", o.scene);
-        let start = Instant::now();
-        let (rendered, times) = render_devices_each(&p, 0, p.spp, &devices[..k], opts)?;
-        let wall_s = start.elapsed().as_secs_f64();
+        let mut runs = Vec::new();
+        for run in 0..o.runs {
+            eprintln!("{} on {k} device(s), run {}", o.scene, run + 1);
+            let start = Instant::now();
+            let (rendered, mut times, closing) = render_devices_each(&p, 0, p.spp, &devices[..k], opts)?;
+            let wall_s = start.elapsed().as_secs_f64();
+            times.close_s = closing.close();
+            runs.push((wall_s, rendered, times));
+        }
+        let runs_s: Vec<f64> = runs.iter().map(|r| r.0).collect();
+        runs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (wall_s, rendered, times) = runs.swap_remove(runs.len() / 2);
         let image = rendered.picture.linear();
         let (base, base_wall) = one.get_or_insert_with(|| (image.clone(), wall_s)).clone();
         let speedup = base_wall / wall_s;
@@ -91,6 +104,7 @@ pub fn run(o: &Options, opts: &GpuOptions) -> Result<Report> {
             gpu_s: times.gpu_s.iter().map(|s| s.1).fold(0.0, f64::max),
             times,
             wall_s,
+            runs_s,
             speedup,
             efficiency: speedup / k as f64,
             max_rel_diff: max_rel_diff(&base, &image),
@@ -109,20 +123,25 @@ pub fn markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# One render on several devices\n\n- date: {}\n- command: `{}`\n- {} at {}x{}, {} spp: the samples split into equal consecutive shares, one a device, each device on a thread of its own with its own renderer; the sums added in device order\n- wall: the host's clock around the whole render (devices opened, scene uploaded, BVH built, traced, sums read back and added; every device rendered the scene at this size and 1 spp once before); GPU: the slowest device's timestamps\n",
-        r.date, r.command, o.scene, o.size.0, o.size.1, o.spp
+        "# One render on several devices\n\n- date: {}\n- command: `{}`\n- {} at {}x{}, {} spp, {} runs per row: the samples split into equal consecutive shares, one a device, each device on a thread of its own with its own renderer; the sums added in device order\n- wall: the host's clock from the start of the render to its image (devices opened, scene uploaded, BVH built, traced, sums read back and added; every device rendered the first sample of the frame once before); the median run; the devices close after that (close, below), as `render` closes them while it writes the image; GPU: the slowest device's timestamps\n",
+        r.date, r.command, o.scene, o.size.0, o.size.1, o.spp, o.runs
     );
     let _ = writeln!(
         s,
-        "| devices | wall s | GPU s (slowest) | speed-up | efficiency | largest difference from one device | devices' GPU s |\n|---|---|---|---|---|---|---|"
+        "| devices | wall s (median) | runs' wall s | GPU s (slowest) | speed-up | efficiency | largest difference from one device | devices' GPU s |\n|---|---|---|---|---|---|---|---|"
     );
     for row in &r.rows {
         let each: Vec<String> = row.times.gpu_s.iter().map(|(d, t)| format!("{d}: {t:.3}")).collect();
         let _ = writeln!(
             s,
-            "| {} | {:.3} | {:.3} | {:.2}x | {:.0}% | {:.1e} | {} |",
+            "| {} | {:.3} | {} | {:.3} | {:.2}x | {:.0}% | {:.1e} | {} |",
             row.devices,
             row.wall_s,
+            row.runs_s
+                .iter()
+                .map(|t| format!("{t:.3}"))
+                .collect::<Vec<_>>()
+                .join(", "),
             row.gpu_s,
             row.speedup,
             row.efficiency * 100.0,
@@ -132,15 +151,46 @@ pub fn markdown(r: &Report) -> String {
     }
     let _ = writeln!(
         s,
-        "\nWhere the wall clock went (host seconds; of the device that took longest): the instance the devices share and opening the device (of it, instance and device; then kernels and renderer), loading the scene and tracing until its last submission finished, reading its sums back; then adding the sums and making the display image while the devices close.\n\n| devices | open | of it: instance + device | load + trace | read back | add + display |\n|---|---|---|---|---|---|"
+        "\nWhere the median run's wall clock went (host seconds; of the device that took longest): the instance the devices share and opening the device (of it, instance and device; the kernels' module and layouts; the rest the renderer), loading the scene, tracing until its last submission finished (of it the first submission: pipelines made, BVH built, one sample), reading its sums back; then adding the sums and making the display image; after the image, closing the devices.\n\n| devices | open | of it: instance + device | kernels | load | trace | of it: first submission | submissions | read back | add + display | close (after) |\n|---|---|---|---|---|---|---|---|---|---|---|"
     );
     for row in &r.rows {
         let t = &row.times;
         let _ = writeln!(
             s,
-            "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
-            row.devices, t.open_s, t.device_s, t.trace_s, t.read_s, t.merge_s
+            "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {:.3} | {:.3} | {:.3} |",
+            row.devices,
+            t.open_s,
+            t.device_s,
+            t.kernels_s,
+            t.load_s,
+            t.trace_s,
+            t.first_s,
+            t.submissions,
+            t.read_s,
+            t.merge_s,
+            t.close_s
         );
+    }
+    let _ = writeln!(s, "\nOpening: the instance, then each device (host s):\n");
+    for row in &r.rows {
+        let each: Vec<String> = row.times.each_device_s.iter().map(|t| format!("{t:.3}")).collect();
+        let _ = writeln!(
+            s,
+            "- {} device(s): instance {:.3}, devices {}",
+            row.devices,
+            row.times.instance_s,
+            each.join(", ")
+        );
+    }
+    let _ = writeln!(s, "\nPipelines the slowest device made (host ms each, in the order made; the path tracer's while the build was recorded):\n");
+    for row in &r.rows {
+        let each: Vec<String> = row
+            .times
+            .pipelines
+            .iter()
+            .map(|(k, t)| format!("{k} {:.1}", t * 1e3))
+            .collect();
+        let _ = writeln!(s, "- {} device(s): {}", row.devices, each.join(", "));
     }
     s
 }

@@ -64,6 +64,12 @@ fn trace_gpu_samples(
     spp: u32,
     quiet: bool,
 ) -> Result<Vec<(&'static str, f64)>> {
+    load_gpu_samples(r, p, first)?;
+    Ok(trace_loaded(r, spp, quiet)?.timings)
+}
+
+/// Loads `p` into `r`, its samples to start at `first`.
+fn load_gpu_samples(r: &mut GpuRenderer, p: &Prepared, first: u32) -> Result<()> {
     r.set_first_sample(first);
     r.set_build(p.build(p.spp));
     r.set_accel(p.accel, p.driver_build)?;
@@ -72,15 +78,31 @@ fn trace_gpu_samples(
         Denoise::Accumulated
     } else {
         Denoise::Off
-    })?;
+    })
+}
+
+/// What [`trace_loaded`] did: every submission's stage times, how many submissions, and the
+/// host seconds of the first (which makes the pipelines and builds the BVH).
+struct Traced {
+    timings: Vec<(&'static str, f64)>,
+    submissions: u32,
+    first_s: f64,
+}
+
+/// Traces `spp` samples per pixel of the scene loaded in `r`, in submissions of growing
+/// size.
+fn trace_loaded(r: &mut GpuRenderer, spp: u32, quiet: bool) -> Result<Traced> {
     let start = Instant::now();
     let mut timings = r.render(1.min(spp), true)?;
+    let first_s = start.elapsed().as_secs_f64();
+    let mut submissions = 1;
     let mut chunk = 1;
     let bar = (!quiet).then(|| progress_bar(spp as u64, "samples"));
     while r.samples() < spp {
         let t = Instant::now();
         let n = chunk.min(spp - r.samples());
         timings.extend(r.render(n, false)?);
+        submissions += 1;
         if let Some(b) = &bar {
             b.set_position(r.samples() as u64);
         }
@@ -96,7 +118,11 @@ fn trace_gpu_samples(
             b.finish_and_clear();
         }
     }
-    Ok(timings)
+    Ok(Traced {
+        timings,
+        submissions,
+        first_s,
+    })
 }
 
 /// Renders on the CPU executor with a progress bar over rows.
@@ -168,7 +194,9 @@ pub fn choose_backend(opts: &GpuOptions) -> (Backend, String) {
 /// or names, as `--device` takes them), each an equal share of consecutive samples, and adds
 /// their sums in device order (the same image whichever device finishes first).
 pub fn render_devices(p: &Prepared, first: u32, spp: u32, devices: &[String], opts: &GpuOptions) -> Result<Rendered> {
-    Ok(render_devices_each(p, first, spp, devices, opts)?.0)
+    let (rendered, _, closing) = render_devices_each(p, first, spp, devices, opts)?;
+    closing.close();
+    Ok(rendered)
 }
 
 /// Where a render on several devices spent its time, in seconds.
@@ -179,15 +207,30 @@ pub struct DevicesTimes {
     /// Each device's description and GPU time (timestamps).
     pub gpu_s: Vec<(String, f64)>,
     /// Host clock: making the instance the devices share, then of the device that took
-    /// longest: opening it (device, kernels, renderer), loading the scene and tracing (until
-    /// its last submission finished), reading its sums back.
+    /// longest: opening it (device, kernels, renderer), loading the scene, tracing (until its
+    /// last submission finished), reading its sums back.
     pub open_s: f64,
-    /// Of `open_s`: the instance and the device (the rest: kernels and the renderer).
+    /// Of `open_s`: the instance and the device; the kernels (their module and layouts);
+    /// the rest is the renderer.
     pub device_s: f64,
+    /// Of `device_s`: the instance; and every device's own, in device order.
+    pub instance_s: f64,
+    pub each_device_s: Vec<f64>,
+    pub kernels_s: f64,
+    pub load_s: f64,
     pub trace_s: f64,
+    /// Of `trace_s`: the first submission (its pipelines made, the BVH built, one sample);
+    /// and the submissions.
+    pub first_s: f64,
+    pub submissions: u32,
+    /// The pipelines the device made, in order, with the host seconds each took.
+    pub pipelines: Vec<(&'static str, f64)>,
     pub read_s: f64,
     /// Adding the devices' sums and making the display image (while the devices close).
     pub merge_s: f64,
+    /// Closing the devices after the image was made ([`Closing::close`]; 0 where they stay
+    /// open or have not been closed).
+    pub close_s: f64,
 }
 
 /// One device's share of a render: its sums, stage times and host clock.
@@ -196,10 +239,35 @@ struct DeviceShare {
     timings: Vec<(&'static str, f64)>,
     name: String,
     device: String,
-    open_s: f64,
-    device_s: f64,
+    opened: Opened,
+    load_s: f64,
+    first_s: f64,
+    submissions: u32,
+    pipelines: Vec<(&'static str, f64)>,
     trace_s: f64,
     read_s: f64,
+}
+
+/// Devices a render opened and has finished with, still to be closed: their renderers
+/// and the instance they share. Closing them (some tens of milliseconds a device, in the
+/// driver) need not delay the image: [`Closing::close`] them after it is made, or drop.
+pub struct Closing {
+    renderers: Vec<GpuRenderer>,
+    _instance: Arc<Instance>,
+}
+
+impl Closing {
+    /// Closes the devices, each on a thread of its own; the seconds that took.
+    pub fn close(mut self) -> f64 {
+        let t = Instant::now();
+        std::thread::scope(|scope| {
+            for r in self.renderers.drain(..) {
+                scope.spawn(move || drop(r));
+            }
+        });
+        drop(self);
+        t.elapsed().as_secs_f64()
+    }
 }
 
 /// Devices opened for a render on several of them, each with its renderer: kept open across
@@ -208,9 +276,17 @@ pub struct OpenDevices {
     renderers: Vec<GpuRenderer>,
 }
 
+/// Host seconds opening a device took: all of it, and of it the device's and the kernels'.
+#[derive(Copy, Clone, Debug, Default)]
+struct Opened {
+    open_s: f64,
+    device_s: f64,
+    kernels_s: f64,
+}
+
 /// Opens `device` (an index or a name, as `--device` takes it) of `instance` with its kernels
-/// and renderer; also returns the seconds that took, and of them the device's.
-fn open_device(instance: &Arc<Instance>, device: &str, opts: &GpuOptions) -> Result<(GpuRenderer, (f64, f64))> {
+/// and renderer; also returns the seconds that took.
+fn open_device(instance: &Arc<Instance>, device: &str, opts: &GpuOptions) -> Result<(GpuRenderer, Opened)> {
     let o = GpuOptions {
         device: Some(device.to_string()),
         ..opts.clone()
@@ -219,15 +295,24 @@ fn open_device(instance: &Arc<Instance>, device: &str, opts: &GpuOptions) -> Res
     let gpu = Gpu::on(instance, &o).with_context(|| format!("opening device {device}"))?;
     let device_s = t.elapsed().as_secs_f64();
     let kernels = Arc::new(Kernels::new(&gpu)?);
+    let kernels_s = t.elapsed().as_secs_f64() - device_s;
     let r = GpuRenderer::new(&gpu, &kernels)?;
-    Ok((r, (t.elapsed().as_secs_f64(), device_s)))
+    let open_s = t.elapsed().as_secs_f64();
+    Ok((
+        r,
+        Opened {
+            open_s,
+            device_s,
+            kernels_s,
+        },
+    ))
 }
 
 /// Opens `devices` (indices or names, as `--device` takes them) from one instance, each on a
 /// thread of its own.
 pub fn open_devices(devices: &[String], opts: &GpuOptions) -> Result<OpenDevices> {
     let instance = Instance::new(opts.validation, &opts.window_extensions)?;
-    let opened: Vec<Result<(GpuRenderer, (f64, f64))>> = std::thread::scope(|scope| {
+    let opened: Vec<Result<(GpuRenderer, Opened)>> = std::thread::scope(|scope| {
         let instance = &instance;
         let threads: Vec<_> = devices
             .iter()
@@ -254,7 +339,8 @@ impl OpenDevices {
     /// device finishes first). The devices stay open.
     pub fn render(&mut self, p: &Prepared, first: u32, spp: u32) -> Result<(Rendered, DevicesTimes)> {
         let renderers: Vec<&mut GpuRenderer> = self.renderers.iter_mut().collect();
-        render_shares(renderers, &|r| Ok((r, (0.0, 0.0))), p, first, spp, 0.0)
+        let (rendered, times, _) = render_shares(renderers, &|r| Ok((r, Opened::default())), p, first, spp, 0.0)?;
+        Ok((rendered, times))
     }
 }
 
@@ -271,40 +357,61 @@ fn ensure_shares(n: u32, spp: u32) -> Result<()> {
 /// Samples `first..first + count` of `p` on `r`: the sums, stage times and host clock.
 fn render_share(r: &mut GpuRenderer, p: &Prepared, first: u32, count: u32) -> Result<DeviceShare> {
     let t = Instant::now();
-    let timings = render::stage_totals(&trace_gpu_samples(r, p, first, count, true)?);
+    load_gpu_samples(r, p, first)?;
+    let load_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    // The memory the sums come back to is made while the GPU traces: its pages, written
+    // once here (133 MB for a 4K image), are not then faulted in by the read back.
+    let pixels = r.pixels();
+    let (traced, sums) = std::thread::scope(|scope| {
+        let memory = scope.spawn(move || {
+            let mut sums = Vec::with_capacity(pixels);
+            sums.resize(pixels, [0f32; 4]);
+            sums
+        });
+        let traced = trace_loaded(r, count, true);
+        (traced, memory.join())
+    });
+    let traced = traced?;
+    let timings = render::stage_totals(&traced.timings);
     let trace_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
+    let mut sums = sums.unwrap_or_else(|_| vec![[0f32; 4]; pixels]);
     // Only the sums: the display image is made once, from all devices' sums.
-    let sums = r.sums()?;
+    r.sums_into(&mut sums)?;
     let gpu = r.gpu();
     Ok(DeviceShare {
         sums,
         timings,
         name: gpu.name.clone(),
         device: gpu.describe(),
-        open_s: 0.0,
-        device_s: 0.0,
+        opened: Opened::default(),
+        load_s,
+        first_s: traced.first_s,
+        submissions: traced.submissions,
+        pipelines: r.kernels().made_log().iter().map(|(k, s)| (k.entry(), *s)).collect(),
         trace_s,
         read_s: t.elapsed().as_secs_f64(),
     })
 }
 
 /// Renders on a renderer for every item of `items`, each on a thread of its own that gets
-/// its renderer from `open` (a device opened there, owned and closed once its sums are handed
-/// on; or one open before, borrowed and kept) with the seconds that took and of them the
-/// device's; `instance_s` the instance's before.
-fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer>>(
+/// its renderer from `open` (a device opened there, owned; or one open before, borrowed)
+/// with the seconds that took and of them the device's; `instance_s` the instance's before.
+/// Also returns the renderers, in no particular order, for the caller to close or keep.
+fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer> + Send>(
     items: Vec<T>,
-    open: &(dyn Fn(T) -> Result<(R, (f64, f64))> + Sync),
+    open: &(dyn Fn(T) -> Result<(R, Opened)> + Sync),
     p: &Prepared,
     first: u32,
     spp: u32,
     instance_s: f64,
-) -> Result<(Rendered, DevicesTimes)> {
+) -> Result<(Rendered, DevicesTimes, Vec<R>)> {
     let n = items.len() as u32;
     ensure_shares(n, spp)?;
     let mut merge_s = 0.0;
     let mut picture = None;
+    let (give, handed) = std::sync::mpsc::channel();
     let results: Vec<Result<DeviceShare>> = std::thread::scope(|scope| {
         let (done, shares) = std::sync::mpsc::channel();
         for (k, item) in items.into_iter().enumerate() {
@@ -315,19 +422,22 @@ fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer>>(
             }
             .samples(spp);
             let done = done.clone();
+            let give = give.clone();
             scope.spawn(move || {
                 let mut held = None;
                 let rendered = share.and_then(|(a, count)| {
-                    let (r, (open_s, device_s)) = open(item)?;
+                    let (r, opened) = open(item)?;
                     let r = held.insert(r).borrow_mut();
                     let name = r.gpu().name.clone();
                     let s = render_share(r, p, first + a, count)
                         .with_context(|| format!("rendering on device {k} ({name})"))?;
-                    Ok(DeviceShare { open_s, device_s, ..s })
+                    Ok(DeviceShare { opened, ..s })
                 });
-                // The sums go on to be added while this device closes (if it is owned here).
+                // The sums go on to be added; the renderer back to the caller.
                 let _ = done.send((k, rendered));
-                drop(held);
+                if let Some(r) = held {
+                    let _ = give.send(r);
+                }
             });
         }
         drop(done);
@@ -337,17 +447,19 @@ fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer>>(
         for (k, share) in shares.iter().take(n as usize) {
             results[k] = share;
         }
-        if let Ok(parts) = results
-            .iter()
-            .map(|r| r.as_ref().map(|s| s.sums.as_slice()))
-            .collect::<Result<Vec<_>, _>>()
-        {
+        if results.iter().all(|r| r.is_ok()) {
             let t = Instant::now();
-            picture = Some(shard::sum_pictures(&parts, spp, &p.frame));
+            let parts = results
+                .iter_mut()
+                .flat_map(|r| r.as_mut().map(|s| std::mem::take(&mut s.sums)))
+                .collect();
+            picture = Some(shard::sum_pictures(parts, spp, &p.frame));
             merge_s = t.elapsed().as_secs_f64();
         }
         results
     });
+    drop(give);
+    let renderers: Vec<R> = handed.into_iter().collect();
     let parts = results.into_iter().collect::<Result<Vec<_>>>()?;
     let picture = picture.context("the devices' sums were not added")?;
     // The devices ran side by side: the stage times of the slowest.
@@ -356,50 +468,75 @@ fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer>>(
     let timings = slowest.map_or(Vec::new(), |r| r.timings.clone());
     let names: Vec<String> = parts.iter().map(|r| format!("{} {}", r.device, ms(total(r)))).collect();
     // The host clock of the device that took longest.
-    let host = |r: &DeviceShare| r.open_s + r.trace_s + r.read_s;
+    let host = |r: &DeviceShare| r.opened.open_s + r.load_s + r.trace_s + r.read_s;
     let last = parts.iter().max_by(|a, b| host(a).total_cmp(&host(b)));
-    let (open_s, device_s, trace_s, read_s) =
-        last.map_or((0.0, 0.0, 0.0, 0.0), |r| (r.open_s, r.device_s, r.trace_s, r.read_s));
-    let (open_s, device_s) = (instance_s + open_s, instance_s + device_s);
+    let (opened, load_s, trace_s, read_s, first_s, submissions, pipelines) = last.map_or(Default::default(), |r| {
+        (
+            r.opened,
+            r.load_s,
+            r.trace_s,
+            r.read_s,
+            r.first_s,
+            r.submissions,
+            r.pipelines.clone(),
+        )
+    });
     let times = DevicesTimes {
         names: parts.iter().map(|r| r.name.clone()).collect(),
         gpu_s: parts.iter().map(|r| (r.device.clone(), total(r))).collect(),
-        open_s,
-        device_s,
+        open_s: instance_s + opened.open_s,
+        device_s: instance_s + opened.device_s,
+        instance_s,
+        each_device_s: parts.iter().map(|r| r.opened.device_s).collect(),
+        kernels_s: opened.kernels_s,
+        load_s,
         trace_s,
+        first_s,
+        submissions,
+        pipelines,
         read_s,
         merge_s,
+        close_s: 0.0,
     };
     let rendered = Rendered {
         picture,
         timings,
         device: format!("{n} devices: {}", names.join(", ")),
     };
-    Ok((rendered, times))
+    Ok((rendered, times, renderers))
 }
 
-/// [`render_devices`], and where its time went: the devices opened, rendered on and closed.
+/// [`render_devices`], and where its time went: the devices opened and rendered on; and the
+/// devices, to be closed.
 pub fn render_devices_each(
     p: &Prepared,
     first: u32,
     spp: u32,
     devices: &[String],
     opts: &GpuOptions,
-) -> Result<(Rendered, DevicesTimes)> {
+) -> Result<(Rendered, DevicesTimes, Closing)> {
     ensure_shares(devices.len() as u32, spp)?;
     // Each device opened on the thread that renders on it: none waits for the others to open.
     let t = Instant::now();
     let instance = Instance::new(opts.validation, &opts.window_extensions)?;
     let instance_s = t.elapsed().as_secs_f64();
     let items: Vec<&str> = devices.iter().map(String::as_str).collect();
-    render_shares(
+    let (rendered, times, renderers) = render_shares(
         items,
         &|device| open_device(&instance, device, opts),
         p,
         first,
         spp,
         instance_s,
-    )
+    )?;
+    Ok((
+        rendered,
+        times,
+        Closing {
+            renderers,
+            _instance: instance,
+        },
+    ))
 }
 
 /// The devices `--devices` names: `all` (every Vulkan device), or indices or names separated
@@ -597,9 +734,14 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
             p.data.objects = p.scene.objects_in(&p.data, *time);
         }
         let wall = Instant::now();
+        let mut closing = None;
         let rendered = match &mut engine {
-            // One frame: each device closes while the sums are added. Several: they stay open.
-            Engine::Devices(list, _) if outputs.len() == 1 => render_devices(&p, first, spp, list, opts)?,
+            // One frame: the devices close while the image is written. Several: they stay open.
+            Engine::Devices(list, _) if outputs.len() == 1 => {
+                let (rendered, _, devices) = render_devices_each(&p, first, spp, list, opts)?;
+                closing = Some(devices);
+                rendered
+            }
             Engine::Devices(list, open) => {
                 if open.is_none() {
                     ensure_shares(list.len() as u32, spp)?;
@@ -611,6 +753,7 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
             Engine::Cpu => render_on_cpu_samples(&p, first, spp, false).0,
         };
         let wall = wall.elapsed().as_secs_f64();
+        let closing = closing.map(|c| std::thread::spawn(move || c.close()));
         match job.shard {
             Some(s) => {
                 shard::write(path, &rendered.picture, s, first, &p)?;
@@ -623,6 +766,9 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         }
         println!("{}", summary(&p, &rendered, wall));
         println!("wrote {}", path.display());
+        if let Some(c) = closing {
+            let _ = c.join();
+        }
     }
     Ok(outputs.last().map(|o| o.1.clone()).unwrap_or(out))
 }

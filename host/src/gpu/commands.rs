@@ -67,6 +67,20 @@ impl Commands {
         Ok(c)
     }
 
+    /// A stand-in holding no Vulkan objects (destroying null handles does nothing), for the
+    /// moment an owner lends its commands out: making real ones for it cost every frame a
+    /// command pool, a fence and a query pool.
+    pub fn none(gpu: &Arc<Gpu>) -> Commands {
+        Commands {
+            gpu: gpu.clone(),
+            pool: vk::CommandPool::null(),
+            cb: vk::CommandBuffer::null(),
+            fence: vk::Fence::null(),
+            queries: vk::QueryPool::null(),
+            labels: Vec::new(),
+        }
+    }
+
     /// Starts recording (the previous submission must have been waited for).
     pub fn begin(&mut self) -> Result<()> {
         let d = &self.gpu.device;
@@ -199,18 +213,24 @@ impl Commands {
     /// host-visible copy of the whole (133 MB for a 4K accumulation image) costs more to
     /// allocate and map than the copies themselves.
     pub fn read_back<T: bytemuck::Pod>(&mut self, src: &Buffer, count: usize) -> Result<Vec<T>> {
+        let mut out = vec![T::zeroed(); count];
+        self.read_back_into(src, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Commands::read_back`] into `out` (`out.len()` values from the start of `src`).
+    pub fn read_back_into<T: bytemuck::Pod>(&mut self, src: &Buffer, out: &mut [T]) -> Result<()> {
         let size = size_of::<T>();
-        if count == 0 || size == 0 {
-            return Ok(Vec::new());
+        if out.is_empty() || size == 0 {
+            return Ok(());
         }
-        let per_chunk = (READ_BACK_CHUNK as usize / size).clamp(1, count);
+        let per_chunk = (READ_BACK_CHUNK as usize / size).clamp(1, out.len());
         let staging = Buffer::new(
             &self.gpu,
             "readback",
             (per_chunk * size) as u64,
             gpu_allocator::MemoryLocation::GpuToCpu,
         )?;
-        let mut out = vec![T::zeroed(); count];
         for (k, part) in out.chunks_mut(per_chunk).enumerate() {
             self.begin()?;
             self.copy_range(
@@ -223,7 +243,7 @@ impl Commands {
             self.submit_wait().context("reading back GPU results")?;
             staging.read_into(part)?;
         }
-        Ok(out)
+        Ok(())
     }
 
     /// Ends recording, submits, and waits for the GPU to finish.

@@ -1,13 +1,14 @@
 //! Compute pipelines for every entry point of the embedded SPIR-V, one shared pipeline layout
 //! (set 0: the build's `BINDINGS` storage buffers; set 1: the renderer's `RENDER_BINDINGS`;
 //! 16 bytes of push constants: `BuildParams` or `RenderPush`), and descriptor sets.
-use super::{Buffer, Commands, Gpu, SHADER_SPV};
+use super::{shader_module, Buffer, Commands, Gpu};
 use anyhow::{bail, Context, Result};
 use ash::vk;
 use gpu_allocator::MemoryLocation;
 use shared::types::{BuildParams, RenderPush, FEATURES_ALL, RENDER_BINDINGS, VARIANT_SPLIT_PRODUCTS};
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::Instant;
 
 /// Storage-buffer bindings of set 0 (see `shared::types`).
 pub const BINDINGS: usize = 14;
@@ -121,17 +122,25 @@ impl Kernel {
     }
 }
 
+/// A pipeline's entry point and the value of its specialisation constant 0, if set.
+type PipelineKey = (Kernel, Option<u32>);
+
+/// A pipeline once made (or why it could not be).
+type PipelineCell = OnceLock<Result<vk::Pipeline, String>>;
+
 /// All compute pipelines and their shared layout.
 pub struct Kernels {
     gpu: Arc<Gpu>,
-    module: vk::ShaderModule,
     /// Layouts of set 0 (build) and set 1 (render).
     pub set_layouts: [vk::DescriptorSetLayout; 2],
     pub layout: vk::PipelineLayout,
-    /// Every pipeline, made when first asked for (a render uses 8 of the module's 27 entry
-    /// points, and each pipeline makes the driver read the whole module), with the value of
-    /// specialisation constant 0 where it is set.
-    pipelines: Mutex<HashMap<(Kernel, Option<u32>), vk::Pipeline>>,
+    /// Every pipeline, made when first asked for (a render uses 8 of the 27 entry points),
+    /// each from its entry point's own module, with the value of
+    /// specialisation constant 0 where it is set. Each is made outside the map's lock, once:
+    /// a second ask waits for the first (see [`Kernels::make_soon`]).
+    pipelines: Mutex<HashMap<PipelineKey, Arc<PipelineCell>>>,
+    /// Host seconds each pipeline took to make, in the order they were made.
+    made_log: Mutex<Vec<(Kernel, f64)>>,
     /// Whether the device's GLSL `Fma` rounds once (see [`Kernels::specialised`]).
     pub fused_fma: bool,
 }
@@ -139,20 +148,16 @@ pub struct Kernels {
 impl Kernels {
     pub fn new(gpu: &Arc<Gpu>) -> Result<Kernels> {
         let d = &gpu.device;
-        let words =
-            ash::util::read_spv(&mut std::io::Cursor::new(SHADER_SPV)).context("reading the embedded SPIR-V")?;
         let mut k = Kernels {
             gpu: gpu.clone(),
-            module: vk::ShaderModule::null(),
             set_layouts: [vk::DescriptorSetLayout::null(); 2],
             layout: vk::PipelineLayout::null(),
             pipelines: Mutex::new(HashMap::new()),
+            made_log: Mutex::new(Vec::new()),
             fused_fma: true,
         };
         // SAFETY (all calls below): valid create infos on a live device; objects are owned by
         // `k` as soon as they exist, so an early return frees them.
-        k.module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
-            .context("creating the shader module")?;
         // The driver tracer's shaders read the same sets (`crate::gpu::driver`).
         let stages = if gpu.ray_tracing.is_ok() {
             vk::ShaderStageFlags::COMPUTE | super::driver::STAGES
@@ -210,13 +215,36 @@ impl Kernels {
 
     /// A pipeline of `kernel`, with specialisation constant 0 set to `constant` if given.
     fn create_pipeline(&self, kernel: Kernel, constant: Option<u32>) -> Result<vk::Pipeline> {
-        let name = std::ffi::CString::new(kernel.symbol())?;
+        let symbol = kernel.symbol();
+        let bytes = shader_module(&symbol).with_context(|| format!("no SPIR-V module for entry point {symbol}"))?;
+        let words = ash::util::read_spv(&mut std::io::Cursor::new(bytes))
+            .with_context(|| format!("reading the SPIR-V module of {symbol}"))?;
+        let d = &self.gpu.device;
+        // SAFETY: valid create info on a live device; the module is destroyed below, once the
+        // pipeline that reads it is made (Vulkan allows it then).
+        let module = unsafe { d.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
+            .with_context(|| format!("creating the shader module of {symbol}"))?;
+        let made = self.create_pipeline_from(module, &symbol, kernel, constant);
+        // SAFETY: no pipeline is being made from it any more.
+        unsafe { d.destroy_shader_module(module, None) };
+        made
+    }
+
+    /// [`Kernels::create_pipeline`] from `module`, which holds `symbol`.
+    fn create_pipeline_from(
+        &self,
+        module: vk::ShaderModule,
+        symbol: &str,
+        kernel: Kernel,
+        constant: Option<u32>,
+    ) -> Result<vk::Pipeline> {
+        let name = std::ffi::CString::new(symbol)?;
         let entries = [vk::SpecializationMapEntry::default().constant_id(0).offset(0).size(4)];
         let data = constant.unwrap_or(0).to_ne_bytes();
         let spec = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
         let mut stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
-            .module(self.module)
+            .module(module)
             .name(&name);
         if constant.is_some() {
             stage = stage.specialization_info(&spec);
@@ -265,16 +293,42 @@ impl Kernels {
 
     /// The pipeline of `kernel` with `constant`, made if it is the first ask.
     fn made(&self, kernel: Kernel, constant: Option<u32>) -> Result<vk::Pipeline> {
-        let mut cache = self
+        let cell = self
             .pipelines
             .lock()
-            .map_err(|_| anyhow::anyhow!("pipeline cache lock poisoned"))?;
-        if let Some(&p) = cache.get(&(kernel, constant)) {
-            return Ok(p);
+            .map_err(|_| anyhow::anyhow!("pipeline cache lock poisoned"))?
+            .entry((kernel, constant))
+            .or_default()
+            .clone();
+        let made = cell.get_or_init(|| {
+            let t = Instant::now();
+            let p = self.create_pipeline(kernel, constant).map_err(|e| format!("{e:#}"));
+            if let Ok(mut log) = self.made_log.lock() {
+                log.push((kernel, t.elapsed().as_secs_f64()));
+            }
+            p
+        });
+        made.clone().map_err(anyhow::Error::msg)
+    }
+
+    /// Starts making the pipeline of the tracer `kernel` specialised to `features` (as
+    /// [`Kernels::specialised`] would) on a thread of its own, unless it is made or being
+    /// made: the driver takes tens of milliseconds for the path tracer's, which the caller can
+    /// spend recording work that needs other pipelines. An ask for it meanwhile waits for it.
+    pub fn make_soon(self: &Arc<Self>, kernel: Kernel, features: u32) {
+        let key = (kernel, Some(self.tracer_constant(features)));
+        let started = self.pipelines.lock().is_ok_and(|p| p.contains_key(&key));
+        if !started {
+            let k = self.clone();
+            std::thread::spawn(move || {
+                let _ = k.specialised(kernel, features);
+            });
         }
-        let p = self.create_pipeline(kernel, constant)?;
-        cache.insert((kernel, constant), p);
-        Ok(p)
+    }
+
+    /// Host seconds each pipeline made so far took, in the order they were made.
+    pub fn made_log(&self) -> Vec<(Kernel, f64)> {
+        self.made_log.lock().map(|l| l.clone()).unwrap_or_default()
     }
 
     /// The driver's statistics of every pipeline, as "name: value" strings (empty unless the
@@ -350,15 +404,14 @@ impl Drop for Kernels {
         // SAFETY: owners wait for GPU work before dropping the kernels.
         unsafe {
             if let Ok(cache) = self.pipelines.lock() {
-                for &p in cache.values() {
-                    d.destroy_pipeline(p, None);
+                for p in cache.values().filter_map(|c| c.get()?.as_ref().ok()) {
+                    d.destroy_pipeline(*p, None);
                 }
             }
             d.destroy_pipeline_layout(self.layout, None);
             for &l in &self.set_layouts {
                 d.destroy_descriptor_set_layout(l, None);
             }
-            d.destroy_shader_module(self.module, None);
         }
     }
 }

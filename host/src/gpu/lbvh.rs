@@ -491,7 +491,7 @@ impl GpuLbvh {
                 MemoryLocation::GpuOnly,
             )?);
         }
-        let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
+        let mut cmds = std::mem::replace(&mut self.cmds, Commands::none(&self.gpu));
         let r = (|| {
             cmds.begin()?;
             for _ in 0..count {

@@ -24,8 +24,12 @@ pub use levels::GpuLevels;
 pub use render::{frame_timings, stage_ms, Denoise, GpuRenderer};
 pub use swapchain::Swapchain;
 
-/// The SPIR-V module of `shader-crate`, compiled by `host/build.rs`.
-pub const SHADER_SPV: &[u8] = include_bytes!(env!("SHADER_SPV_PATH"));
+include!(concat!(env!("OUT_DIR"), "/shader_modules.rs"));
+
+/// The SPIR-V module of `shader-crate`'s entry point `symbol` (`compute::path_trace`).
+pub fn shader_module(symbol: &str) -> Option<&'static [u8]> {
+    SHADER_MODULES.iter().find(|m| m.0 == symbol).map(|m| m.1)
+}
 /// The SPIR-V module of the driver tracer's ray-tracing pipeline (`shader-crate` with its
 /// `driver` feature), loaded only on devices with ray-tracing pipelines.
 pub const DRIVER_SPV: &[u8] = include_bytes!(env!("DRIVER_SPV_PATH"));
@@ -34,6 +38,44 @@ include!(concat!(env!("OUT_DIR"), "/entry_points.rs"));
 
 #[cfg(test)]
 mod tests {
+    /// The module's instructions as (opcode, operand words).
+    fn instructions(bytes: &[u8]) -> Vec<(u32, Vec<u32>)> {
+        let words = ash::util::read_spv(&mut std::io::Cursor::new(bytes)).expect("SPIR-V");
+        let mut out = Vec::new();
+        let mut i = 5;
+        while i < words.len() {
+            let (count, op) = ((words[i] >> 16) as usize, words[i] & 0xffff);
+            assert!(count > 0 && i + count <= words.len(), "malformed at word {i}");
+            out.push((op, words[i + 1..i + count].to_vec()));
+            i += count;
+        }
+        out
+    }
+
+    #[test]
+    fn every_kernel_has_a_module_of_its_own_entry_point_without_source_or_lines() {
+        for k in super::Kernel::ALL {
+            let symbol = k.symbol();
+            let module = super::shader_module(&symbol).unwrap_or_else(|| panic!("no module for {symbol}"));
+            let inst = instructions(module);
+            // OpEntryPoint: execution model, function, then the name as a string.
+            let entries: Vec<String> = inst
+                .iter()
+                .filter(|(op, _)| *op == 15)
+                .map(|(_, w)| {
+                    let bytes: Vec<u8> = w[2..].iter().flat_map(|x| x.to_le_bytes()).collect();
+                    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+                    String::from_utf8_lossy(&bytes[..end]).into_owned()
+                })
+                .collect();
+            assert_eq!(entries, vec![symbol.clone()], "entry points of {symbol}'s module");
+            // OpSourceContinued, OpSource, OpLine, OpNoLine: stripped by build.rs.
+            for (op, _) in &inst {
+                assert!(![2, 3, 8, 317].contains(op), "{symbol}'s module keeps opcode {op}");
+            }
+        }
+    }
+
     #[test]
     fn every_kernel_is_an_entry_point_of_the_module() {
         for k in super::Kernel::ALL {

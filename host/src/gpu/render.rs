@@ -379,6 +379,10 @@ impl GpuRenderer {
         &self.gpu
     }
 
+    pub fn kernels(&self) -> &Arc<Kernels> {
+        &self.kernels
+    }
+
     /// Samples per pixel accumulated since the last change.
     pub fn samples(&self) -> u32 {
         self.samples
@@ -665,7 +669,7 @@ impl GpuRenderer {
     /// and the display pass into one command buffer, runs it, and returns each stage's GPU
     /// seconds (build stages as labelled by the LBVH, then `trace` and `display`).
     pub fn render(&mut self, samples: u32, rebuild: bool) -> Result<Vec<(&'static str, f64)>> {
-        let mut cmds = std::mem::replace(&mut self.cmds, Commands::new(&self.gpu)?);
+        let mut cmds = std::mem::replace(&mut self.cmds, Commands::none(&self.gpu));
         let r = cmds
             .begin()
             .and_then(|()| self.record(&mut cmds, samples, rebuild))
@@ -697,9 +701,11 @@ impl GpuRenderer {
             Denoise::Accumulated => self.samples,
             _ => 0,
         };
-        let trace = self
-            .kernels
-            .specialised(Kernel::PathTrace, self.path_trace_constant())?;
+        // The path tracer's pipeline (the driver's tens of milliseconds the first time) is
+        // made while the build is recorded.
+        if self.driver.is_none() {
+            self.kernels.make_soon(Kernel::PathTrace, self.path_trace_constant());
+        }
         let b = self.bufs.as_ref().context("no scene loaded")?;
         let k = &self.kernels;
         let f = self.frame;
@@ -750,6 +756,12 @@ impl GpuRenderer {
             }
         }
         let driver_features = self.kernels.tracer_constant(self.path_trace_constant());
+        let trace = match self.driver {
+            Some(_) => ash::vk::Pipeline::null(),
+            None => self
+                .kernels
+                .specialised(Kernel::PathTrace, self.path_trace_constant())?,
+        };
         let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));
         let mut done = 0;
         while done < samples {
@@ -863,9 +875,26 @@ impl GpuRenderer {
 
     /// The accumulation image alone: every pixel's radiance sums and ray count.
     pub fn sums(&mut self) -> Result<Vec<[f32; 4]>> {
-        let pixels = (self.frame.width * self.frame.height) as usize;
+        let mut out = vec![[0.0; 4]; self.pixels()];
+        self.sums_into(&mut out)?;
+        Ok(out)
+    }
+
+    /// [`GpuRenderer::sums`] into `out`, which holds [`GpuRenderer::pixels`] values.
+    pub fn sums_into(&mut self, out: &mut [[f32; 4]]) -> Result<()> {
+        ensure!(
+            out.len() == self.pixels(),
+            "{} values for the sums of {} pixels",
+            out.len(),
+            self.pixels()
+        );
         let b = self.bufs.as_ref().context("no scene loaded")?;
-        self.cmds.read_back(&b.accum, pixels)
+        self.cmds.read_back_into(&b.accum, out)
+    }
+
+    /// Pixels of the frame.
+    pub fn pixels(&self) -> usize {
+        (self.frame.width * self.frame.height) as usize
     }
 
     /// The path tracer's guides of the last frame (while denoising).
