@@ -107,3 +107,64 @@ fn info_lists_every_device_and_the_cpu_executor_with_a_speed() {
     assert!(cpu.ends_with("Mrays/s"), "{cpu}");
     assert!(stdout.contains("`raytrace render` picks: "), "{stdout}");
 }
+
+/// The benches that take `--accel driver` open the device with the driver's ray tracing and
+/// trace through it; where the device has none, they fail naming what it lacks.
+#[test]
+fn benches_trace_through_the_driver_or_say_what_the_device_lacks() {
+    let Ok(devices) = raytrace::gpu::Gpu::list() else {
+        eprintln!("SKIPPED benches_trace_through_the_driver_or_say_what_the_device_lacks: no Vulkan");
+        return;
+    };
+    if devices.is_empty() {
+        eprintln!("SKIPPED benches_trace_through_the_driver_or_say_what_the_device_lacks: no Vulkan device");
+        return;
+    }
+    let dir = std::path::PathBuf::from(picture("bench-driver")).with_file_name("results");
+    let out = dir.display().to_string();
+    let benches: [&[&str]; 2] = [
+        &[
+            "bench", "trace", "--accel", "driver", "--scenes", "cornell", "--size", "16x16", "--spp", "1", "--runs",
+            "1",
+        ],
+        &[
+            "bench",
+            "devices",
+            "--accel",
+            "driver",
+            "--devices",
+            "0",
+            "--size",
+            "16x16",
+            "--spp",
+            "1",
+            "--runs",
+            "1",
+        ],
+    ];
+    for args in benches {
+        let mut args = args.to_vec();
+        args.extend(["--out", &out]);
+        let (o, _, stderr) = run(&args);
+        let ray_tracing = raytrace::gpu::Gpu::new(&raytrace::gpu::GpuOptions {
+            ray_tracing: true,
+            ..Default::default()
+        })
+        .map(|g| g.ray_tracing.is_ok());
+        if ray_tracing.unwrap_or(false) {
+            assert!(o.status.success(), "{args:?} failed:\n{stderr}");
+            let kind = format!("{}-driver-", args[1]);
+            let written = std::fs::read_dir(&dir)
+                .expect("results folder")
+                .flatten()
+                .any(|e| e.file_name().to_string_lossy().starts_with(&kind));
+            assert!(written, "{args:?} wrote no {kind}* file");
+        } else {
+            assert!(!o.status.success(), "{args:?} succeeded without ray tracing");
+            assert!(
+                stderr.contains("VK_KHR_ray_tracing_pipeline") && stderr.contains("--accel lbvh"),
+                "{args:?}:\n{stderr}"
+            );
+        }
+    }
+}

@@ -25,6 +25,13 @@ pub struct Options {
     /// Renders per number of devices: each row is the run of median wall time.
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
     pub runs: u32,
+    /// What traces the rays on every device: the project's BVH, or the driver's acceleration
+    /// structures (on devices with VK_KHR_ray_tracing_pipeline).
+    #[arg(long, value_enum, default_value_t = crate::render::Accel::Lbvh)]
+    pub accel: crate::render::Accel,
+    /// How the driver builds its bottom levels (with `--accel driver`).
+    #[arg(long, value_enum, default_value_t = crate::gpu::driver::DriverBuild::FastBuild)]
+    pub driver_build: crate::gpu::driver::DriverBuild,
 }
 
 /// The render on the first `devices` devices.
@@ -69,7 +76,9 @@ pub fn run(o: &Options, opts: &GpuOptions) -> Result<Report> {
     let size = format!("{}x{}", o.size.0, o.size.1);
     let spp = o.spp.to_string();
     let args = SceneArgs::try_parse_from(["raytrace", o.scene.as_str(), "--size", &size, "--spp", &spp])?;
-    let p: Prepared = args.prepare()?;
+    let mut p: Prepared = args.prepare()?;
+    p.accel = o.accel;
+    p.driver_build = o.driver_build;
     ensure!(
         devices.len() as u32 <= p.spp,
         "{} devices for {} samples per pixel",
@@ -123,8 +132,18 @@ pub fn markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# One render on several devices\n\n- date: {}\n- command: `{}`\n- {} at {}x{}, {} spp, {} runs per row: the samples split into equal consecutive shares, one a device, each device on a thread of its own with its own renderer; the sums added in device order\n- wall: the host's clock from the start of the render to its image (devices opened, scene uploaded, BVH built, traced, sums read back and added; every device rendered the first sample of the frame once before); the median run; the devices close after that (close, below), as `render` closes them while it writes the image; GPU: the slowest device's timestamps\n",
-        r.date, r.command, o.scene, o.size.0, o.size.1, o.spp, o.runs
+        "# One render on several devices\n\n- date: {}\n- command: `{}`\n- {} at {}x{}, {} spp, {} runs per row, traced by {}: the samples split into equal consecutive shares, one a device, each device on a thread of its own with its own renderer; the sums added in device order\n- wall: the host's clock from the start of the render to its image (devices opened, scene uploaded, BVH built, traced, sums read back and added; every device rendered the first sample of the frame once before); the median run; the devices close after that (close, below), as `render` closes them while it writes the image; GPU: the slowest device's timestamps\n",
+        r.date,
+        r.command,
+        o.scene,
+        o.size.0,
+        o.size.1,
+        o.spp,
+        o.runs,
+        match o.accel {
+            crate::render::Accel::Lbvh => "the project's BVH".to_string(),
+            crate::render::Accel::Driver => format!("the driver's acceleration structures ({:?})", o.driver_build),
+        }
     );
     let _ = writeln!(
         s,

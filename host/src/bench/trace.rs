@@ -1,14 +1,17 @@
 //! `raytrace bench trace`: rays per second through each BVH layout (`--bvh binary|wide`) for
 //! primary rays, diffuse bounces to depth 4 and shadow rays (any-hit segments from the
 //! primary hits to a light), with the tree's build time and surface-area cost beside them,
-//! and the real-time frame (1 spp, depth 4, BVH rebuilt) split into build and trace. Writes
+//! and the real-time frame (1 spp, depth 4, BVH rebuilt) split into build and trace; with
+//! `--accel driver` the same through the driver's acceleration structures instead. Writes
 //! Markdown, JSON and a stacked-bar plot of the frame per scene and layout.
 use crate::bench::accuracy::{sah_cost, sah_cost_wide};
 use crate::bench::plot::{stacked_bars, Bar};
 use crate::bench::{percentile, warm};
 use crate::bvh::{BuildOptions, Layout};
 use crate::cli::{Prepared, SceneArgs};
+use crate::gpu::driver::DriverBuild;
 use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
+use crate::render::Accel;
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use shared::glam::Vec3;
@@ -34,6 +37,30 @@ pub struct Options {
     /// Timed repetitions of each measurement (medians reported), after one discarded.
     #[arg(long, default_value_t = 5)]
     pub runs: usize,
+    /// What traces the rays: the project's BVH in both layouts, or the driver's acceleration
+    /// structures (on devices with VK_KHR_ray_tracing_pipeline).
+    #[arg(long, value_enum, default_value_t = Accel::Lbvh)]
+    pub accel: Accel,
+    /// How the driver builds its bottom levels (with `--accel driver`).
+    #[arg(long, value_enum, default_value_t = DriverBuild::FastBuild)]
+    pub driver_build: DriverBuild,
+}
+
+/// What traced a row: one of the project's BVH layouts, or the driver's structures.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub enum Tracer {
+    Ours(Layout),
+    Driver(DriverBuild),
+}
+
+impl Tracer {
+    /// The name a row shows: `Binary`, `Wide`, `Driver FastBuild`.
+    pub fn name(self) -> String {
+        match self {
+            Tracer::Ours(layout) => format!("{layout:?}"),
+            Tracer::Driver(build) => format!("Driver {build:?}"),
+        }
+    }
 }
 
 /// One scene through one layout.
@@ -41,10 +68,12 @@ pub struct Options {
 pub struct Row {
     pub scene: String,
     pub primitives: usize,
-    pub layout: Layout,
+    /// What traced it ([`Tracer::name`]).
+    pub layout: String,
     /// Transform and build of the frame, ms (median).
     pub build_ms: f64,
-    pub sah: f64,
+    /// Surface-area cost of the project's tree (`None` for the driver's structures).
+    pub sah: Option<f64>,
     /// Billions of rays per second while tracing (medians).
     pub primary_grays: f64,
     pub diffuse_grays: f64,
@@ -95,9 +124,13 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             "4",
         ];
         let p = <SceneArgs as clap::Parser>::try_parse_from(args)?.prepare()?;
-        for layout in [Layout::Binary, Layout::Wide] {
+        let tracers = match o.accel {
+            Accel::Lbvh => vec![Tracer::Ours(Layout::Binary), Tracer::Ours(Layout::Wide)],
+            Accel::Driver => vec![Tracer::Driver(o.driver_build)],
+        };
+        for tracer in tracers {
             let mut r = GpuRenderer::new(gpu, &kernels)?;
-            let row = measure(&mut r, &p, layout, o).with_context(|| format!("scene {scene}, {layout:?} BVH"))?;
+            let row = measure(&mut r, &p, tracer, o).with_context(|| format!("scene {scene}, {}", tracer.name()))?;
             eprintln!(
                 "{} {:?}: build {:.3} ms, primary {:.2}, diffuse {:.2}, shadow {:.2}, batch primary {:.2}, batch bounce {:.2} Grays/s",
                 row.scene,
@@ -123,12 +156,16 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
     })
 }
 
-fn measure(r: &mut GpuRenderer, p: &Prepared, layout: Layout, o: &Options) -> Result<Row> {
+fn measure(r: &mut GpuRenderer, p: &Prepared, tracer: Tracer, o: &Options) -> Result<Row> {
     let build = BuildOptions {
-        wide: layout == Layout::Wide,
+        wide: tracer == Tracer::Ours(Layout::Wide),
         ..BuildOptions::lbvh(p.bits)
     };
     r.set_build(build);
+    match tracer {
+        Tracer::Ours(_) => r.set_accel(Accel::Lbvh, o.driver_build)?,
+        Tracer::Driver(b) => r.set_accel(Accel::Driver, b)?,
+    }
     r.load(&p.data, &p.frame)?;
     let depth = |d: u32| Frame {
         max_depth: d,
@@ -163,11 +200,16 @@ fn measure(r: &mut GpuRenderer, p: &Prepared, layout: Layout, o: &Options) -> Re
     let (primary, build_ms, _) = grays(r, &depth(1), o.spp)?;
     let (diffuse, _, _) = grays(r, &depth(4), o.spp)?;
     let (_, frame_build_ms, frame_trace_ms) = grays(r, &depth(4), 1)?;
-    let bvh = r.bvh()?;
-    let sah = if build.wide {
-        sah_cost_wide(&bvh.wide)
-    } else {
-        sah_cost(&bvh.nodes)
+    let sah = match tracer {
+        Tracer::Driver(_) => None,
+        Tracer::Ours(_) => {
+            let bvh = r.bvh()?;
+            Some(if build.wide {
+                sah_cost_wide(&bvh.wide)
+            } else {
+                sah_cost(&bvh.nodes)
+            })
+        }
     };
     let queries = Queries::new(r, &depth(1), &p.data.lights)?;
     let shadow = rate(r, &queries.segments, true, o.runs)?;
@@ -176,7 +218,7 @@ fn measure(r: &mut GpuRenderer, p: &Prepared, layout: Layout, o: &Options) -> Re
     Ok(Row {
         scene: p.scene.name.clone(),
         primitives: p.data.prim_object.len(),
-        layout,
+        layout: tracer.name(),
         build_ms,
         sah,
         primary_grays: primary,
@@ -302,7 +344,8 @@ pub fn markdown(r: &Report) -> String {
         "Primary: depth 1; diffuse: bounces to depth 4 (no next-event estimation, no Russian \
          roulette); shadow: any-hit segments from every primary hit to the first light's \
          centre. Grays/s over the trace stage's GPU time. Build: transform and BVH build of a \
-         frame. SAH: surface-area cost of the tree traced. Frame: 1 spp, depth 4, BVH rebuilt. \
+         frame (the driver's: its structures' builds). SAH: surface-area cost of the tree traced \
+         (not known for the driver's). Frame: 1 spp, depth 4, BVH rebuilt. \
          Batch: closest-hit queries alone (`cast_rays`, no shading): every primary ray, and one \
          cosine-distributed bounce from every primary hit.\n"
     );
@@ -314,12 +357,12 @@ pub fn markdown(r: &Report) -> String {
     for row in &r.rows {
         let _ = writeln!(
             s,
-            "| {} | {} | {:?} | {:.3} | {:.1} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} ({:.3} + {:.3}) |",
+            "| {} | {} | {} | {:.3} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} ({:.3} + {:.3}) |",
             row.scene,
             row.primitives,
             row.layout,
             row.build_ms,
-            row.sah,
+            row.sah.map_or("-".to_string(), |c| format!("{c:.1}")),
             row.primary_grays,
             row.diffuse_grays,
             row.shadow_grays,
@@ -341,7 +384,7 @@ pub fn plot(r: &Report, dir: &Path, stem: &str) -> Result<PathBuf> {
         .rows
         .iter()
         .map(|row| Bar {
-            label: format!("{} {:?}", row.scene, row.layout).to_lowercase(),
+            label: format!("{} {}", row.scene, row.layout).to_lowercase(),
             parts: vec![row.frame_build_ms, row.frame_trace_ms],
         })
         .collect();
@@ -356,12 +399,12 @@ mod tests {
 
     #[test]
     fn the_frame_plot_draws_every_row() {
-        let row = |scene: &str, layout, build, trace| Row {
+        let row = |scene: &str, tracer: Tracer, build, trace| Row {
             scene: scene.into(),
             primitives: 1,
-            layout,
+            layout: tracer.name(),
             build_ms: build,
-            sah: 1.0,
+            sah: matches!(tracer, Tracer::Ours(_)).then_some(1.0),
             primary_grays: 1.0,
             diffuse_grays: 1.0,
             shadow_grays: 1.0,
@@ -378,8 +421,9 @@ mod tests {
             height: 1,
             spp: 1,
             rows: vec![
-                row("bunny", Layout::Binary, 0.1, 1.7),
-                row("bunny", Layout::Wide, 0.2, 1.6),
+                row("bunny", Tracer::Ours(Layout::Binary), 0.1, 1.7),
+                row("bunny", Tracer::Ours(Layout::Wide), 0.2, 1.6),
+                row("bunny", Tracer::Driver(DriverBuild::FastBuild), 0.3, 1.2),
             ],
         };
         let dir = std::env::temp_dir().join(format!("raytrace-trace-plot-{}", std::process::id()));
@@ -388,6 +432,7 @@ mod tests {
         let img = image::open(&path).unwrap().to_rgb8();
         assert_eq!(img.dimensions(), (1100, 600));
         let md = markdown(&r);
-        assert!(md.contains("| bunny | 1 | Wide |"), "{md}");
+        assert!(md.contains("| bunny | 1 | Wide | 0.200 | 1.0 |"), "{md}");
+        assert!(md.contains("| bunny | 1 | Driver FastBuild | 0.300 | - |"), "{md}");
     }
 }

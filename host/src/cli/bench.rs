@@ -188,8 +188,12 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
         Bench::Trace { options, out } => {
             let gpu = Gpu::new(opts)?;
             let r = bench::trace::run(&gpu, &options)?;
-            publish(&out, "trace", &r.date, &gpu, bench::trace::markdown(&r), &r)?;
-            let plot = bench::trace::plot(&r, &out, &format!("trace-{}-{}", r.date, slug(&gpu.name)))?;
+            let kind = match options.accel {
+                crate::render::Accel::Lbvh => "trace",
+                crate::render::Accel::Driver => "trace-driver",
+            };
+            publish(&out, kind, &r.date, &gpu, bench::trace::markdown(&r), &r)?;
+            let plot = bench::trace::plot(&r, &out, &format!("{kind}-{}-{}", r.date, slug(&gpu.name)))?;
             println!("wrote {}", plot.display());
         }
         Bench::Peer { options, out } => {
@@ -231,7 +235,11 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
             let r = bench::devices::run(&options, opts)?;
             let first = r.rows.first().and_then(|row| row.times.names.first());
             let name = first.map_or("no-device".to_string(), |d| d.clone());
-            let stem = format!("devices-{}-{}", r.date, slug(&name));
+            let kind = match options.accel {
+                crate::render::Accel::Lbvh => "devices",
+                crate::render::Accel::Driver => "devices-driver",
+            };
+            let stem = format!("{kind}-{}-{}", r.date, slug(&name));
             let markdown = bench::devices::markdown(&r);
             let md = bench::write_files(&out, &stem, &markdown, &r)?;
             println!("{markdown}");

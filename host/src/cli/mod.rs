@@ -129,6 +129,12 @@ pub fn run() -> Result<()> {
         Some(Command::Bench {
             what: bench::Bench::Realtime { options, .. },
         }) => options.accel,
+        Some(Command::Bench {
+            what: bench::Bench::Trace { options, .. },
+        }) => options.accel,
+        Some(Command::Bench {
+            what: bench::Bench::Devices { options, .. },
+        }) => options.accel,
         _ => Accel::Lbvh,
     };
     let opts = GpuOptions {
