@@ -243,12 +243,35 @@ fn devices_split_the_samples_and_add_up_to_the_single_run() {
         assert!(wall > 0.0, "{r}");
         // The breakdown: every part measured, and together within the wall clock.
         let t = &r["times"];
-        let parts: Vec<f64> = ["open_s", "trace_s", "read_s", "merge_s"]
+        let parts: Vec<f64> = ["open_s", "load_s", "trace_s", "read_s", "merge_s"]
             .iter()
             .map(|k| t[k].as_f64().unwrap_or_else(|| panic!("no times.{k} in {r}")))
             .collect();
         assert!(parts.iter().all(|&p| p > 0.0), "{r}");
         assert!(parts.iter().sum::<f64>() <= wall * 1.001, "{r}");
+        // Within them: the first submission within the trace, the instance and the device
+        // within the opening; the devices closed after the image.
+        let time = |k: &str| t[k].as_f64().unwrap_or_else(|| panic!("no times.{k} in {r}"));
+        assert!(time("first_s") > 0.0 && time("first_s") <= time("trace_s"), "{r}");
+        assert!(
+            time("device_s") <= time("open_s") && time("instance_s") <= time("device_s"),
+            "{r}"
+        );
+        assert!(time("close_s") > 0.0, "{r}");
+        assert!(t["submissions"].as_u64().is_some_and(|n| n >= 1), "{r}");
+        let made = t["pipelines"].as_array().expect("pipelines");
+        assert!(made.iter().any(|p| p[0] == "path_trace"), "{r}");
+        // Every run's wall clock, the row's the median.
+        let runs: Vec<f64> = r["runs_s"]
+            .as_array()
+            .expect("runs")
+            .iter()
+            .filter_map(|x| x.as_f64())
+            .collect();
+        assert_eq!(runs.len(), 3, "{r}");
+        let mut sorted = runs.clone();
+        sorted.sort_by(f64::total_cmp);
+        assert_eq!(sorted[1], wall, "{r}");
         assert_eq!(
             t["names"].as_array().map(|a| a.len()),
             r["devices"].as_u64().map(|d| d as usize),

@@ -234,10 +234,17 @@ pub fn section(dir: &Path) -> Result<String> {
         s.push('\n');
     }
     if let Some((path, v)) = newest(dir, "trace")? {
-        let _ = writeln!(s, "Trace throughput, 1920x1080, Grays/s (source: {}):\n", source(&path));
+        // The driver's structures' rows beside ours, where a run measured them.
+        let driver = newest(dir, "trace-driver")?;
+        let sources = match &driver {
+            Some((d, _)) => format!("{}, {}", source(&path), source(d)),
+            None => source(&path),
+        };
+        let _ = writeln!(s, "Trace throughput, 1920x1080, Grays/s (source: {sources}):\n");
         let _ = writeln!(s, "| scene | BVH | primary | diffuse, depth 4 | shadow |");
         let _ = writeln!(s, "|---|---|---|---|---|");
-        for r in rows(&v) {
+        let driver_rows = driver.as_ref().map_or(&[][..], |(_, d)| rows(d));
+        for r in rows(&v).iter().chain(driver_rows) {
             let _ = writeln!(
                 s,
                 "| {} | {} | {:.2} | {:.2} | {:.2} |",

@@ -1008,7 +1008,10 @@ impl GpuRenderer {
         };
         let sets = [self.trace_set()?, b.set()?];
         let (x, y) = grid((count as u32).div_ceil(WORKGROUP));
-        let cast = self.kernels.specialised(Kernel::CastRays, self.tracer_constant())?;
+        let cast = match self.driver {
+            Some(_) => ash::vk::Pipeline::null(),
+            None => self.kernels.specialised(Kernel::CastRays, self.tracer_constant())?,
+        };
         let driver_features = self.kernels.tracer_constant(self.tracer_constant());
         if let Some(d) = &self.driver {
             // Through the structures the last frame built.
