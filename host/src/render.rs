@@ -30,6 +30,59 @@ pub enum Accel {
     Driver,
 }
 
+/// What `--accel` asks for on `render`, `view` and `compare`: a tracer, or the faster one for
+/// the scene and device ([`AccelChoice::resolve`]).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+pub enum AccelChoice {
+    /// The driver's acceleration structures for a scene laid out in two levels on a device
+    /// with ray-tracing pipelines, the project's BVH otherwise.
+    #[default]
+    Auto,
+    Lbvh,
+    Driver,
+}
+
+impl From<Accel> for AccelChoice {
+    fn from(a: Accel) -> AccelChoice {
+        match a {
+            Accel::Lbvh => AccelChoice::Lbvh,
+            Accel::Driver => AccelChoice::Driver,
+        }
+    }
+}
+
+impl AccelChoice {
+    /// The tracer, and why: as asked, or for `auto` the driver's structures where the scene
+    /// is laid out in two levels (`two_levels`) and the device has ray-tracing pipelines
+    /// (`ray_tracing`), unless the frame asks for something of the project's BVH alone
+    /// (`project_only`: brute force, the wide BVH). Measured on the H100 (`bench peer`,
+    /// bench/NOTES.md sessions 26-27): the driver's hardware traversal takes a two-level
+    /// scene's frame 1.5x (without next-event estimation) to 3-4x (with it) faster than our
+    /// walk of two levels, while our build and walk win every flattened scene's frame.
+    pub fn resolve(self, ray_tracing: bool, two_levels: bool, project_only: bool) -> (Accel, &'static str) {
+        match self {
+            AccelChoice::Lbvh => (Accel::Lbvh, "--accel lbvh"),
+            AccelChoice::Driver => (Accel::Driver, "--accel driver"),
+            AccelChoice::Auto if project_only => (
+                Accel::Lbvh,
+                "--accel auto: the frame asks for the project's BVH (--no-bvh or --bvh wide)",
+            ),
+            AccelChoice::Auto if !two_levels => (
+                Accel::Lbvh,
+                "--accel auto: a flattened scene, which the project's BVH builds and traces faster",
+            ),
+            AccelChoice::Auto if !ray_tracing => (
+                Accel::Lbvh,
+                "--accel auto: a scene in two levels, on a device without ray-tracing pipelines",
+            ),
+            AccelChoice::Auto => (
+                Accel::Driver,
+                "--accel auto: a scene in two levels, on a device with ray-tracing pipelines, which traverse instances faster",
+            ),
+        }
+    }
+}
+
 /// Stage times (seconds) summed by stage: labels like `sort.scatter` count under `sort`.
 pub fn stage_totals(timings: &[(&'static str, f64)]) -> Vec<(&'static str, f64)> {
     let mut out: Vec<(&'static str, f64)> = Vec::new();
@@ -65,5 +118,36 @@ pub fn tracer_features(features: u32, build: BuildOptions) -> u32 {
         features | VARIANT_WIDE_BVH
     } else {
         features & !VARIANT_WIDE_BVH
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_takes_the_drivers_structures_for_two_levels_on_a_device_with_them() {
+        // (ray tracing, two levels, the project's BVH asked for) -> the tracer auto takes.
+        let cases = [
+            ((true, true, false), Accel::Driver),
+            ((true, false, false), Accel::Lbvh),
+            ((false, true, false), Accel::Lbvh),
+            ((false, false, false), Accel::Lbvh),
+            ((true, true, true), Accel::Lbvh),
+        ];
+        for ((rt, two, project), want) in cases {
+            let (got, why) = AccelChoice::Auto.resolve(rt, two, project);
+            assert_eq!(
+                got, want,
+                "ray tracing {rt}, two levels {two}, project only {project}: {why}"
+            );
+            assert!(why.starts_with("--accel auto: "), "{why}");
+        }
+        // Asked for by name, a tracer is taken whatever the scene and device (the driver's
+        // then fails by name where the device lacks it).
+        for (rt, two, project) in [(false, false, true), (true, true, false)] {
+            assert_eq!(AccelChoice::Lbvh.resolve(rt, two, project).0, Accel::Lbvh);
+            assert_eq!(AccelChoice::Driver.resolve(rt, two, project).0, Accel::Driver);
+        }
     }
 }

@@ -168,3 +168,52 @@ fn benches_trace_through_the_driver_or_say_what_the_device_lacks() {
         }
     }
 }
+
+/// `--accel auto` (the default) traces a scene in two levels through the driver's
+/// structures where the device has ray-tracing pipelines, and through the project's BVH
+/// elsewhere; `--explain` says how it decides and the summary which it took.
+#[test]
+fn accel_auto_takes_the_drivers_structures_only_for_two_levels_on_a_device_with_them() {
+    let Ok(devices) = raytrace::gpu::Gpu::list() else {
+        eprintln!("SKIPPED accel_auto_...: no Vulkan");
+        return;
+    };
+    if devices.is_empty() {
+        eprintln!("SKIPPED accel_auto_...: no Vulkan device");
+        return;
+    }
+    let ray_tracing = raytrace::gpu::Gpu::new(&raytrace::gpu::GpuOptions {
+        ray_tracing: true,
+        ..Default::default()
+    })
+    .is_ok_and(|g| g.ray_tracing.is_ok());
+    let out = picture("accel-auto");
+    for (instancing, two_levels) in [("on", true), ("off", false)] {
+        let (o, stdout, stderr) = run(&[
+            "render",
+            "instances",
+            "--instancing",
+            instancing,
+            "--backend",
+            "gpu",
+            "--size",
+            "16x16",
+            "--spp",
+            "1",
+            "--explain",
+            "--out",
+            &out,
+        ]);
+        assert!(o.status.success(), "--instancing {instancing}:\n{stderr}");
+        assert!(stdout.contains("--accel auto"), "--instancing {instancing}:\n{stdout}");
+        let summary = stdout
+            .lines()
+            .find(|l| l.starts_with("instances 16x16"))
+            .unwrap_or_else(|| panic!("no summary in:\n{stdout}"));
+        assert_eq!(
+            summary.contains("driver's acceleration structures"),
+            two_levels && ray_tracing,
+            "--instancing {instancing}, ray tracing {ray_tracing}: {summary}"
+        );
+    }
+}

@@ -77,7 +77,7 @@ pub fn run(o: &Options, opts: &GpuOptions) -> Result<Report> {
     let spp = o.spp.to_string();
     let args = SceneArgs::try_parse_from(["raytrace", o.scene.as_str(), "--size", &size, "--spp", &spp])?;
     let mut p: Prepared = args.prepare()?;
-    p.accel = o.accel;
+    p.accel = o.accel.into();
     p.driver_build = o.driver_build;
     ensure!(
         devices.len() as u32 <= p.spp,

@@ -150,6 +150,8 @@ fn prepare(scene: &str, s: &Setting, tracer: Tracer) -> Result<Prepared> {
             DriverBuild::Update => "update",
         };
         args.extend(["--accel", "driver", "--driver-build", build]);
+    } else {
+        args.extend(["--accel", "lbvh"]);
     }
     <SceneArgs as clap::Parser>::parse_from(args).prepare()
 }
@@ -158,7 +160,7 @@ fn prepare(scene: &str, s: &Setting, tracer: Tracer) -> Result<Prepared> {
 fn time(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, p: &Prepared, runs: usize) -> Result<(f64, f64, f64, f64, u64)> {
     let mut r = GpuRenderer::new(gpu, kernels)?;
     r.set_build(p.build(p.spp));
-    r.set_accel(p.accel, p.driver_build)?;
+    r.set_accel(p.tracer(gpu).0, p.driver_build)?;
     r.load(&p.data, &p.frame)?;
     warm(|| {
         r.set_frame(&p.frame)?;

@@ -30,15 +30,17 @@ pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool
     let mut r = GpuRenderer::new(gpu, kernels)?;
     // One submission: every sample sees the BVH built in it.
     r.set_build(p.build(p.spp));
-    r.set_accel(p.accel, p.driver_build)?;
+    let (tracer, _) = p.tracer(gpu);
+    r.set_accel(tracer, p.driver_build)?;
     r.load(&p.data, &p.frame)?;
     let timings = r.render(p.spp, true)?;
     let g = Rendered {
         picture: r.picture()?,
         timings: render::stage_totals(&timings),
         device: gpu.describe(),
+        tracer,
     };
-    let gpu_bvh = match p.accel {
+    let gpu_bvh = match tracer {
         Accel::Lbvh => Some(r.bvh()?),
         Accel::Driver => None,
     };

@@ -18,7 +18,7 @@ pub use render::{
 pub use scene::{parse_size, Bits, Prepared, SceneArgs, Treelets};
 
 use crate::gpu::GpuOptions;
-use crate::render::{Accel, Backend};
+use crate::render::{AccelChoice, Backend};
 use crate::shard::Shard;
 use crate::view::ViewArgs;
 use anyhow::Result;
@@ -119,29 +119,29 @@ enum Command {
 pub fn run() -> Result<()> {
     let cli = Cli::parse();
     let kernel_stats = matches!(cli.cmd, Some(Command::Info { kernels: true }));
-    // The device opens with the driver's ray tracing only where a command traces with it.
+    // The device opens with the driver's ray tracing only where a command may trace with it.
     let accel = match &cli.cmd {
         Some(Command::Render { scene, .. } | Command::Compare { scene, .. }) => scene.accel,
         Some(Command::View(args)) => args.scene.accel,
         Some(Command::Bench {
             what: bench::Bench::Peer { .. },
-        }) => Accel::Driver,
+        }) => AccelChoice::Driver,
         Some(Command::Bench {
             what: bench::Bench::Realtime { options, .. },
-        }) => options.accel,
+        }) => options.accel.into(),
         Some(Command::Bench {
             what: bench::Bench::Trace { options, .. },
-        }) => options.accel,
+        }) => options.accel.into(),
         Some(Command::Bench {
             what: bench::Bench::Devices { options, .. },
-        }) => options.accel,
-        _ => Accel::Lbvh,
+        }) => options.accel.into(),
+        _ => AccelChoice::Lbvh,
     };
     let opts = GpuOptions {
         validation: cli.validation,
         device: cli.device.clone(),
         kernel_stats,
-        ray_tracing: accel == Accel::Driver,
+        ray_tracing: accel != AccelChoice::Lbvh,
         ..Default::default()
     };
     let Some(cmd) = cli.cmd else {

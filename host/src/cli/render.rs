@@ -4,7 +4,7 @@ use super::scene::{Prepared, SceneArgs};
 use crate::cpu::{render_cpu_samples, CpuDenoiser, CpuRender};
 use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Instance, Kernels};
 use crate::picture::Picture;
-use crate::render::{self, Accel, Backend};
+use crate::render::{self, Accel, AccelChoice, Backend};
 use crate::shard::{self, Shard};
 use anyhow::{anyhow, ensure, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -37,6 +37,8 @@ pub struct Rendered {
     /// Stage seconds (GPU timestamps, or CPU wall clock).
     pub timings: Vec<(&'static str, f64)>,
     pub device: String,
+    /// What traced the rays (`--accel`, as resolved for the device).
+    pub tracer: Accel,
 }
 
 /// Renders on the GPU in submissions of growing size, with a progress bar when it takes
@@ -52,6 +54,7 @@ fn render_gpu_samples(r: &mut GpuRenderer, p: &Prepared, first: u32, spp: u32, q
         picture: r.picture()?,
         timings: render::stage_totals(&timings),
         device: r.gpu().describe(),
+        tracer: r.accel(),
     })
 }
 
@@ -72,7 +75,7 @@ fn trace_gpu_samples(
 fn load_gpu_samples(r: &mut GpuRenderer, p: &Prepared, first: u32) -> Result<()> {
     r.set_first_sample(first);
     r.set_build(p.build(p.spp));
-    r.set_accel(p.accel, p.driver_build)?;
+    r.set_accel(p.tracer(r.gpu()).0, p.driver_build)?;
     r.load(&p.data, &p.frame)?;
     r.set_denoise(if p.frame.flags & FLAG_DENOISE != 0 {
         Denoise::Accumulated
@@ -158,6 +161,7 @@ fn render_on_cpu_samples(p: &Prepared, first: u32, spp: u32, quiet: bool) -> (Re
         picture,
         timings: render::stage_totals(&out.timings),
         device: format!("CPU executor ({} threads)", rayon::current_num_threads()),
+        tracer: Accel::Lbvh,
     };
     (rendered, out)
 }
@@ -244,6 +248,7 @@ struct DeviceShare {
     first_s: f64,
     submissions: u32,
     pipelines: Vec<(&'static str, f64)>,
+    tracer: Accel,
     trace_s: f64,
     read_s: f64,
 }
@@ -390,6 +395,7 @@ fn render_share(r: &mut GpuRenderer, p: &Prepared, first: u32, count: u32) -> Re
         first_s: traced.first_s,
         submissions: traced.submissions,
         pipelines: r.kernels().made_log().iter().map(|(k, s)| (k.entry(), *s)).collect(),
+        tracer: r.accel(),
         trace_s,
         read_s: t.elapsed().as_secs_f64(),
     })
@@ -502,6 +508,8 @@ fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer> + Send>(
         picture,
         timings,
         device: format!("{n} devices: {}", names.join(", ")),
+        // Every device resolves `--accel` alike where the devices are alike.
+        tracer: parts.first().map_or(Accel::Lbvh, |r| r.tracer),
     };
     Ok((rendered, times, renderers))
 }
@@ -655,7 +663,7 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         job.fps
     );
     let mut p = args.prepare()?;
-    let driver = p.accel == Accel::Driver;
+    let driver = p.accel == AccelChoice::Driver;
     ensure!(
         !(driver && job.backend == Backend::Cpu),
         "--accel driver traces with the GPU driver's acceleration structures: not with --backend cpu"
@@ -678,12 +686,17 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
             (false, true) => "the binary LBVH with treelets restructured: --bvh binary, --treelets",
             (false, false) => "the binary LBVH: --bvh binary (the default, faster on the H100)",
         };
+        let driver = format!(
+            "the driver's acceleration structures, the bottom level built every frame ({:?})",
+            p.driver_build
+        );
         match p.accel {
-            Accel::Lbvh => println!("BVH traced: {tree}"),
-            Accel::Driver => println!(
-                "rays traced by the driver's acceleration structures (--accel driver), the bottom level built every frame ({:?})",
-                p.driver_build
+            AccelChoice::Lbvh => println!("BVH traced: {tree}"),
+            AccelChoice::Driver => println!("rays traced by {driver} (--accel driver)"),
+            AccelChoice::Auto if p.data.instancing.is_some() => println!(
+                "tracer (--accel auto, a scene in two levels): {driver} where the device has ray-tracing pipelines, elsewhere {tree}; the summary line names the one taken"
             ),
+            AccelChoice::Auto => println!("BVH traced (--accel auto, a flattened scene): {tree}"),
         }
     }
     let name = &p.scene.name;
@@ -786,7 +799,7 @@ pub fn summary(p: &Prepared, r: &Rendered, wall: f64) -> String {
         p.frame.height,
         r.picture.samples,
         p.frame.max_depth,
-        match (p.accel, p.frame.flags & shared::types::FLAG_BVH) {
+        match (r.tracer, p.frame.flags & shared::types::FLAG_BVH) {
             (Accel::Driver, _) => ", driver's acceleration structures",
             (Accel::Lbvh, 0) => ", brute force",
             _ => "",

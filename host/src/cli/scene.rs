@@ -4,7 +4,7 @@
 use crate::bvh::{BuildOptions, Layout, MortonBits};
 use crate::features::{self, Features, Forced};
 use crate::gpu::driver::DriverBuild;
-use crate::render::{self, Accel};
+use crate::render::{self, Accel, AccelChoice};
 use crate::scene::{Environment, InstancingMode, Scene, SceneGpu};
 use anyhow::{bail, Result};
 use glam::Vec3;
@@ -74,9 +74,10 @@ pub struct SceneArgs {
     /// driver's acceleration structures, built by the driver every frame (an instanced
     /// scene's meshes once, its top level every frame) and traced by a ray-tracing pipeline
     /// running the same path loop and shading (driver: devices with
-    /// VK_KHR_ray_tracing_pipeline).
-    #[arg(long, value_enum, default_value = "lbvh")]
-    pub accel: Accel,
+    /// VK_KHR_ray_tracing_pipeline); auto: the driver's for a scene in two levels where the
+    /// device has them (faster there on the H100), the project's BVH otherwise.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub accel: AccelChoice,
     /// How the driver builds its bottom level every frame (with --accel driver).
     #[arg(long, value_enum, default_value = "fast-build")]
     pub driver_build: DriverBuild,
@@ -207,8 +208,9 @@ pub struct Prepared {
     pub bits: MortonBits,
     pub treelets: Treelets,
     pub layout: Layout,
-    /// What traces the rays on the GPU, and how the driver builds where it does.
-    pub accel: Accel,
+    /// What traces the rays on the GPU ([`Prepared::tracer`]), and how the driver builds
+    /// where it does.
+    pub accel: AccelChoice,
     pub driver_build: DriverBuild,
     /// The kernel features the frame runs with, and why.
     pub features: Features,
@@ -286,10 +288,10 @@ impl SceneArgs {
 
     /// Refuses options of the project's BVH with `--accel driver`.
     fn check_accel(&self) -> Result<()> {
-        if self.accel == Accel::Driver && self.no_bvh {
+        if self.accel == AccelChoice::Driver && self.no_bvh {
             bail!("--no-bvh traces by brute force: not with --accel driver");
         }
-        if self.accel == Accel::Driver && self.bvh == Layout::Wide {
+        if self.accel == AccelChoice::Driver && self.bvh == Layout::Wide {
             bail!("--bvh wide picks the project's BVH layout: not with --accel driver");
         }
         Ok(())
@@ -334,6 +336,13 @@ impl Prepared {
             ),
             wide: self.layout == Layout::Wide,
         }
+    }
+
+    /// What traces this frame's rays on `gpu`, and why ([`AccelChoice::resolve`]).
+    pub fn tracer(&self, gpu: &crate::gpu::Gpu) -> (Accel, &'static str) {
+        let project_only = self.frame.flags & shared::types::FLAG_BVH == 0 || self.layout == Layout::Wide;
+        self.accel
+            .resolve(gpu.ray_tracing.is_ok(), self.data.instancing.is_some(), project_only)
     }
 }
 

@@ -98,7 +98,9 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
     let kernels = Arc::new(Kernels::new(&gpu)?);
     let mut renderer = GpuRenderer::new(&gpu, &kernels)?;
     renderer.set_build(prepared.build(1));
-    renderer.set_accel(prepared.accel, prepared.driver_build)?;
+    // `--accel auto` decides for the scene as it opens (the T key switches later).
+    let (tracer, why) = prepared.tracer(&gpu);
+    renderer.set_accel(tracer, prepared.driver_build)?;
     let mut live = LiveScene::with_instancing(prepared.scene, args.scene.instancing);
     live.bvh = !args.scene.no_bvh;
     live.time = args.scene.time;
@@ -109,6 +111,7 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
             live.scene.name,
             prepared.features.explain()
         );
+        println!("rays traced by {tracer:?} ({why})");
     }
     App::new(args.clone(), script, gpu, renderer, live)?.run(event_loop)
 }
