@@ -27,14 +27,7 @@ pub struct Commands {
 impl Commands {
     pub fn new(gpu: &Arc<Gpu>) -> Result<Commands> {
         let d = &gpu.device;
-        let mut c = Commands {
-            gpu: gpu.clone(),
-            pool: vk::CommandPool::null(),
-            cb: vk::CommandBuffer::null(),
-            fence: vk::Fence::null(),
-            queries: vk::QueryPool::null(),
-            labels: Vec::new(),
-        };
+        let mut c = Commands::none(gpu);
         // SAFETY (all below): valid create infos on a live device; each object is owned by
         // `c` as soon as it exists.
         c.pool = unsafe {
