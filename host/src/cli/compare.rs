@@ -106,7 +106,7 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
             c.world_max_error, c.bvh_identical
         ),
         None => println!(
-            "world-space primitives: largest relative difference {:.2e}; the GPU traced the driver's acceleration structures (--accel driver), the CPU the project's BVH",
+            "world-space primitives: largest relative difference {:.2e}; the GPU traced the driver's acceleration structures (--accel), the CPU the project's BVH",
             c.world_max_error
         ),
     }
