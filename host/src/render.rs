@@ -38,7 +38,10 @@ pub enum AccelChoice {
     /// with ray-tracing pipelines, the project's BVH otherwise.
     #[default]
     Auto,
+    /// The project's own BVH, built every frame and walked by `shared`'s traversal.
     Lbvh,
+    /// The Vulkan driver's acceleration structures (devices with VK_KHR_ray_tracing_pipeline;
+    /// elsewhere an error names what the device lacks).
     Driver,
 }
 
