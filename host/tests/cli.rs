@@ -217,3 +217,89 @@ fn accel_auto_takes_the_drivers_structures_only_for_two_levels_on_a_device_with_
         );
     }
 }
+
+/// `bench accuracy --devices` names a device that is not there before rendering anything.
+#[test]
+fn a_benchmarks_reference_devices_are_checked() {
+    if raytrace::gpu::Gpu::list().map_or(true, |d| d.is_empty()) {
+        eprintln!("SKIPPED a_benchmarks_reference_devices_are_checked: no Vulkan device");
+        return;
+    }
+    let dir = std::path::PathBuf::from(picture("bench-reference-devices")).with_file_name("cache");
+    let cache = dir.display().to_string();
+    let (o, _, stderr) = run(&[
+        "bench",
+        "accuracy",
+        "--size",
+        "8x8",
+        "--max-spp",
+        "1",
+        "--reference-spp",
+        "4",
+        "--devices",
+        "0,99",
+        "--cache",
+        &cache,
+    ]);
+    assert!(!o.status.success(), "a missing device was taken");
+    assert!(stderr.contains("--devices") && stderr.contains("device 99"), "{stderr}");
+    assert!(!dir.exists(), "a reference was written: {}", dir.display());
+}
+
+/// `bench denoise` end to end on a tiny path, its references split across two devices (the
+/// first opened twice): a report with every method's row and a reference per frame (three
+/// frames and the still view's) in the cache.
+#[test]
+fn the_denoise_bench_reports_every_method_with_references_split_across_devices() {
+    if raytrace::gpu::Gpu::list().map_or(true, |d| d.is_empty()) {
+        eprintln!(
+            "SKIPPED the_denoise_bench_reports_every_method_with_references_split_across_devices: no Vulkan device"
+        );
+        return;
+    }
+    let out = std::path::PathBuf::from(picture("bench-denoise")).with_file_name("denoise");
+    let cache = out.join("cache");
+    let (o, stdout, stderr) = run(&[
+        "bench",
+        "denoise",
+        "--scenes",
+        "cornell",
+        "--size",
+        "32x24",
+        "--frames",
+        "3",
+        "--max-spp",
+        "8",
+        "--reference-spp",
+        "32",
+        "--still-frames",
+        "4",
+        "--crossover-spp",
+        "16",
+        "--timing-size",
+        "64x48",
+        "--timing-frames",
+        "3",
+        "--timing-runs",
+        "1",
+        "--devices",
+        "0,0",
+        "--cache",
+        &cache.display().to_string(),
+        "--out",
+        &out.display().to_string(),
+    ]);
+    assert!(o.status.success(), "bench denoise failed:\n{stderr}");
+    for row in [
+        "| raw 1 spp |",
+        "| denoised 1 spp |",
+        "| raw 8 spp |",
+        "Crossover on the still view",
+    ] {
+        assert!(stdout.contains(row), "no {row:?} in:\n{stdout}");
+    }
+    assert_eq!(stderr.matches("rendered in").count(), 4, "{stderr}");
+    assert!(stderr.contains("on 2 devices"), "{stderr}");
+    let references = std::fs::read_dir(&cache).expect("cache").count();
+    assert_eq!(references, 4, "references cached");
+}

@@ -2,7 +2,10 @@
 //! robust intersection tests never leak where Moller-Trumbore does, and the report's plots
 //! are real PNGs.
 use integration_tests::gpu;
-use raytrace::bench::accuracy::{markdown, plots, run, Options};
+use raytrace::bench::accuracy::{cached_reference, markdown, plots, run, Options, References};
+use raytrace::cli::SceneArgs;
+use raytrace::gpu::Kernels;
+use std::sync::Arc;
 
 #[test]
 fn accuracy_bench_measures_error_time_and_leaks() {
@@ -20,6 +23,7 @@ fn accuracy_bench_measures_error_time_and_leaks() {
         speed_size: (16, 16),
         runs: 1,
         cache: dir.join("cache"),
+        devices: None,
     };
     let r = run(&gpu, &o).expect("bench accuracy");
     // Plain, NEE, NEE + MIS, without roulette, and NEE + MIS denoised.
@@ -59,5 +63,61 @@ fn accuracy_bench_measures_error_time_and_leaks() {
         assert_eq!((img.width(), img.height()), (900, 600));
     }
     assert!(markdown(&r, &names).contains("| NEE + MIS |"));
+    integration_tests::assert_no_validation_errors(&gpu);
+}
+
+/// `--devices` on the benchmarks' references: a reference split across two devices (here the
+/// first device opened twice, as CI has one) is one device's image within float rounding,
+/// kept under the same cache name, and read back from the cache the next time.
+#[test]
+fn a_reference_split_across_devices_is_one_devices_image() {
+    let Some(gpu) = gpu("a_reference_split_across_devices_is_one_devices_image") else {
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("raytrace-references-{}", std::process::id()));
+    let p = <SceneArgs as clap::Parser>::try_parse_from(["raytrace", "cornell", "--size", "24x16"])
+        .expect("arguments")
+        .prepare()
+        .expect("scene");
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    // The objects moved, as the denoise benchmark's frames move them.
+    let mut objects = p.data.objects.clone();
+    objects[0].rows[1][3] += 0.25;
+    let reference = |refs: &mut References, cache: &str| {
+        let (data, f, name) = (&p.data, &p.frame, &p.scene.name);
+        cached_reference(refs, data, &objects, f, name, 64, &dir.join(cache)).expect("reference")
+    };
+    let one = reference(&mut References::new(&gpu, &kernels, None).expect("renderer"), "one");
+    let mut two = References::new(&gpu, &kernels, Some("0,0")).expect("two devices");
+    let split = reference(&mut two, "two");
+    assert!(split.made.contains("2 devices"), "{}", split.made);
+    assert_eq!(one.path.file_name(), split.path.file_name());
+    let peak = one.pixels.iter().flatten().fold(0f32, |m, &v| m.max(v));
+    let diff = one
+        .pixels
+        .iter()
+        .flatten()
+        .zip(split.pixels.iter().flatten())
+        .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+    assert!(
+        peak > 0.0 && diff <= 1e-5 * peak,
+        "split reference differs by {diff} (peak {peak})"
+    );
+    // Moving the objects made another image than the scene's own placement would.
+    let unmoved = cached_reference(
+        &mut two,
+        &p.data,
+        &p.data.objects,
+        &p.frame,
+        "cornell",
+        64,
+        &dir.join("two"),
+    )
+    .expect("unmoved reference");
+    assert_ne!(unmoved.path, split.path);
+    assert_ne!(unmoved.pixels, split.pixels);
+    assert_eq!(reference(&mut two, "two").made, "cached");
+    drop(two);
+    let _ = std::fs::remove_dir_all(&dir);
     integration_tests::assert_no_validation_errors(&gpu);
 }

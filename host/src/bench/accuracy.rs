@@ -14,8 +14,8 @@
 use crate::bench::percentile;
 use crate::bench::plot::{line_chart, Chart, Scale, Series};
 use crate::bvh::{BuildOptions, MortonBits};
-use crate::cli::{Prepared, SceneArgs};
-use crate::gpu::{denoise_ms, stage_ms, Denoise, Gpu, GpuRenderer, Kernels};
+use crate::cli::{open_devices_on, parse_devices, OpenDevices, Prepared, SceneArgs, Work};
+use crate::gpu::{denoise_ms, stage_ms, Denoise, Gpu, GpuOptions, GpuRenderer, Kernels};
 use crate::inputs::hard_cases::{closed_meshes, rays_at_vertices_and_edges, scene_of, OFFSETS};
 use crate::picture::Picture;
 use crate::scene::SceneGpu;
@@ -29,6 +29,7 @@ use shared::wide::WideNode;
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::time::Instant;
 
 /// Settings of `raytrace bench accuracy`.
 #[derive(Clone, Debug, clap::Args, serde::Serialize)]
@@ -59,6 +60,11 @@ pub struct Options {
     /// Folder of cached reference images.
     #[arg(long, default_value = "bench/cache")]
     pub cache: PathBuf,
+    /// Render the reference on these devices, each a share of its samples as `render
+    /// --devices` splits them: `all`, or indices or names separated by commas (`0,1`). The
+    /// measured renders stay on the one device the benchmark runs on.
+    #[arg(long)]
+    pub devices: Option<String>,
 }
 
 /// Relative MSE's guard against dark pixels: `(x - ref)^2 / (ref^2 + EPS)` (pbrt's choice).
@@ -114,6 +120,8 @@ pub struct Report {
     pub options: Options,
     pub max_depth: u32,
     pub reference: String,
+    /// How the reference was made: read from the cache, or rendered where and in how long.
+    pub reference_made: String,
     pub convergence: Vec<Curve>,
     pub depth: Curve,
     pub bvh: Vec<BvhRow>,
@@ -205,23 +213,55 @@ fn build_ms(t: &[(&'static str, f64)]) -> f64 {
 
 /// The reference image: `spp` samples with NEE and MIS (unbiased, as every configuration
 /// measured) and an independent seed, from `cache` when rendered before with the same frame.
-fn reference(r: &mut GpuRenderer, p: &Prepared, spp: u32, cache: &Path) -> Result<(Vec<[f32; 3]>, PathBuf)> {
-    cached_reference(r, &p.data, &p.data.objects, &p.frame, &p.scene.name, spp, cache)
+fn reference(refs: &mut References, p: &Prepared, spp: u32, cache: &Path) -> Result<Reference> {
+    cached_reference(refs, &p.data, &p.data.objects, &p.frame, &p.scene.name, spp, cache)
+}
+
+/// What renders converged references: a renderer of the benchmark's device, or the devices
+/// of `--devices`, each a share of the samples (`render --devices`'s split and sum).
+pub enum References {
+    One(Box<GpuRenderer>),
+    Devices(OpenDevices),
+}
+
+impl References {
+    /// A renderer on `gpu`, or where `devices` names some (as `--devices` takes them), those
+    /// devices opened beside it.
+    pub fn new(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, devices: Option<&str>) -> Result<References> {
+        Ok(match devices {
+            None => References::One(Box::new(GpuRenderer::new(gpu, kernels)?)),
+            Some(list) => {
+                let list = parse_devices(list)?;
+                let open = open_devices_on(gpu.shared_instance(), &list, &GpuOptions::default())
+                    .context("opening the reference's devices (--devices)")?;
+                References::Devices(open)
+            }
+        })
+    }
+}
+
+/// A reference image, its file, and how it was made.
+pub struct Reference {
+    pub pixels: Vec<[f32; 3]>,
+    pub path: PathBuf,
+    /// "cached", or where it was rendered and in how long.
+    pub made: String,
 }
 
 /// The reference image of `frame` over `data` with its objects placed by `objects`: `spp`
-/// samples with NEE and MIS and an independent seed, rendered by `r` (which it loads) or read
-/// from `cache`, where it is kept as EXR named by the scene `name`, the size, `spp` and a hash
-/// of the frame and scene data.
-pub(crate) fn cached_reference(
-    r: &mut GpuRenderer,
+/// samples with NEE and MIS and an independent seed, rendered by `refs` or read from `cache`,
+/// where it is kept as EXR named by the scene `name`, the size, `spp` and a hash of the frame
+/// and scene data (the same file whether one device rendered it or several: their images
+/// differ only by float rounding).
+pub fn cached_reference(
+    refs: &mut References,
     data: &SceneGpu,
     objects: &[Object],
     frame: &Frame,
     name: &str,
     spp: u32,
     cache: &Path,
-) -> Result<(Vec<[f32; 3]>, PathBuf)> {
+) -> Result<Reference> {
     let mut f = with_flags(frame, FLAG_NEE | FLAG_MIS | FLAG_RUSSIAN_ROULETTE | FLAG_BVH, 0);
     f.seed ^= 0x9e37_79b9;
     let key = fnv1a(bytemuck::bytes_of(&f))
@@ -240,24 +280,48 @@ pub(crate) fn cached_reference(
             .to_rgb32f();
         if img.dimensions() == (f.width, f.height) {
             eprintln!("reference: {}", path.display());
-            return Ok((img.pixels().map(|p| p.0).collect(), path));
+            return Ok(Reference {
+                pixels: img.pixels().map(|p| p.0).collect(),
+                path,
+                made: "cached".into(),
+            });
         }
     }
     eprintln!("rendering the reference ({spp} spp) to {}", path.display());
-    r.load(data, &f)?;
-    if objects != data.objects.as_slice() {
-        r.set_objects(objects)?;
-    }
-    let mut done = 0;
-    while done < spp {
-        let n = (spp - done).min(256);
-        r.render(n, false)?;
-        done += n;
-    }
-    let pic = r.picture()?;
+    let load = |r: &mut GpuRenderer, first: u32| {
+        r.set_first_sample(first);
+        r.load(data, &f)?;
+        if objects != data.objects.as_slice() {
+            r.set_objects(objects)?;
+        }
+        Ok(())
+    };
+    let t = Instant::now();
+    let (pic, made) = match refs {
+        References::One(r) => {
+            load(r, 0)?;
+            let mut done = 0;
+            while done < spp {
+                let n = (spp - done).min(256);
+                r.render(n, false)?;
+                done += n;
+            }
+            (r.picture()?, r.gpu().describe())
+        }
+        References::Devices(devices) => {
+            let (rendered, _) = devices.render_work(&Work { frame: &f, load: &load }, 0, spp)?;
+            (rendered.picture, rendered.device)
+        }
+    };
+    let made = format!("rendered in {:.2} s on {made}", t.elapsed().as_secs_f64());
+    eprintln!("reference {made}");
     std::fs::create_dir_all(cache).with_context(|| format!("creating {}", cache.display()))?;
     pic.save(&path)?;
-    Ok((pic.linear(), path))
+    Ok(Reference {
+        pixels: pic.linear(),
+        path,
+        made,
+    })
 }
 
 fn fnv1a(bytes: &[u8]) -> u64 {
@@ -454,8 +518,11 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
     }
     let p = prepare(&o.scene, o.size)?;
     let kernels = Arc::new(Kernels::new(gpu)?);
+    let mut refs = References::new(gpu, &kernels, o.devices.as_deref())?;
+    let made = reference(&mut refs, &p, o.reference_spp, &o.cache)?;
+    drop(refs);
+    let reference = made.pixels;
     let mut r = GpuRenderer::new(gpu, &kernels)?;
-    let (reference, ref_path) = reference(&mut r, &p, o.reference_spp, &o.cache)?;
     let base = with_flags(&p.frame, FLAG_BVH | FLAG_RUSSIAN_ROULETTE, 0);
     let mut curves = Vec::new();
     for (name, on, off) in [
@@ -513,7 +580,8 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
         command: std::env::args().collect::<Vec<_>>().join(" "),
         options: o.clone(),
         max_depth: p.frame.max_depth,
-        reference: ref_path.display().to_string(),
+        reference: made.path.display().to_string(),
+        reference_made: made.made,
         convergence: curves,
         depth,
         bvh,
@@ -588,9 +656,18 @@ pub fn markdown(r: &Report, plots: &[String]) -> String {
         s,
         "# What accuracy costs in time: {}\n\n- date: {}\n- device: {}\n- command: `{}`\n\
          - {}x{}, maximum depth {}, BVH rebuilt on the GPU; times are GPU timestamps of the \
-         path-tracing dispatches\n- reference: {} spp with NEE + MIS and an independent seed (`{}`)\n\
+         path-tracing dispatches\n- reference: {} spp with NEE + MIS and an independent seed (`{}`, {})\n\
          - error: relative MSE, the mean over pixels and channels of (x - ref)^2 / (ref^2 + {REL_MSE_EPS})\n",
-        o.scene, r.date, r.device, r.command, o.size.0, o.size.1, r.max_depth, o.reference_spp, r.reference
+        o.scene,
+        r.date,
+        r.device,
+        r.command,
+        o.size.0,
+        o.size.1,
+        r.max_depth,
+        o.reference_spp,
+        r.reference,
+        r.reference_made
     );
     let _ = writeln!(s, "## Convergence\n");
     for p in plots {

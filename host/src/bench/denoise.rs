@@ -20,7 +20,7 @@
 //! 4. Crossover: on that still view, the accumulated samples per pixel from which the raw
 //!    accumulation's error falls below the denoised image's: what the viewer's switch from
 //!    the denoised image to the accumulation (`DENOISE_UNTIL`) should be.
-use crate::bench::accuracy::{cached_reference, rel_mse, REL_MSE_EPS};
+use crate::bench::accuracy::{cached_reference, rel_mse, References, REL_MSE_EPS};
 use crate::bench::plot::{line_chart, Chart, Scale, Series};
 use crate::bench::{percentile, warm};
 use crate::cli::Prepared;
@@ -80,6 +80,11 @@ pub struct Options {
     /// Folder of cached reference images.
     #[arg(long, default_value = "bench/cache")]
     pub cache: PathBuf,
+    /// Render the references on these devices, each a share of every reference's samples as
+    /// `render --devices` splits them: `all`, or indices or names separated by commas (`0,1`).
+    /// The measured frames stay on the one device the benchmark runs on.
+    #[arg(long)]
+    pub devices: Option<String>,
 }
 
 /// One way of making a frame, measured along the path.
@@ -416,13 +421,13 @@ impl Measured {
 fn errors(
     gpu: &Arc<Gpu>,
     kernels: &Arc<Kernels>,
+    references: &mut References,
     p: &Prepared,
     steps: &[Step],
     spps: &[u32],
     o: &Options,
 ) -> Result<Vec<Measured>> {
     let first = steps.first().context("the path has no frame")?;
-    let mut references = GpuRenderer::new(gpu, kernels)?;
     let mut raw = renderer(gpu, kernels, p, first, Denoise::Off)?;
     let mut den = renderer(gpu, kernels, p, first, Denoise::EveryFrame)?;
     let mut den_seeded = renderer(gpu, kernels, p, first, Denoise::EveryFrame)?;
@@ -437,8 +442,8 @@ fn errors(
             .map(|&n| Measured::new(&format!("raw {n} spp"), n, false)),
     );
     for (k, step) in steps.iter().enumerate() {
-        let (reference, _) = cached_reference(
-            &mut references,
+        let reference = cached_reference(
+            references,
             &p.data,
             &step.objects,
             &step.frame,
@@ -446,7 +451,8 @@ fn errors(
             o.reference_spp,
             &o.cache,
         )
-        .with_context(|| format!("the reference of frame {k}"))?;
+        .with_context(|| format!("the reference of frame {k}"))?
+        .pixels;
         for (i, &n) in spps.iter().enumerate() {
             raw.set_build(p.build(n));
             let t = show(&mut raw, &step.frame, &step.objects, n)?;
@@ -637,14 +643,20 @@ fn still(
     Ok((stability, crossover))
 }
 
-fn scene_report(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, scene: &str, o: &Options) -> Result<SceneReport> {
+fn scene_report(
+    gpu: &Arc<Gpu>,
+    kernels: &Arc<Kernels>,
+    references: &mut References,
+    scene: &str,
+    o: &Options,
+) -> Result<SceneReport> {
     let mut p = prepare(scene, o.size, o.depth)?;
     let steps = path(&mut p, o.frames, o.orbit_deg);
     let spps = raw_spps(o.max_spp);
-    let measured = errors(gpu, kernels, &p, &steps, &spps, o)?;
+    let measured = errors(gpu, kernels, references, &p, &steps, &spps, o)?;
     eprintln!("{}: the still view", p.scene.name);
-    let (reference, _) = cached_reference(
-        &mut GpuRenderer::new(gpu, kernels)?,
+    let reference = cached_reference(
+        references,
         &p.data,
         &steps[0].objects,
         &steps[0].frame,
@@ -652,7 +664,8 @@ fn scene_report(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, scene: &str, o: &Options
         still_reference_spp(o),
         &o.cache,
     )
-    .context("the still view's reference")?;
+    .context("the still view's reference")?
+    .pixels;
     let (stability, crossover) = still(gpu, kernels, &p, &steps[0], &reference, o)?;
     eprintln!("{}: timing at {}x{}", p.scene.name, o.timing_size.0, o.timing_size.1);
     let timed = timings(gpu, kernels, &spps, scene, o)?;
@@ -720,9 +733,11 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
         );
     }
     let kernels = Arc::new(Kernels::new(gpu)?);
+    let mut references = References::new(gpu, &kernels, o.devices.as_deref())?;
     let mut scenes = Vec::new();
     for scene in &o.scenes {
-        scenes.push(scene_report(gpu, &kernels, scene, o).with_context(|| format!("scene {scene}"))?);
+        let report = scene_report(gpu, &kernels, &mut references, scene, o);
+        scenes.push(report.with_context(|| format!("scene {scene}"))?);
     }
     Ok(Report {
         date: chrono::Local::now().format("%Y-%m-%d").to_string(),

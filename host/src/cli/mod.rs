@@ -13,7 +13,8 @@ mod scene;
 
 pub use compare::{compare, Comparison};
 pub use render::{
-    frame_path, parse_devices, render_devices, render_devices_each, DevicesTimes, FrameRange, RenderJob, Rendered,
+    frame_path, open_devices_on, parse_devices, render_devices, render_devices_each, DevicesTimes, FrameRange,
+    OpenDevices, RenderJob, Rendered, Work,
 };
 pub use scene::{parse_size, Bits, Prepared, SceneArgs, Treelets};
 

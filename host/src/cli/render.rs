@@ -8,7 +8,7 @@ use crate::render::{self, Accel, AccelChoice, Backend};
 use crate::shard::{self, Shard};
 use anyhow::{anyhow, ensure, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use shared::types::FLAG_DENOISE;
+use shared::types::{Frame, FLAG_DENOISE};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
@@ -316,9 +316,13 @@ fn open_device(instance: &Arc<Instance>, device: &str, opts: &GpuOptions) -> Res
 /// Opens `devices` (indices or names, as `--device` takes them) from one instance, each on a
 /// thread of its own.
 pub fn open_devices(devices: &[String], opts: &GpuOptions) -> Result<OpenDevices> {
-    let instance = Instance::new(opts.validation, &opts.window_extensions)?;
+    open_devices_on(&Instance::new(opts.validation, &opts.window_extensions)?, devices, opts)
+}
+
+/// [`open_devices`] from an instance open before (the one a benchmark's own device was
+/// opened from, [`Gpu::shared_instance`]).
+pub fn open_devices_on(instance: &Arc<Instance>, devices: &[String], opts: &GpuOptions) -> Result<OpenDevices> {
     let opened: Vec<Result<(GpuRenderer, Opened)>> = std::thread::scope(|scope| {
-        let instance = &instance;
         let threads: Vec<_> = devices
             .iter()
             .map(|device| scope.spawn(move || open_device(instance, device, opts)))
@@ -343,10 +347,39 @@ impl OpenDevices {
     /// of consecutive samples, and adds their sums in device order (the same image whichever
     /// device finishes first). The devices stay open.
     pub fn render(&mut self, p: &Prepared, first: u32, spp: u32) -> Result<(Rendered, DevicesTimes)> {
+        let load = |r: &mut GpuRenderer, first| load_gpu_samples(r, p, first);
+        self.render_work(
+            &Work {
+                frame: &p.frame,
+                load: &load,
+            },
+            first,
+            spp,
+        )
+    }
+
+    /// [`OpenDevices::render`] of any [`Work`].
+    pub fn render_work(&mut self, work: &Work, first: u32, spp: u32) -> Result<(Rendered, DevicesTimes)> {
         let renderers: Vec<&mut GpuRenderer> = self.renderers.iter_mut().collect();
-        let (rendered, times, _) = render_shares(renderers, &|r| Ok((r, Opened::default())), p, first, spp, 0.0)?;
+        let (rendered, times, _) = render_shares(renderers, &|r| Ok((r, Opened::default())), work, first, spp, 0.0)?;
         Ok((rendered, times))
     }
+
+    /// How many devices are open.
+    pub fn len(&self) -> usize {
+        self.renderers.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.renderers.is_empty()
+    }
+}
+
+/// What each device of a render on several renders: the frame (its size, and how the summed
+/// image is displayed), and how a renderer loads the scene to trace from a given first sample.
+pub struct Work<'a> {
+    pub frame: &'a Frame,
+    pub load: &'a (dyn Fn(&mut GpuRenderer, u32) -> Result<()> + Sync),
 }
 
 /// Refuses `n` devices for `spp` samples per pixel where a device would get none (checked
@@ -359,10 +392,10 @@ fn ensure_shares(n: u32, spp: u32) -> Result<()> {
     Ok(())
 }
 
-/// Samples `first..first + count` of `p` on `r`: the sums, stage times and host clock.
-fn render_share(r: &mut GpuRenderer, p: &Prepared, first: u32, count: u32) -> Result<DeviceShare> {
+/// Samples `first..first + count` of `work` on `r`: the sums, stage times and host clock.
+fn render_share(r: &mut GpuRenderer, work: &Work, first: u32, count: u32) -> Result<DeviceShare> {
     let t = Instant::now();
-    load_gpu_samples(r, p, first)?;
+    (work.load)(r, first)?;
     let load_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
     // The memory the sums come back to is made while the GPU traces: its pages, written
@@ -408,7 +441,7 @@ fn render_share(r: &mut GpuRenderer, p: &Prepared, first: u32, count: u32) -> Re
 fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer> + Send>(
     items: Vec<T>,
     open: &(dyn Fn(T) -> Result<(R, Opened)> + Sync),
-    p: &Prepared,
+    work: &Work,
     first: u32,
     spp: u32,
     instance_s: f64,
@@ -435,7 +468,7 @@ fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer> + Send>(
                     let (r, opened) = open(item)?;
                     let r = held.insert(r).borrow_mut();
                     let name = r.gpu().name.clone();
-                    let s = render_share(r, p, first + a, count)
+                    let s = render_share(r, work, first + a, count)
                         .with_context(|| format!("rendering on device {k} ({name})"))?;
                     Ok(DeviceShare { opened, ..s })
                 });
@@ -459,7 +492,7 @@ fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer> + Send>(
                 .iter_mut()
                 .flat_map(|r| r.as_mut().map(|s| std::mem::take(&mut s.sums)))
                 .collect();
-            picture = Some(shard::sum_pictures(parts, spp, &p.frame));
+            picture = Some(shard::sum_pictures(parts, spp, work.frame));
             merge_s = t.elapsed().as_secs_f64();
         }
         results
@@ -507,7 +540,7 @@ fn render_shares<T: Send, R: std::borrow::BorrowMut<GpuRenderer> + Send>(
     let rendered = Rendered {
         picture,
         timings,
-        device: format!("{n} devices: {}", names.join(", ")),
+        device: format!("{n} device{}: {}", if n == 1 { "" } else { "s" }, names.join(", ")),
         // Every device resolves `--accel` alike where the devices are alike.
         tracer: parts.first().map_or(Accel::Lbvh, |r| r.tracer),
     };
@@ -529,10 +562,14 @@ pub fn render_devices_each(
     let instance = Instance::new(opts.validation, &opts.window_extensions)?;
     let instance_s = t.elapsed().as_secs_f64();
     let items: Vec<&str> = devices.iter().map(String::as_str).collect();
+    let load = |r: &mut GpuRenderer, first| load_gpu_samples(r, p, first);
     let (rendered, times, renderers) = render_shares(
         items,
         &|device| open_device(&instance, device, opts),
-        p,
+        &Work {
+            frame: &p.frame,
+            load: &load,
+        },
         first,
         spp,
         instance_s,

@@ -471,6 +471,12 @@ impl Gpu {
         Ok((chosen.clone(), device, stats, ray_tracing))
     }
 
+    /// The instance the device was opened from, for opening others beside it
+    /// ([`Gpu::on`]).
+    pub fn shared_instance(&self) -> &Arc<Instance> {
+        &self.shared
+    }
+
     /// Validation errors reported so far (empty when validation is off).
     pub fn validation_errors(&self) -> Vec<String> {
         self.shared.log.errors.lock().map(|e| e.clone()).unwrap_or_default()
