@@ -122,7 +122,7 @@ fn benches_trace_through_the_driver_or_say_what_the_device_lacks() {
     }
     let dir = std::path::PathBuf::from(picture("bench-driver")).with_file_name("results");
     let out = dir.display().to_string();
-    let benches: [&[&str]; 2] = [
+    let benches: [&[&str]; 3] = [
         &[
             "bench", "trace", "--accel", "driver", "--scenes", "cornell", "--size", "16x16", "--spp", "1", "--runs",
             "1",
@@ -141,6 +141,18 @@ fn benches_trace_through_the_driver_or_say_what_the_device_lacks() {
             "--runs",
             "1",
         ],
+        &[
+            "bench",
+            "table2",
+            "--accel",
+            "driver",
+            "--runs",
+            "1",
+            "--brute-spp",
+            "1",
+            "--cpu-spp",
+            "1",
+        ],
     ];
     for args in benches {
         let mut args = args.to_vec();
@@ -153,7 +165,11 @@ fn benches_trace_through_the_driver_or_say_what_the_device_lacks() {
         .map(|g| g.ray_tracing.is_ok());
         if ray_tracing.unwrap_or(false) {
             assert!(o.status.success(), "{args:?} failed:\n{stderr}");
-            let kind = format!("{}-driver-", args[1]);
+            // Table 2 adds the driver's columns to its own report.
+            let kind = match args[1] {
+                "table2" => "table2-".to_string(),
+                bench => format!("{bench}-driver-"),
+            };
             let written = std::fs::read_dir(&dir)
                 .expect("results folder")
                 .flatten()

@@ -6,8 +6,9 @@
 use crate::bench::plot::{line_chart, Chart, Scale, Series};
 use crate::cli::{Prepared, SceneArgs};
 use crate::cpu::render_cpu;
+use crate::gpu::driver::DriverBuild;
 use crate::gpu::{Gpu, GpuRenderer, Kernels};
-use crate::render::stage_totals;
+use crate::render::{stage_totals, Accel};
 use anyhow::{Context, Result};
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
@@ -36,6 +37,11 @@ pub struct Row {
     pub cpu_ms: f64,
     pub cpu_spp: u32,
     pub rays: u64,
+    /// With `--accel driver`: the same frames through the driver's acceleration structures,
+    /// without and with NEE, and their structures' build (transform and builds), ms.
+    pub driver_ms: Option<f64>,
+    pub driver_nee_ms: Option<f64>,
+    pub driver_build_ms: Option<f64>,
 }
 
 #[derive(serde::Serialize)]
@@ -46,6 +52,8 @@ pub struct Report {
     pub command: String,
     /// Whether every frame's BVH build restructured treelets (`BuildOptions::treelets`).
     pub treelets: bool,
+    /// With `--accel driver`: how the driver built its bottom levels.
+    pub driver_build: Option<DriverBuild>,
     pub rows: Vec<Row>,
     /// (rays per pixel, CPU ms, GPU ms) for the Cornell box.
     pub speedup: Vec<(u32, f64, f64)>,
@@ -97,17 +105,39 @@ fn cpu_seconds(p: &Prepared) -> f64 {
     t.elapsed().as_secs_f64()
 }
 
-/// Runs the benchmark.
-/// Runs the benchmark; `treelets` picks the BVH build (see `BuildOptions`).
-pub fn run(gpu: &Arc<Gpu>, runs: usize, brute_spp: u32, cpu_spp: u32, treelets: bool) -> Result<Report> {
+/// Runs the benchmark; `treelets` picks the BVH build (see `BuildOptions`); with `driver`
+/// every GPU frame through the BVH is also rendered through the driver's acceleration
+/// structures, built that way (an error naming what the device lacks where it has none).
+pub fn run(
+    gpu: &Arc<Gpu>,
+    runs: usize,
+    brute_spp: u32,
+    cpu_spp: u32,
+    treelets: bool,
+    driver: Option<DriverBuild>,
+) -> Result<Report> {
     let kernels = Arc::new(Kernels::new(gpu)?);
     let mut r = GpuRenderer::new(gpu, &kernels)?;
+    if let Some(b) = driver {
+        // Refused here, before any frame, where the device cannot.
+        r.set_accel(Accel::Driver, b)?;
+        r.set_accel(Accel::Lbvh, b)?;
+    }
     let mut rows = Vec::new();
     for scene in ["cornell", "suzanne", "bunny"] {
         eprintln!("table2: {scene}");
         let p = prepare(scene, 32, treelets, &["--no-nee"])?;
+        let nee = prepare(scene, 32, treelets, &[])?;
         let (gpu_bvh, build, rays) = gpu_frame(&mut r, &p, runs)?;
-        let (gpu_nee, _, _) = gpu_frame(&mut r, &prepare(scene, 32, treelets, &[])?, runs)?;
+        let (gpu_nee, _, _) = gpu_frame(&mut r, &nee, runs)?;
+        let (mut driver_ms, mut driver_nee_ms, mut driver_build_ms) = (None, None, None);
+        if let Some(b) = driver {
+            r.set_accel(Accel::Driver, b)?;
+            let (frame, build, _) = gpu_frame(&mut r, &p, runs)?;
+            let (frame_nee, _, _) = gpu_frame(&mut r, &nee, runs)?;
+            r.set_accel(Accel::Lbvh, b)?;
+            (driver_ms, driver_nee_ms, driver_build_ms) = (Some(frame * 1e3), Some(frame_nee * 1e3), Some(build * 1e3));
+        }
         let brute = prepare(scene, brute_spp, treelets, &["--no-nee", "--no-bvh"])?;
         r.load(&brute.data, &brute.frame)?;
         let t = r.render(brute_spp, true)?;
@@ -124,6 +154,9 @@ pub fn run(gpu: &Arc<Gpu>, runs: usize, brute_spp: u32, cpu_spp: u32, treelets: 
             cpu_ms: cpu * 1e3,
             cpu_spp,
             rays,
+            driver_ms,
+            driver_nee_ms,
+            driver_build_ms,
         });
     }
     let mut speedup = Vec::new();
@@ -139,6 +172,7 @@ pub fn run(gpu: &Arc<Gpu>, runs: usize, brute_spp: u32, cpu_spp: u32, treelets: 
         cpu: format!("CPU executor, {} threads", rayon::current_num_threads()),
         command: std::env::args().collect::<Vec<_>>().join(" "),
         treelets,
+        driver_build: driver,
         rows,
         speedup,
     })
@@ -204,6 +238,30 @@ pub fn markdown(r: &Report) -> String {
             row.rays as f64 / (row.gpu_bvh_ms * 1e-3) * 1e-9,
         );
     }
+    if let Some(b) = r.driver_build {
+        let _ = writeln!(
+            s,
+            "\n## The same frames through the driver's acceleration structures (`--accel driver`, {b:?})\n\n\
+             Both tracers run the same path loop and shading; `driver` rebuilds its structures every \
+             frame as the project rebuilds its BVH. `ours ÷ driver`: above 1 the driver is faster.\n\n\
+             | scene | ours ms | driver ms | ours ÷ driver | ours + NEE/MIS ms | driver + NEE/MIS ms | ours ÷ driver, NEE | our build ms | driver's build ms |\n\
+             |---|---|---|---|---|---|---|---|---|"
+        );
+        for row in &r.rows {
+            if let (Some(d), Some(dn), Some(db)) = (row.driver_ms, row.driver_nee_ms, row.driver_build_ms) {
+                let _ = writeln!(
+                    s,
+                    "| {} | {:.2} | {d:.2} | {:.2} | {:.2} | {dn:.2} | {:.2} | {:.3} | {db:.3} |",
+                    row.scene,
+                    row.gpu_bvh_ms,
+                    row.gpu_bvh_ms / d,
+                    row.gpu_bvh_nee_ms,
+                    row.gpu_bvh_nee_ms / dn,
+                    row.build_ms,
+                );
+            }
+        }
+    }
     let _ = writeln!(
         s,
         "\n## GPU speed-up over the CPU, Cornell box (the thesis's Figure 3)\n"
@@ -253,6 +311,7 @@ mod tests {
             cpu: "test CPU".into(),
             command: "raytrace bench table2".into(),
             treelets: true,
+            driver_build: None,
             rows: vec![],
             speedup: vec![(1, 100.0, 1.0), (2, 190.0, 1.5), (4, 380.0, 2.9)],
         };
@@ -266,5 +325,42 @@ mod tests {
         assert_eq!((png.width(), png.height()), (900, 600));
         assert!(dir.join("t.json").is_file());
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_drivers_table_divides_ours_by_the_drivers_frames() {
+        let row = Row {
+            scene: "bunny".into(),
+            primitives: 69_678,
+            gpu_bvh_ms: 40.0,
+            gpu_bvh_nee_ms: 60.0,
+            build_ms: 0.125,
+            gpu_brute_ms: 9000.0,
+            brute_spp: 1,
+            cpu_ms: 30_000.0,
+            cpu_spp: 4,
+            rays: 50_000_000,
+            driver_ms: Some(80.0),
+            driver_nee_ms: Some(50.0),
+            driver_build_ms: Some(0.5),
+        };
+        let mut r = Report {
+            date: "2026-11-26".into(),
+            device: "test GPU".into(),
+            cpu: "test CPU".into(),
+            command: "raytrace bench table2 --accel driver".into(),
+            treelets: true,
+            driver_build: Some(DriverBuild::FastBuild),
+            rows: vec![row],
+            speedup: vec![],
+        };
+        let text = markdown(&r);
+        assert!(text.contains("(`--accel driver`, FastBuild)"), "{text}");
+        assert!(
+            text.contains("| bunny | 40.00 | 80.00 | 0.50 | 60.00 | 50.00 | 1.20 | 0.125 | 0.500 |"),
+            "{text}"
+        );
+        r.driver_build = None;
+        assert!(!markdown(&r).contains("--accel driver`,"));
     }
 }

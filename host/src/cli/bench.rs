@@ -26,6 +26,13 @@ pub(super) enum Bench {
         /// Build the plain Karras tree (no treelet restructuring).
         #[arg(long)]
         no_treelets: bool,
+        /// `driver`: also render every GPU frame through the driver's acceleration structures,
+        /// beside the project's BVH (on devices with VK_KHR_ray_tracing_pipeline).
+        #[arg(long, value_enum, default_value_t = crate::render::Accel::Lbvh)]
+        accel: crate::render::Accel,
+        /// How the driver builds its bottom levels (with `--accel driver`).
+        #[arg(long, value_enum, default_value_t = crate::gpu::driver::DriverBuild::FastBuild)]
+        driver_build: crate::gpu::driver::DriverBuild,
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
@@ -250,10 +257,13 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
             brute_spp,
             cpu_spp,
             no_treelets,
+            accel,
+            driver_build,
             out,
         } => {
             let gpu = Gpu::new(opts)?;
-            let report = bench::table2::run(&gpu, runs, brute_spp.max(1), cpu_spp.max(1), !no_treelets)?;
+            let driver = (accel == crate::render::Accel::Driver).then_some(driver_build);
+            let report = bench::table2::run(&gpu, runs, brute_spp.max(1), cpu_spp.max(1), !no_treelets, driver)?;
             let md = bench::table2::write(&report, &out, &format!("table2-{}-{}", report.date, slug(&gpu.name)))?;
             println!("{}", bench::table2::markdown(&report));
             println!("wrote {}", md.display());

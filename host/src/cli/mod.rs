@@ -136,6 +136,9 @@ pub fn run() -> Result<()> {
         Some(Command::Bench {
             what: bench::Bench::Devices { options, .. },
         }) => options.accel.into(),
+        Some(Command::Bench {
+            what: bench::Bench::Table2 { accel, .. },
+        }) => (*accel).into(),
         _ => AccelChoice::Lbvh,
     };
     let opts = GpuOptions {
