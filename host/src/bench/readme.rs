@@ -126,6 +126,27 @@ pub fn section(dir: &Path) -> Result<String> {
                 .collect::<Vec<_>>()
                 .join(", ")
         );
+        // `bench table2 --accel driver`: the same frames through the driver's structures.
+        let driver: Vec<String> = rows(&v)
+            .iter()
+            .filter(|r| r["driver_ms"].is_number())
+            .map(|r| {
+                format!(
+                    "{} {:.1} ms (with NEE/MIS: ours {:.1}, driver {:.1})",
+                    r["scene"].as_str().unwrap_or("?"),
+                    num(r, "driver_ms"),
+                    num(r, "gpu_bvh_nee_ms"),
+                    num(r, "driver_nee_ms"),
+                )
+            })
+            .collect();
+        if !driver.is_empty() {
+            let _ = writeln!(
+                s,
+                "The same frames through the driver's acceleration structures (`bench table2 --accel driver`, rebuilt every frame): {}.\n",
+                driver.join(", ")
+            );
+        }
     }
     let mut realtime = Vec::new();
     let mut scenes = Vec::new();
