@@ -122,7 +122,8 @@ fn benches_trace_through_the_driver_or_say_what_the_device_lacks() {
     }
     let dir = std::path::PathBuf::from(picture("bench-driver")).with_file_name("results");
     let out = dir.display().to_string();
-    let benches: [&[&str]; 3] = [
+    let cache = dir.join("cache").display().to_string();
+    let benches: [&[&str]; 5] = [
         &[
             "bench", "trace", "--accel", "driver", "--scenes", "cornell", "--size", "16x16", "--spp", "1", "--runs",
             "1",
@@ -139,6 +140,32 @@ fn benches_trace_through_the_driver_or_say_what_the_device_lacks() {
             "--spp",
             "1",
             "--runs",
+            "1",
+        ],
+        &[
+            "bench",
+            "accuracy",
+            "--accel",
+            "driver",
+            "--size",
+            "16x16",
+            "--max-spp",
+            "2",
+            "--reference-spp",
+            "8",
+            "--depth-spp",
+            "1",
+            "--speed-spp",
+            "1",
+            "--speed-size",
+            "16x16",
+            "--runs",
+            "1",
+            "--cache",
+            &cache,
+        ],
+        &[
+            "bench", "features", "--accel", "driver", "--scenes", "cornell", "--size", "16x16", "--spp", "1", "--runs",
             "1",
         ],
         &[
@@ -168,6 +195,7 @@ fn benches_trace_through_the_driver_or_say_what_the_device_lacks() {
             // Table 2 adds the driver's columns to its own report.
             let kind = match args[1] {
                 "table2" => "table2-".to_string(),
+                "accuracy" => "accuracy-".to_string(),
                 bench => format!("{bench}-driver-"),
             };
             let written = std::fs::read_dir(&dir)

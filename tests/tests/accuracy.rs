@@ -24,6 +24,8 @@ fn accuracy_bench_measures_error_time_and_leaks() {
         runs: 1,
         cache: dir.join("cache"),
         devices: None,
+        accel: Default::default(),
+        driver_build: Default::default(),
     };
     let r = run(&gpu, &o).expect("bench accuracy");
     // Plain, NEE, NEE + MIS, without roulette, and NEE + MIS denoised.

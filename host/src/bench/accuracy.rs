@@ -15,9 +15,11 @@ use crate::bench::percentile;
 use crate::bench::plot::{line_chart, Chart, Scale, Series};
 use crate::bvh::{BuildOptions, MortonBits};
 use crate::cli::{open_devices_on, parse_devices, OpenDevices, Prepared, SceneArgs, Work};
+use crate::gpu::driver::DriverBuild;
 use crate::gpu::{denoise_ms, stage_ms, Denoise, Gpu, GpuOptions, GpuRenderer, Kernels};
 use crate::inputs::hard_cases::{closed_meshes, rays_at_vertices_and_edges, scene_of, OFFSETS};
 use crate::picture::Picture;
+use crate::render::Accel;
 use crate::scene::SceneGpu;
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
@@ -65,6 +67,13 @@ pub struct Options {
     /// measured renders stay on the one device the benchmark runs on.
     #[arg(long)]
     pub devices: Option<String>,
+    /// `driver`: adds the driver's acceleration structures (built `--driver-build`) to the BVH
+    /// quality section (devices with VK_KHR_ray_tracing_pipeline).
+    #[arg(long, value_enum, default_value_t = Accel::Lbvh)]
+    pub accel: Accel,
+    /// How the driver builds its bottom levels (with `--accel driver`).
+    #[arg(long, value_enum, default_value_t = DriverBuild::FastBuild)]
+    pub driver_build: DriverBuild,
 }
 
 /// Relative MSE's guard against dark pixels: `(x - ref)^2 / (ref^2 + EPS)` (pbrt's choice).
@@ -419,6 +428,26 @@ fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow
             rays_per_s: rays_per_s(r, &p.frame, o.speed_spp, o.runs)?,
         });
     }
+    if o.accel == Accel::Driver {
+        r.set_accel(Accel::Driver, o.driver_build)?;
+        r.load(&p.data, &p.frame)?;
+        let mut ms = Vec::new();
+        for _ in 0..o.runs.max(1) + 1 {
+            r.set_frame(&p.frame)?;
+            ms.push(build_ms(&r.render(0, true)?));
+        }
+        ms.remove(0);
+        ms.sort_by(f64::total_cmp);
+        rows.push(BvhRow {
+            name: format!("driver's acceleration structures ({:?})", o.driver_build),
+            build_ms: percentile(&ms, 0.5),
+            // Not known: the driver's structures are opaque.
+            sah: f64::NAN,
+            depth: 0,
+            rays_per_s: rays_per_s(r, &p.frame, o.speed_spp, o.runs)?,
+        });
+        r.set_accel(Accel::Lbvh, o.driver_build)?;
+    }
     r.set_build(BuildOptions::lbvh(MortonBits::B30));
     r.load(&p.data, &p.frame)?;
     let brute = with_flags(&p.frame, 0, FLAG_BVH);
@@ -518,6 +547,10 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
     }
     let p = prepare(&o.scene, o.size)?;
     let kernels = Arc::new(Kernels::new(gpu)?);
+    if o.accel == Accel::Driver {
+        // Refused here, before the reference, where the device cannot.
+        GpuRenderer::new(gpu, &kernels)?.set_accel(Accel::Driver, o.driver_build)?;
+    }
     let mut refs = References::new(gpu, &kernels, o.devices.as_deref())?;
     let made = reference(&mut refs, &p, o.reference_spp, &o.cache)?;
     drop(refs);
@@ -716,10 +749,16 @@ pub fn markdown(r: &Report, plots: &[String]) -> String {
         o.runs, o.speed_size.0, o.speed_size.1, o.speed_spp, o.runs
     );
     for b in &r.bvh {
+        // The driver's row: its tree's cost and depth are not known.
+        let (sah, depth) = if b.sah.is_finite() {
+            (format!("{:.1}", b.sah), b.depth.to_string())
+        } else {
+            ("-".into(), "-".into())
+        };
         let _ = writeln!(
             s,
-            "| {} | {:.3} | {:.1} | {} | {:.3e} |",
-            b.name, b.build_ms, b.sah, b.depth, b.rays_per_s
+            "| {} | {:.3} | {sah} | {depth} | {:.3e} |",
+            b.name, b.build_ms, b.rays_per_s
         );
     }
     let _ = writeln!(

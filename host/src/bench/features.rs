@@ -4,8 +4,10 @@
 //! but time.
 use crate::bench::{percentile, warm};
 use crate::cli::{Prepared, SceneArgs};
+use crate::gpu::driver::DriverBuild;
 use crate::gpu::{stage_ms, Gpu, GpuRenderer, Kernels};
 use crate::picture::{diff_stats, max_display_diff, Picture};
+use crate::render::Accel;
 use anyhow::{Context, Result};
 use std::fmt::Write;
 use std::sync::Arc;
@@ -34,6 +36,8 @@ pub struct Report {
     pub size: (u32, u32),
     pub spp: u32,
     pub runs: usize,
+    /// What traced the rays: the project's BVH, or the driver's structures.
+    pub accel: Accel,
     pub rows: Vec<Row>,
 }
 
@@ -68,9 +72,20 @@ fn time(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<(f64, Picture)
     Ok((percentile(&ms, 0.5), r.picture()?))
 }
 
-pub fn run(gpu: &Arc<Gpu>, scenes: &[String], size: (u32, u32), spp: u32, runs: usize) -> Result<Report> {
+/// Runs the benchmark; `accel` picks what traces both kernels' rays (`Accel::Driver`: the
+/// ray-tracing pipeline specialised alike, its structures built `driver_build`).
+pub fn run(
+    gpu: &Arc<Gpu>,
+    scenes: &[String],
+    size: (u32, u32),
+    spp: u32,
+    runs: usize,
+    accel: Accel,
+    driver_build: DriverBuild,
+) -> Result<Report> {
     let kernels = Arc::new(Kernels::new(gpu)?);
     let mut r = GpuRenderer::new(gpu, &kernels)?;
+    r.set_accel(accel, driver_build)?;
     let mut rows = Vec::new();
     for scene in scenes {
         let all = prepare(scene, size, spp, true)?;
@@ -98,6 +113,7 @@ pub fn run(gpu: &Arc<Gpu>, scenes: &[String], size: (u32, u32), spp: u32, runs: 
         size,
         spp,
         runs,
+        accel,
         rows,
     })
 }
@@ -121,8 +137,18 @@ pub fn markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Kernels specialised to the scene\n\n- date: {}\n- device: {}\n- command: `{}`\n- {}x{}, {} spp per frame, BVH rebuilt, median of {} frames after half a second of warm-up\n",
-        r.date, r.device, r.command, r.size.0, r.size.1, r.spp, r.runs
+        "# Kernels specialised to the scene\n\n- date: {}\n- device: {}\n- command: `{}`\n- {}x{}, {} spp per frame, BVH rebuilt, median of {} frames after half a second of warm-up\n- rays traced by {}\n",
+        r.date,
+        r.device,
+        r.command,
+        r.size.0,
+        r.size.1,
+        r.spp,
+        r.runs,
+        match r.accel {
+            Accel::Lbvh => "the project's BVH (`path_trace`, a compute kernel)",
+            Accel::Driver => "the driver's acceleration structures (`--accel driver`: the ray-tracing pipeline, specialised alike)",
+        }
     );
     let _ = writeln!(
         s,

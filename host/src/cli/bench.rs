@@ -86,6 +86,14 @@ pub(super) enum Bench {
         /// Timed frames per kernel (after one warm-up).
         #[arg(long, default_value_t = 10)]
         runs: usize,
+        /// What traces the rays: the project's BVH, or the driver's acceleration structures
+        /// (the ray-tracing pipeline specialised alike; devices with
+        /// VK_KHR_ray_tracing_pipeline).
+        #[arg(long, value_enum, default_value_t = crate::render::Accel::Lbvh)]
+        accel: crate::render::Accel,
+        /// How the driver builds its bottom levels (with `--accel driver`).
+        #[arg(long, value_enum, default_value_t = crate::gpu::driver::DriverBuild::FastBuild)]
+        driver_build: crate::gpu::driver::DriverBuild,
         #[arg(long, default_value = "bench/results")]
         out: PathBuf,
     },
@@ -178,11 +186,17 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
             size,
             spp,
             runs,
+            accel,
+            driver_build,
             out,
         } => {
             let gpu = Gpu::new(opts)?;
-            let r = bench::features::run(&gpu, &scenes, size, spp.max(1), runs)?;
-            publish(&out, "features", &r.date, &gpu, bench::features::markdown(&r), &r)?;
+            let r = bench::features::run(&gpu, &scenes, size, spp.max(1), runs, accel, driver_build)?;
+            let kind = match accel {
+                crate::render::Accel::Lbvh => "features",
+                crate::render::Accel::Driver => "features-driver",
+            };
+            publish(&out, kind, &r.date, &gpu, bench::features::markdown(&r), &r)?;
         }
         Bench::Readme { readme, results } => {
             let text = std::fs::read_to_string(&readme).with_context(|| format!("reading {}", readme.display()))?;

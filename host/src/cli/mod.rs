@@ -137,7 +137,10 @@ pub fn run() -> Result<()> {
             what: bench::Bench::Devices { options, .. },
         }) => options.accel.into(),
         Some(Command::Bench {
-            what: bench::Bench::Table2 { accel, .. },
+            what: bench::Bench::Accuracy { options, .. },
+        }) => options.accel.into(),
+        Some(Command::Bench {
+            what: bench::Bench::Table2 { accel, .. } | bench::Bench::Features { accel, .. },
         }) => (*accel).into(),
         _ => AccelChoice::Lbvh,
     };
