@@ -386,6 +386,19 @@ fn rays_per_s(r: &mut GpuRenderer, f: &Frame, spp: u32, runs: usize) -> Result<f
     Ok(r.rays_per_sample()? * spp as f64 / (percentile(&ms, 0.5) * 1e-3))
 }
 
+/// Median transform and build milliseconds of `runs` frames of `p` (after one discarded).
+fn median_build_ms(r: &mut GpuRenderer, p: &Prepared, runs: usize) -> Result<f64> {
+    r.load(&p.data, &p.frame)?;
+    let mut ms = Vec::new();
+    for _ in 0..runs.max(1) + 1 {
+        r.set_frame(&p.frame)?;
+        ms.push(build_ms(&r.render(0, true)?));
+    }
+    ms.remove(0);
+    ms.sort_by(f64::total_cmp);
+    Ok(percentile(&ms, 0.5))
+}
+
 fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow>> {
     let mut rows = Vec::new();
     for (name, build) in [
@@ -401,14 +414,7 @@ fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow
         ("Wide (4-ary collapse), 30-bit", BuildOptions::wide(MortonBits::B30)),
     ] {
         r.set_build(build);
-        r.load(&p.data, &p.frame)?;
-        let mut ms = Vec::new();
-        for _ in 0..o.runs.max(1) + 1 {
-            r.set_frame(&p.frame)?;
-            ms.push(build_ms(&r.render(0, true)?));
-        }
-        ms.remove(0);
-        ms.sort_by(f64::total_cmp);
+        let ms = median_build_ms(r, p, o.runs)?;
         let bvh = r.bvh()?;
         let (tris, spheres) = r.world()?;
         let stats = crate::bvh::validate(&bvh.nodes, &bvh.parents, &tris, &spheres)
@@ -422,7 +428,7 @@ fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow
         };
         rows.push(BvhRow {
             name: name.into(),
-            build_ms: percentile(&ms, 0.5),
+            build_ms: ms,
             sah,
             depth,
             rays_per_s: rays_per_s(r, &p.frame, o.speed_spp, o.runs)?,
@@ -430,17 +436,10 @@ fn bvh_rows(r: &mut GpuRenderer, p: &Prepared, o: &Options) -> Result<Vec<BvhRow
     }
     if o.accel == Accel::Driver {
         r.set_accel(Accel::Driver, o.driver_build)?;
-        r.load(&p.data, &p.frame)?;
-        let mut ms = Vec::new();
-        for _ in 0..o.runs.max(1) + 1 {
-            r.set_frame(&p.frame)?;
-            ms.push(build_ms(&r.render(0, true)?));
-        }
-        ms.remove(0);
-        ms.sort_by(f64::total_cmp);
+        let ms = median_build_ms(r, p, o.runs)?;
         rows.push(BvhRow {
             name: format!("driver's acceleration structures ({:?})", o.driver_build),
-            build_ms: percentile(&ms, 0.5),
+            build_ms: ms,
             // Not known: the driver's structures are opaque.
             sah: f64::NAN,
             depth: 0,
