@@ -11,8 +11,8 @@ use crate::math::finite3;
 use crate::sync::{at, elem, elem_mut};
 use crate::transform;
 use crate::types::{
-    xyz, Hit, Node, Object, Sphere, Triangle, FEATURE_ALPHA, FEATURE_INSTANCES, FEATURE_NEE, FEATURE_SPHERES,
-    FEATURE_TRIANGLES, INVALID, VARIANT_MOLLER_TRUMBORE, VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
+    xyz, Hit, Node, Object, Sphere, Triangle, FEATURE_ALPHA, FEATURE_INSTANCES, FEATURE_SPHERES, FEATURE_TRIANGLES,
+    INVALID, VARIANT_MOLLER_TRUMBORE, VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
 };
 use crate::wide::{self, WideNode, LEAF};
 use core::mem::MaybeUninit;
@@ -422,46 +422,12 @@ fn walk_levels<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) 
                 mesh: &mesh,
                 instance: current,
             };
-            // With next-event estimation the two children are visited by one loop (one
-            // primitive test in the code, not two): H100, GPU frame p50, `bench realtime
-            // --instancing on --nee`: herd 23.5 -> 18.8 ms, instances 14.0 -> 11.0, forest
-            // 38.6 -> 30.0. Without it the loop is slower (herd 7.9 -> 9.8 ms, instances 4.9
-            // -> 6.1, forest 11.9 -> 14.6), so the kernel without NEE keeps the two visits
-            // written out. (The driver's register allocation decides it: measured, not
-            // derived; bench/NOTES.md, session 28.)
-            let (near, far) = if s.features & FEATURE_NEE != 0 {
-                let (mut near, mut t_near, mut far) = (INVALID, f32::INFINITY, INVALID);
-                let mut k = 0;
-                while k < 2 {
-                    let child = if k == 0 { inner.a } else { inner.b };
-                    let (c, t) = at_level.visit(s, &r, child, &mut limit, &mut best, &mut best_instance);
-                    if ANY && best.prim != INVALID {
-                        return (best, best_instance);
-                    }
-                    if c != INVALID {
-                        if t < t_near {
-                            far = near;
-                            near = c;
-                            t_near = t;
-                        } else {
-                            far = c;
-                        }
-                    }
-                    k += 1;
-                }
-                (near, far)
-            } else {
-                let (a, ta) = at_level.visit(s, &r, inner.a, &mut limit, &mut best, &mut best_instance);
-                if ANY && best.prim != INVALID {
-                    return (best, best_instance);
-                }
-                let (b, tb) = at_level.visit(s, &r, inner.b, &mut limit, &mut best, &mut best_instance);
-                if tb < ta {
-                    (b, a)
-                } else {
-                    (a, b)
-                }
-            };
+            let (a, ta) = at_level.visit(s, &r, inner.a, &mut limit, &mut best, &mut best_instance);
+            if ANY && best.prim != INVALID {
+                return (best, best_instance);
+            }
+            let (b, tb) = at_level.visit(s, &r, inner.b, &mut limit, &mut best, &mut best_instance);
+            let (near, far) = if tb < ta { (b, a) } else { (a, b) };
             if near != INVALID {
                 if far != INVALID && sp < STACK {
                     elem_mut(&mut stack, sp as u32).write(far);

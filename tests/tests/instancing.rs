@@ -14,7 +14,7 @@ use raytrace::inputs::hard_cases::{closed_meshes, INSIDE};
 use shared::glam::{DVec3, Mat3, Vec3};
 use shared::math::fma;
 use shared::traverse::{self, Scene};
-use shared::types::{Hit, Node, Sphere, Triangle, FEATURES_ALL, FEATURE_INSTANCES, FEATURE_NEE, INVALID};
+use shared::types::{Hit, Node, Sphere, Triangle, FEATURES_ALL, FEATURE_INSTANCES, INVALID};
 
 fn opts() -> BuildOptions {
     BuildOptions::lbvh(MortonBits::B30)
@@ -145,7 +145,6 @@ fn instanced_queries_equal_the_flattened_scene() {
         let (meshes, placements, scales) = instanced(offset, 48, 7 + run as u32);
         let l = levels(&meshes, &placements);
         let scene = l.scene(FEATURES_ALL);
-        let without_nee = l.scene(FEATURES_ALL & !FEATURE_NEE);
         let (tris, spheres) = flatten(&meshes, &placements, &scales);
         let flat = flat_scene(&tris, &spheres);
         // Each instance's first primitive in the flattened scene.
@@ -167,10 +166,6 @@ fn instanced_queries_equal_the_flattened_scene() {
             let target = Vec3::from_array(target) + 0.7 * rng.unit();
             let dir = if i % 5 == 4 { origin - offset } else { target - origin };
             let (h, instance) = traverse::closest_instance(&scene, origin, dir, f32::INFINITY);
-            // The walk's two forms (children visited in one loop where the kernel has NEE,
-            // written out where it has not) find the same hit.
-            let (h2, instance2) = traverse::closest_instance(&without_nee, origin, dir, f32::INFINITY);
-            assert_eq!((h, instance), (h2, instance2), "ray {i}: the walk without NEE differs");
             let reference = traverse::closest_brute(&flat, origin, dir, f32::INFINITY);
             assert_eq!(
                 h.prim == INVALID,
@@ -218,13 +213,10 @@ fn instanced_queries_equal_the_flattened_scene() {
                 traverse::any(&scene, origin, dir, f32::INFINITY),
                 "ray {i}: any-hit missed"
             );
-            for s in [&scene, &without_nee] {
-                assert!(
-                    !traverse::any(s, origin, dir, reference.t * 0.999),
-                    "ray {i}: any-hit found something nearer than the closest hit"
-                );
-            }
-            assert!(traverse::any(&without_nee, origin, dir, f32::INFINITY));
+            assert!(
+                !traverse::any(&scene, origin, dir, reference.t * 0.999),
+                "ray {i}: any-hit found something nearer than the closest hit"
+            );
         }
         assert!(
             hits > 1500 && misses > 300,
@@ -277,9 +269,7 @@ fn closed_meshes_stay_closed_through_instances() {
                     });
                 }
                 let l = levels(&meshes, &placements);
-                // Both forms of the walk: with NEE (one loop over a node's children) and
-                // without.
-                let scenes = [l.scene(FEATURES_ALL), l.scene(FEATURES_ALL & !FEATURE_NEE)];
+                let scene = l.scene(FEATURES_ALL);
                 let targets = mesh.moved(Vec3::ZERO);
                 let edges = mesh.edges();
                 let targets: Vec<Vec3> = targets
@@ -296,12 +286,10 @@ fn closed_meshes_stay_closed_through_instances() {
                     for &t in &targets {
                         let d = apply64(&rows, t) - o;
                         let (o, d) = (o.as_vec3(), d.as_vec3());
-                        for scene in &scenes {
-                            total += 1;
-                            let h = traverse::closest(scene, o, d, f32::INFINITY);
-                            if h.prim == INVALID || !traverse::any(scene, o, d, f32::INFINITY) {
-                                leaks.push(format!("{name}, {how}, offset {offset}: ray {o} -> {d} leaks ({h:?})"));
-                            }
+                        total += 1;
+                        let h = traverse::closest(&scene, o, d, f32::INFINITY);
+                        if h.prim == INVALID || !traverse::any(&scene, o, d, f32::INFINITY) {
+                            leaks.push(format!("{name}, {how}, offset {offset}: ray {o} -> {d} leaks ({h:?})"));
                         }
                     }
                 }
