@@ -364,15 +364,6 @@ impl OpenDevices {
         let (rendered, times, _) = render_shares(renderers, &|r| Ok((r, Opened::default())), work, first, spp, 0.0)?;
         Ok((rendered, times))
     }
-
-    /// How many devices are open.
-    pub fn len(&self) -> usize {
-        self.renderers.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.renderers.is_empty()
-    }
 }
 
 /// What each device of a render on several renders: the frame (its size, and how the summed
