@@ -5,6 +5,7 @@ use crate::bench::build::{bench_build, standard_inputs, write_report, BuildRepor
 use crate::bench::{self, slug};
 use crate::bvh::BuildOptions;
 use crate::gpu::{Gpu, GpuOptions};
+use crate::render::{Accel, AccelChoice};
 use anyhow::{Context, Result};
 use clap::Subcommand;
 use std::path::{Path, PathBuf};
@@ -28,8 +29,8 @@ pub(super) enum Bench {
         no_treelets: bool,
         /// `driver`: also render every GPU frame through the driver's acceleration structures,
         /// beside the project's BVH (on devices with VK_KHR_ray_tracing_pipeline).
-        #[arg(long, value_enum, default_value_t = crate::render::Accel::Lbvh)]
-        accel: crate::render::Accel,
+        #[arg(long, value_enum, default_value_t = Accel::Lbvh)]
+        accel: Accel,
         /// How the driver builds its bottom levels (with `--accel driver`).
         #[arg(long, value_enum, default_value_t = crate::gpu::driver::DriverBuild::FastBuild)]
         driver_build: crate::gpu::driver::DriverBuild,
@@ -89,8 +90,8 @@ pub(super) enum Bench {
         /// What traces the rays: the project's BVH, or the driver's acceleration structures
         /// (the ray-tracing pipeline specialised alike; devices with
         /// VK_KHR_ray_tracing_pipeline).
-        #[arg(long, value_enum, default_value_t = crate::render::Accel::Lbvh)]
-        accel: crate::render::Accel,
+        #[arg(long, value_enum, default_value_t = Accel::Lbvh)]
+        accel: Accel,
         /// How the driver builds its bottom levels (with `--accel driver`).
         #[arg(long, value_enum, default_value_t = crate::gpu::driver::DriverBuild::FastBuild)]
         driver_build: crate::gpu::driver::DriverBuild,
@@ -156,6 +157,32 @@ pub(super) enum Bench {
     },
 }
 
+impl Bench {
+    /// What the benchmark may trace with: the device opens with the driver's ray tracing
+    /// where it may.
+    pub(super) fn accel(&self) -> AccelChoice {
+        match self {
+            Bench::Peer { .. } => AccelChoice::Driver,
+            Bench::Realtime { options, .. } => options.accel.into(),
+            Bench::Trace { options, .. } => options.accel.into(),
+            Bench::Devices { options, .. } => options.accel.into(),
+            Bench::Accuracy { options, .. } => options.accel.into(),
+            Bench::Table2 { accel, .. } | Bench::Features { accel, .. } => (*accel).into(),
+            Bench::Readme { .. } | Bench::Denoise { .. } | Bench::Levels { .. } | Bench::Build { .. } => {
+                AccelChoice::Lbvh
+            }
+        }
+    }
+}
+
+/// The kind of a benchmark's result files: `base`, or `base-driver` for the driver's tracer.
+fn results_kind(base: &str, accel: Accel) -> String {
+    match accel {
+        Accel::Lbvh => base.to_string(),
+        Accel::Driver => format!("{base}-driver"),
+    }
+}
+
 /// Writes a benchmark report as `out/KIND-DATE-GPU.md` and `.json`, and prints it.
 fn publish(
     out: &Path,
@@ -192,11 +219,8 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
         } => {
             let gpu = Gpu::new(opts)?;
             let r = bench::features::run(&gpu, &scenes, size, spp.max(1), runs, accel, driver_build)?;
-            let kind = match accel {
-                crate::render::Accel::Lbvh => "features",
-                crate::render::Accel::Driver => "features-driver",
-            };
-            publish(&out, kind, &r.date, &gpu, bench::features::markdown(&r), &r)?;
+            let kind = results_kind("features", accel);
+            publish(&out, &kind, &r.date, &gpu, bench::features::markdown(&r), &r)?;
         }
         Bench::Readme { readme, results } => {
             let text = std::fs::read_to_string(&readme).with_context(|| format!("reading {}", readme.display()))?;
@@ -209,11 +233,8 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
         Bench::Trace { options, out } => {
             let gpu = Gpu::new(opts)?;
             let r = bench::trace::run(&gpu, &options)?;
-            let kind = match options.accel {
-                crate::render::Accel::Lbvh => "trace",
-                crate::render::Accel::Driver => "trace-driver",
-            };
-            publish(&out, kind, &r.date, &gpu, bench::trace::markdown(&r), &r)?;
+            let kind = results_kind("trace", options.accel);
+            publish(&out, &kind, &r.date, &gpu, bench::trace::markdown(&r), &r)?;
             let plot = bench::trace::plot(&r, &out, &format!("{kind}-{}-{}", r.date, slug(&gpu.name)))?;
             println!("wrote {}", plot.display());
         }
@@ -227,11 +248,8 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
         Bench::Realtime { options, out } => {
             let gpu = Gpu::new(opts)?;
             let r = bench::realtime::run(&gpu, &options)?;
-            let kind = match options.accel {
-                crate::render::Accel::Lbvh => "realtime",
-                crate::render::Accel::Driver => "realtime-driver",
-            };
-            publish(&out, kind, &r.date, &gpu, bench::realtime::markdown(&r), &r)?;
+            let kind = results_kind("realtime", options.accel);
+            publish(&out, &kind, &r.date, &gpu, bench::realtime::markdown(&r), &r)?;
         }
         Bench::Accuracy { options, out } => {
             let gpu = Gpu::new(opts)?;
@@ -256,10 +274,7 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
             let r = bench::devices::run(&options, opts)?;
             let first = r.rows.first().and_then(|row| row.times.names.first());
             let name = first.map_or("no-device".to_string(), |d| d.clone());
-            let kind = match options.accel {
-                crate::render::Accel::Lbvh => "devices",
-                crate::render::Accel::Driver => "devices-driver",
-            };
+            let kind = results_kind("devices", options.accel);
             let stem = format!("{kind}-{}-{}", r.date, slug(&name));
             let markdown = bench::devices::markdown(&r);
             let md = bench::write_files(&out, &stem, &markdown, &r)?;
@@ -276,7 +291,7 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
             out,
         } => {
             let gpu = Gpu::new(opts)?;
-            let driver = (accel == crate::render::Accel::Driver).then_some(driver_build);
+            let driver = (accel == Accel::Driver).then_some(driver_build);
             let report = bench::table2::run(&gpu, runs, brute_spp.max(1), cpu_spp.max(1), !no_treelets, driver)?;
             let md = bench::table2::write(&report, &out, &format!("table2-{}-{}", report.date, slug(&gpu.name)))?;
             println!("{}", bench::table2::markdown(&report));

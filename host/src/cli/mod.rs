@@ -124,24 +124,7 @@ pub fn run() -> Result<()> {
     let accel = match &cli.cmd {
         Some(Command::Render { scene, .. } | Command::Compare { scene, .. }) => scene.accel,
         Some(Command::View(args)) => args.scene.accel,
-        Some(Command::Bench {
-            what: bench::Bench::Peer { .. },
-        }) => AccelChoice::Driver,
-        Some(Command::Bench {
-            what: bench::Bench::Realtime { options, .. },
-        }) => options.accel.into(),
-        Some(Command::Bench {
-            what: bench::Bench::Trace { options, .. },
-        }) => options.accel.into(),
-        Some(Command::Bench {
-            what: bench::Bench::Devices { options, .. },
-        }) => options.accel.into(),
-        Some(Command::Bench {
-            what: bench::Bench::Accuracy { options, .. },
-        }) => options.accel.into(),
-        Some(Command::Bench {
-            what: bench::Bench::Table2 { accel, .. } | bench::Bench::Features { accel, .. },
-        }) => (*accel).into(),
+        Some(Command::Bench { what }) => what.accel(),
         _ => AccelChoice::Lbvh,
     };
     let opts = GpuOptions {
