@@ -205,8 +205,23 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
     Ok(l)
 }
 
-/// Builds both levels on the CPU executor with `opts` (binary trees: the two-level walk
-/// does not read the wide layout), in the [`layout`] of `placements`, whose errors it returns.
+/// How both backends build mesh `mesh`'s BVH in two levels whose frames build with `opts`:
+/// binary (the two-level walk does not read the wide layout); the world-space group's, built
+/// again every frame, as the frame's; every other mesh's, built once when the scene is loaded
+/// and traced by every frame after, restructured by treelets whatever the frame asks (H100,
+/// `bench realtime --instancing on`: the herd's, the sixteen bunnies' and the forest's frames
+/// 5% faster; bench/NOTES.md, session 29).
+pub fn mesh_build(placements: &[Placement], mesh: usize, opts: BuildOptions) -> BuildOptions {
+    let group = placements.iter().any(|p| p.mesh == mesh && p.object == INVALID);
+    BuildOptions {
+        wide: false,
+        treelets: opts.treelets || !group,
+        ..opts
+    }
+}
+
+/// Builds both levels on the CPU executor with `opts` (the meshes as [`mesh_build`] says),
+/// in the [`layout`] of `placements`, whose errors it returns.
 pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildOptions) -> Result<Levels, String> {
     let layout = layout(meshes, placements).map_err(|e| e.to_string())?;
     let opts = BuildOptions { wide: false, ..opts };
@@ -217,12 +232,12 @@ pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildO
         objects: layout.objects,
         ..Default::default()
     };
-    for m in meshes {
+    for (k, m) in meshes.iter().enumerate() {
         if m.tris.is_empty() && m.spheres.is_empty() {
             l.mesh_parents.push(Vec::new());
             continue;
         }
-        let r = crate::cpu::build(&m.tris, &m.spheres, opts).0;
+        let r = crate::cpu::build(&m.tris, &m.spheres, mesh_build(placements, k, opts)).0;
         l.nodes.extend_from_slice(&r.nodes);
         l.mesh_parents.push(r.parents);
         l.tris.extend_from_slice(&m.tris);
@@ -287,4 +302,30 @@ pub fn validate_levels(l: &Levels, meshes: &[MeshPrims], placements: &[Placement
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bvh::MortonBits;
+
+    #[test]
+    fn meshes_built_once_are_restructured_and_the_group_builds_as_the_frame() {
+        let placed = Placement {
+            mesh: 1,
+            object: 0,
+            rows: IDENTITY,
+        };
+        let placements = [Placement::world(0), placed];
+        let frame = BuildOptions::wide(MortonBits::B30);
+        let group = mesh_build(&placements, 0, frame);
+        assert!(!group.treelets && !group.wide, "{group:?}");
+        let mesh = mesh_build(&placements, 1, frame);
+        assert!(mesh.treelets && !mesh.wide, "{mesh:?}");
+        let restructuring = BuildOptions {
+            treelets: true,
+            ..frame
+        };
+        assert!(mesh_build(&placements, 0, restructuring).treelets);
+    }
 }

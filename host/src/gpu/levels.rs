@@ -5,7 +5,7 @@
 //! world boxes (the `instance_boxes` kernel), its nodes copied after the meshes'. The same
 //! [`LevelsLayout`] as the CPU executor's (`bvh::build_levels`), and the same bits.
 use super::{frame_timings, stage_ms, BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels, BINDINGS};
-use crate::bvh::{inverse_rows, layout, BuildOptions, LevelsLayout, MeshPrims, Placement};
+use crate::bvh::{inverse_rows, layout, mesh_build, BuildOptions, LevelsLayout, MeshPrims, Placement};
 use anyhow::{anyhow, ensure, Context, Result};
 use gpu_allocator::MemoryLocation;
 use shared::instance::Instance;
@@ -128,14 +128,19 @@ impl GpuLevels {
         };
         l.objects.write(&l.layout.objects)?;
         l.instances.write(&l.layout.instances)?;
-        l.build_meshes(meshes, previous.filter(|p| p.opts == opts))?;
+        l.build_meshes(meshes, placements, previous.filter(|p| p.opts == opts))?;
         l.rebuild_top()?;
         Ok(l)
     }
 
     /// Every mesh's primitives and BVH into the bottom level: copied from `previous` where
-    /// it holds the same mesh, else built (one build each).
-    fn build_meshes(&mut self, meshes: &[MeshPrims], previous: Option<&GpuLevels>) -> Result<()> {
+    /// it holds the same mesh, else built (one build each, as [`mesh_build`] says).
+    fn build_meshes(
+        &mut self,
+        meshes: &[MeshPrims],
+        placements: &[Placement],
+        previous: Option<&GpuLevels>,
+    ) -> Result<()> {
         let old: std::collections::HashMap<MeshKey, usize> = previous
             .map(|p| p.keys.iter().enumerate().map(|(j, k)| (*k, j)).collect())
             .unwrap_or_default();
@@ -160,7 +165,7 @@ impl GpuLevels {
                         None => builder.insert(GpuLbvh::new(&self.gpu, &self.kernels)?),
                     };
                     b.upload(&mesh.tris, &mesh.spheres)?;
-                    b.build(self.opts, false)?;
+                    b.build(mesh_build(placements, m, self.opts), false)?;
                     ((0, 0, 0), b.buffers()?)
                 }
             };
