@@ -44,20 +44,27 @@ pub struct Options {
     /// How the driver builds its bottom levels (with `--accel driver`).
     #[arg(long, value_enum, default_value_t = DriverBuild::FastBuild)]
     pub driver_build: DriverBuild,
+    /// Also trace every scene with instances in two levels (`--instancing on`), its batches
+    /// the very rays of the flattened rows (with `--accel lbvh`).
+    #[arg(long)]
+    pub levels: bool,
 }
 
 /// What traced a row: one of the project's BVH layouts, or the driver's structures.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub enum Tracer {
     Ours(Layout),
+    /// Our binary BVHs in two levels: the meshes' and the top level over the instances.
+    Levels,
     Driver(DriverBuild),
 }
 
 impl Tracer {
-    /// The name a row shows: `Binary`, `Wide`, `Driver FastBuild`.
+    /// The name a row shows: `Binary`, `Wide`, `Binary, two levels`, `Driver FastBuild`.
     pub fn name(self) -> String {
         match self {
             Tracer::Ours(layout) => format!("{layout:?}"),
+            Tracer::Levels => "Binary, two levels".to_string(),
             Tracer::Driver(build) => format!("Driver {build:?}"),
         }
     }
@@ -123,14 +130,37 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             "--depth",
             "4",
         ];
-        let p = <SceneArgs as clap::Parser>::try_parse_from(args)?.prepare()?;
-        let tracers = match o.accel {
+        // Our layouts' rows trace the flattened scene (the driver's, the scene as `--instancing
+        // auto` lays it out).
+        let flat = [&args[..], &["--instancing", "off"]].concat();
+        let p = match o.accel {
+            Accel::Lbvh => <SceneArgs as clap::Parser>::try_parse_from(flat)?.prepare()?,
+            Accel::Driver => <SceneArgs as clap::Parser>::try_parse_from(args)?.prepare()?,
+        };
+        let mut tracers = match o.accel {
             Accel::Lbvh => vec![Tracer::Ours(Layout::Binary), Tracer::Ours(Layout::Wide)],
             Accel::Driver => vec![Tracer::Driver(o.driver_build)],
         };
+        let levels = if o.levels && o.accel == Accel::Lbvh {
+            let on = [&args[..], &["--instancing", "on"]].concat();
+            let p = <SceneArgs as clap::Parser>::try_parse_from(on)?.prepare()?;
+            p.data.instancing.is_some().then_some(p)
+        } else {
+            None
+        };
+        if levels.is_some() {
+            tracers.push(Tracer::Levels);
+        }
+        // The batches' rays, made by the scene's first row and cast by every row.
+        let mut queries = None;
         for tracer in tracers {
             let mut r = GpuRenderer::new(gpu, &kernels)?;
-            let row = measure(&mut r, &p, tracer, o).with_context(|| format!("scene {scene}, {}", tracer.name()))?;
+            let p = match (tracer, &levels) {
+                (Tracer::Levels, Some(levels)) => levels,
+                _ => &p,
+            };
+            let row = measure(&mut r, p, tracer, o, &mut queries)
+                .with_context(|| format!("scene {scene}, {}", tracer.name()))?;
             eprintln!(
                 "{} {:?}: build {:.3} ms, primary {:.2}, diffuse {:.2}, shadow {:.2}, batch primary {:.2}, batch bounce {:.2} Grays/s",
                 row.scene,
@@ -156,14 +186,22 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
     })
 }
 
-fn measure(r: &mut GpuRenderer, p: &Prepared, tracer: Tracer, o: &Options) -> Result<Row> {
+/// One row; `queries`, the batches' rays, are made from this row's hits where none are yet
+/// (a flattened scene's: the hits of two levels name model-space triangles).
+fn measure(
+    r: &mut GpuRenderer,
+    p: &Prepared,
+    tracer: Tracer,
+    o: &Options,
+    queries: &mut Option<Queries>,
+) -> Result<Row> {
     let build = BuildOptions {
         wide: tracer == Tracer::Ours(Layout::Wide),
         ..BuildOptions::lbvh(p.bits)
     };
     r.set_build(build);
     match tracer {
-        Tracer::Ours(_) => r.set_accel(Accel::Lbvh, o.driver_build)?,
+        Tracer::Ours(_) | Tracer::Levels => r.set_accel(Accel::Lbvh, o.driver_build)?,
         Tracer::Driver(b) => r.set_accel(Accel::Driver, b)?,
     }
     r.load(&p.data, &p.frame)?;
@@ -201,7 +239,7 @@ fn measure(r: &mut GpuRenderer, p: &Prepared, tracer: Tracer, o: &Options) -> Re
     let (diffuse, _, _) = grays(r, &depth(4), o.spp)?;
     let (_, frame_build_ms, frame_trace_ms) = grays(r, &depth(4), 1)?;
     let sah = match tracer {
-        Tracer::Driver(_) => None,
+        Tracer::Driver(_) | Tracer::Levels => None,
         Tracer::Ours(_) => {
             let bvh = r.bvh()?;
             Some(if build.wide {
@@ -211,7 +249,11 @@ fn measure(r: &mut GpuRenderer, p: &Prepared, tracer: Tracer, o: &Options) -> Re
             })
         }
     };
-    let queries = Queries::new(r, &depth(1), &p.data.lights)?;
+    let queries = match queries {
+        Some(q) => q,
+        None if tracer == Tracer::Levels => bail!("two levels' batches need a flattened row's rays first"),
+        None => queries.insert(Queries::new(r, &depth(1), &p.data.lights)?),
+    };
     let shadow = rate(r, &queries.segments, true, o.runs)?;
     let batch_primary = rate(r, &queries.primaries, false, o.runs)?;
     let batch_bounce = rate(r, &queries.bounces, false, o.runs)?;
@@ -266,11 +308,6 @@ impl Queries {
                 continue;
             }
             let (dir, p) = (xyz(ray.dir), xyz(ray.origin) + xyz(ray.dir) * hit.t);
-            let d = target - p;
-            segments.push(Ray {
-                origin: [p.x, p.y, p.z, 1e-4],
-                dir: [d.x, d.y, d.z, 1.0 - 1e-4],
-            });
             let n = if hit.prim < frame.n_tris {
                 let t = &tris[hit.prim as usize];
                 (xyz(t.v1) - xyz(t.v0)).cross(xyz(t.v2) - xyz(t.v0))
@@ -282,10 +319,19 @@ impl Queries {
                 continue;
             }
             let n = if n.dot(dir) > 0.0 { -n } else { n };
+            // Rays leave the surface by a relative 1e-5 of the hit's magnitude (or of 1 near
+            // the origin) on their own side, as paths leave it: a segment started on the
+            // surface would hit it about half the time and measure nothing.
+            let lift = 1e-5 * p.abs().max_element().max(1.0);
+            let s = p + if n.dot(target - p) < 0.0 { -n } else { n } * lift;
+            let d = target - s;
+            segments.push(Ray {
+                origin: [s.x, s.y, s.z, 0.0],
+                dir: [d.x, d.y, d.z, 1.0 - 1e-4],
+            });
             let mut rng = Rng::new(i as u32, 1, 0xb0b);
             let b = shared::sampling::cosine_hemisphere(n, rng.next_f32(), rng.next_f32());
-            // Off the surface by a relative 1e-5 of the hit's magnitude (or of 1 near the origin).
-            let o = p + n * (1e-5 * p.abs().max_element().max(1.0));
+            let o = p + n * lift;
             bounces.push(Ray {
                 origin: [o.x, o.y, o.z, 0.0],
                 dir: [b.x, b.y, b.z, f32::INFINITY],
@@ -347,7 +393,9 @@ pub fn markdown(r: &Report) -> String {
          frame (the driver's: its structures' builds). SAH: surface-area cost of the tree traced \
          (not known for the driver's). Frame: 1 spp, depth 4, BVH rebuilt. \
          Batch: closest-hit queries alone (`cast_rays`, no shading): every primary ray, and one \
-         cosine-distributed bounce from every primary hit.\n"
+         cosine-distributed bounce from every primary hit, the same rays for every row of a scene. \
+         Binary and Wide trace the scene flattened, Binary, two levels its meshes' BVHs under a \
+         top level over the instances (`--levels`).\n"
     );
     let _ = writeln!(
         s,

@@ -4,7 +4,8 @@ mod levels;
 mod validate;
 
 pub use levels::{
-    build_levels, inverse_rows, layout, mesh_build, validate_levels, LayoutError, Levels, LevelsLayout, MeshPrims, Placement,
+    build_levels, inverse_rows, layout, mesh_build, validate_levels, LayoutError, Levels, LevelsLayout, MeshPrims,
+    Placement,
 };
 pub use validate::{validate, validate_wide, BvhStats, WideStats};
 

@@ -99,10 +99,17 @@ pub fn kernels_command(opts: &GpuOptions) -> Result<()> {
                     instancing,
                 ];
                 let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
-                let lines = k.specialised_statistics(Kernel::PathTrace, p.frame.features)?;
-                let nee = if nee { " (NEE)" } else { "" };
+                let nee_name = if nee { " (NEE)" } else { "" };
                 let levels = if instancing == "on" { " (two levels)" } else { "" };
-                println!("path_trace for {scene}{nee}{levels}: {}", lines.join(", "));
+                for kernel in [Kernel::PathTrace, Kernel::PathTracePersistent] {
+                    let lines = k.specialised_statistics(kernel, p.frame.features)?;
+                    println!("{} for {scene}{nee_name}{levels}: {}", kernel.entry(), lines.join(", "));
+                }
+                if !nee {
+                    // The walk alone, as batches of closest-hit queries run it.
+                    let lines = k.specialised_statistics(Kernel::CastRays, p.frame.features)?;
+                    println!("cast_rays for {scene}{levels}: {}", lines.join(", "));
+                }
             }
         }
     }
