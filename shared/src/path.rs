@@ -630,6 +630,28 @@ fn bounce<T: Trace>(
     q.depth < f.max_depth
 }
 
+/// Persistent path tracing (the host's `Kernel::PathTracePersistent`, workgroups of 1,024):
+/// every invocation renders pixel after pixel ([`render_pixel`]), each the next number of a
+/// counter (the first word of `guides`' last entry, zeroed before the dispatch), until the
+/// frame has none left. Numbers run through tiles of 8x4 pixels, 32 to a tile, so the lanes
+/// of a warp that take numbers together trace neighbouring pixels, as in the 8x8 tiles of
+/// `path_trace`. Every pixel is rendered once, whichever invocation takes it.
+pub fn render_tiles<T: Trace>(p: &RenderPush, w: &World, tr: &mut T, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
+    let f = w.frame;
+    let tiles_x = f.width.div_ceil(8);
+    let n = tiles_x * f.height.div_ceil(4) * 32;
+    let last = guides.len() as u32 - 1;
+    loop {
+        let i = sync::atomic_add_device::<false>(&mut sync::at_mut(guides, last)[0], 1);
+        if i >= n {
+            return;
+        }
+        let (tile, lane) = (i / 32, i % 32);
+        let (x, y) = ((tile % tiles_x) * 8 + lane % 8, (tile / tiles_x) * 4 + lane / 8);
+        render_pixel(x, y, p, w, tr, accum, guides);
+    }
+}
+
 /// Adds `p.samples` samples of pixel `(x, y)` to `accum`: see [`pixel_samples`]. With
 /// [`FEATURE_GUIDES`] also the pixel's guide: written by the frame's first dispatch
 /// (`p.count == 0`, the samples the frame traced before), its sums added to by the rest.

@@ -7,7 +7,7 @@
 use integration_tests::{assert_no_validation_errors, gpu};
 use raytrace::cli::{compare, Prepared, SceneArgs};
 use raytrace::cpu::render_cpu;
-use raytrace::gpu::{GpuRenderer, Kernels};
+use raytrace::gpu::{Denoise, GpuRenderer, Kernels};
 use raytrace::picture::diff_stats;
 use raytrace::scene::{auto_instances, InstancingMode, Scene, Shape};
 use shared::types::{Ray, FEATURE_INSTANCES, INVALID};
@@ -323,5 +323,47 @@ fn adding_and_removing_objects_keeps_the_meshes_bvhs() {
     let added = (scene.objects.len() - 1) as u32;
     let o = data.objects[added as usize].rows;
     assert_eq!(r.cast_objects(&[down(o[0][3], o[2][3])]).expect("cast")[0].prim, added);
+    assert_no_validation_errors(&gpu);
+}
+
+/// The persistent path tracer (`path::render_tiles`, what scenes in two levels run on GPUs
+/// other than lavapipe) renders every pixel as the 8x8 tiles do, bit for bit: the Cornell box
+/// in two levels (an instanced light, next-event estimation) and the pond (its world-space
+/// group), with the denoiser's guides, whose buffer's last entry holds the counter. At 48x48
+/// every invocation takes at most one pixel: on lavapipe pixels taken second lost samples
+/// (see `GpuRenderer::path_kernel`), so larger frames are compared on the H100 alone.
+#[test]
+fn the_persistent_path_tracer_renders_every_pixel_as_the_tiles_do() {
+    let Some(gpu) = gpu("the_persistent_path_tracer_renders_every_pixel_as_the_tiles_do") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    for scene in ["cornell", POND] {
+        let p = prepared(scene, 48, 4, "on");
+        assert!(p.frame.features & FEATURE_INSTANCES != 0, "{scene}");
+        let render = |persistent: bool, denoise: Denoise| {
+            let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+            r.set_persistent(Some(persistent));
+            r.load(&p.data, &p.frame).expect("load");
+            r.set_denoise(denoise).expect("denoiser");
+            r.render(4, true).expect("render");
+            let guides = match denoise {
+                Denoise::Off => Vec::new(),
+                _ => r.guides().expect("guides"),
+            };
+            (r.sums().expect("sums"), guides)
+        };
+        for denoise in [Denoise::Off, Denoise::EveryFrame] {
+            let (tiles, tiles_guides) = render(false, denoise);
+            let (persistent, persistent_guides) = render(true, denoise);
+            assert!(tiles.iter().any(|s| s[0] > 0.0), "{scene}: a black picture");
+            let apart = tiles.iter().zip(&persistent).filter(|(a, b)| a != b).count();
+            assert_eq!(apart, 0, "{scene} ({denoise:?}): {apart} pixels differ");
+            assert!(
+                tiles_guides == persistent_guides,
+                "{scene} ({denoise:?}): the guides differ"
+            );
+        }
+    }
     assert_no_validation_errors(&gpu);
 }

@@ -128,7 +128,8 @@ impl GpuDenoiser {
 }
 
 /// Bytes of the guides buffer for `pixels` pixels (one guide, the least a binding holds,
-/// where the path tracer leaves none).
+/// where the path tracer leaves none), and one entry more: the persistent path tracer's
+/// pixel counter (`path::render_tiles`), the buffer's last.
 pub fn guide_bytes(pixels: u64) -> u64 {
-    pixels.max(1) * GUIDE_PLANES as u64 * 16
+    pixels.max(1) * GUIDE_PLANES as u64 * 16 + 16
 }

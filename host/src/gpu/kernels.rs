@@ -39,6 +39,7 @@ pub enum Kernel {
     Transform,
     InstanceBoxes,
     PathTrace,
+    PathTracePersistent,
     DisplayImage,
     CastRays,
     FmaProbe,
@@ -50,10 +51,10 @@ pub enum Kernel {
 impl Kernel {
     /// The path tracer and the ray casts: kernels specialised to the frame's features.
     pub fn is_tracer(self) -> bool {
-        matches!(self, Kernel::PathTrace | Kernel::CastRays)
+        matches!(self, Kernel::PathTrace | Kernel::PathTracePersistent | Kernel::CastRays)
     }
 
-    pub const ALL: [Kernel; 27] = [
+    pub const ALL: [Kernel; 28] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -75,6 +76,7 @@ impl Kernel {
         Kernel::Transform,
         Kernel::InstanceBoxes,
         Kernel::PathTrace,
+        Kernel::PathTracePersistent,
         Kernel::DisplayImage,
         Kernel::CastRays,
         Kernel::FmaProbe,
@@ -112,6 +114,7 @@ impl Kernel {
             Kernel::Transform => "transform",
             Kernel::InstanceBoxes => "instance_boxes",
             Kernel::PathTrace => "path_trace",
+            Kernel::PathTracePersistent => "path_trace_persistent",
             Kernel::DisplayImage => "display_image",
             Kernel::CastRays => "cast_rays",
             Kernel::FmaProbe => "fma_probe",

@@ -163,7 +163,15 @@ pub struct GpuRenderer {
     /// (`--accel driver`), and how it builds them.
     driver: Option<DriverTracer>,
     driver_build: DriverBuild,
+    /// Whether the path tracer runs persistent (see [`Self::path_kernel`]); `None`: as the
+    /// scene and device ask.
+    persistent: Option<bool>,
 }
+
+/// Workgroups of 1,024 invocations the persistent path tracer is dispatched as at most
+/// (those the device cannot hold at once start when others end, find no pixels left and
+/// end): more than any GPU holds at once today (an H100 holds 132, one an SM).
+const PERSISTENT_GROUPS: u32 = 1024;
 
 impl GpuRenderer {
     pub fn new(gpu: &Arc<Gpu>, kernels: &Arc<Kernels>) -> Result<GpuRenderer> {
@@ -190,7 +198,35 @@ impl GpuRenderer {
             shown: None,
             driver: None,
             driver_build: DriverBuild::default(),
+            persistent: None,
         })
+    }
+
+    /// Runs the path tracer persistent (`Some(true)`), in tiles (`Some(false)`), or as
+    /// [`Self::path_kernel`] decides (`None`): tests compare the two kernels.
+    pub fn set_persistent(&mut self, persistent: Option<bool>) {
+        self.persistent = persistent;
+    }
+
+    /// The path tracer's kernel for this frame. Scenes in two levels run persistent
+    /// ([`Kernel::PathTracePersistent`]): in workgroups of 1,024 invocations, which NVIDIA's
+    /// compiler must fit in an SM's 65,536 registers, 64 each, where its 8x8 tiles take 96
+    /// (128 with next-event estimation) for the two-level walk; every invocation takes its
+    /// next pixels from a counter, so no workgroup holds an SM while a few of its invocations
+    /// finish. H100 (bench/NOTES.md, session 29): the herd's, the sixteen bunnies' and the
+    /// forest's real-time frames 8-12% faster, 38-51% with next-event estimation, their frames
+    /// of 32 samples 48-54%; flattened scenes keep the tiles (the bunny's frame of 32 samples
+    /// was 43% slower persistent, its real-time frame 7% faster). Not on lavapipe: there
+    /// pixels an invocation took after its first lost samples (llvmpipe runs a workgroup's
+    /// subgroups one after another; the cause was not found), so it keeps the tiles.
+    fn path_kernel(&self) -> Kernel {
+        let two_levels = self.tracer_constant() & FEATURE_INSTANCES != 0;
+        match self.persistent {
+            Some(true) => Kernel::PathTracePersistent,
+            Some(false) => Kernel::PathTrace,
+            None if two_levels && !self.gpu.is_lavapipe() => Kernel::PathTracePersistent,
+            None => Kernel::PathTrace,
+        }
     }
 
     /// What frames trace through from now on: the project's BVH, or the driver's
@@ -704,7 +740,7 @@ impl GpuRenderer {
         // The path tracer's pipeline (the driver's tens of milliseconds the first time) is
         // made while the build is recorded.
         if self.driver.is_none() {
-            self.kernels.make_soon(Kernel::PathTrace, self.path_trace_constant());
+            self.kernels.make_soon(self.path_kernel(), self.path_trace_constant());
         }
         let b = self.bufs.as_ref().context("no scene loaded")?;
         let k = &self.kernels;
@@ -760,9 +796,14 @@ impl GpuRenderer {
             Some(_) => ash::vk::Pipeline::null(),
             None => self
                 .kernels
-                .specialised(Kernel::PathTrace, self.path_trace_constant())?,
+                .specialised(self.path_kernel(), self.path_trace_constant())?,
         };
-        let (gx, gy) = (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE));
+        let persistent = self.path_kernel() == Kernel::PathTracePersistent;
+        let (gx, gy) = if persistent {
+            ((f.width * f.height).div_ceil(1024).min(PERSISTENT_GROUPS), 1)
+        } else {
+            (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE))
+        };
         let mut done = 0;
         while done < samples {
             let n = (samples - done).min(SAMPLES_PER_DISPATCH);
@@ -775,6 +816,12 @@ impl GpuRenderer {
             match self.driver.as_mut() {
                 Some(d) => d.record_launch(cmds, PATH_TRACE, driver_features, sets, &push, f.width, f.height)?,
                 None => {
+                    if persistent {
+                        // The pixel counter: the guides' last entry (`path::render_tiles`).
+                        let g = &self.bufs.as_ref().context("no scene loaded")?.guides;
+                        cmds.fill_range(g, g.size - 16, 16, 0);
+                        cmds.barrier();
+                    }
                     cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(&push), gx, gy);
                     cmds.barrier();
                 }
