@@ -275,7 +275,7 @@ fn measure(
 
 /// The batches of rays cast without the path tracer: every pixel's primary ray; from every
 /// primary hit, a segment to a point on the first light (the top of the scene's bounds where
-/// none emits), as next-event estimation casts them, and a cosine-distributed bounce about the
+/// none emits; [`light_point`]), as next-event estimation casts them, and a cosine-distributed bounce about the
 /// geometric normal (facing the ray), as a diffuse surface scatters.
 struct Queries {
     primaries: Vec<Ray>,
@@ -301,7 +301,7 @@ impl Queries {
             })
             .collect();
         let hits = r.cast(&primaries)?;
-        let target = light_point(&tris, &spheres, lights, frame);
+        let light = light_point(&tris, &spheres, lights, frame);
         let (mut segments, mut bounces) = (Vec::new(), Vec::new());
         for (i, (ray, hit)) in primaries.iter().zip(&hits).enumerate() {
             if hit.prim == INVALID {
@@ -323,6 +323,7 @@ impl Queries {
             // the origin) on their own side, as paths leave it: a segment started on the
             // surface would hit it about half the time and measure nothing.
             let lift = 1e-5 * p.abs().max_element().max(1.0);
+            let target = light.seen_from(p);
             let s = p + if n.dot(target - p) < 0.0 { -n } else { n } * lift;
             let d = target - s;
             segments.push(Ray {
@@ -362,12 +363,33 @@ fn rate(r: &mut GpuRenderer, rays: &[Ray], any: bool, runs: usize) -> Result<f64
     Ok(median(rates))
 }
 
-/// The centre of the first light primitive, or the top centre of the scene's bounds.
-fn light_point(tris: &[Triangle], spheres: &[Sphere], lights: &[u32], f: &Frame) -> Vec3 {
+/// Where the shadow segments end, seen from a point: a point of the first light primitive
+/// (its centre; on a sphere, its point nearest the one seen from, so the segment stops short
+/// of the light instead of entering it, as next-event estimation's do), or the top centre of
+/// the scene's bounds where none emits.
+enum LightPoint {
+    At(Vec3),
+    Sphere(Vec3, f32),
+}
+
+impl LightPoint {
+    fn seen_from(&self, p: Vec3) -> Vec3 {
+        match *self {
+            LightPoint::At(q) => q,
+            LightPoint::Sphere(c, r) => c + (p - c).normalize_or_zero() * r,
+        }
+    }
+}
+
+fn light_point(tris: &[Triangle], spheres: &[Sphere], lights: &[u32], f: &Frame) -> LightPoint {
     let n_tris = f.n_tris;
     if let Some(&l) = lights.first() {
+        if l >= n_tris {
+            let s = spheres[(l - n_tris) as usize].center_radius;
+            return LightPoint::Sphere(xyz(s), s[3]);
+        }
         let (lo, hi) = prim_box(l, n_tris, tris, spheres);
-        return (lo + hi) * 0.5;
+        return LightPoint::At((lo + hi) * 0.5);
     }
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for i in 0..f.n_prims {
@@ -375,7 +397,7 @@ fn light_point(tris: &[Triangle], spheres: &[Sphere], lights: &[u32], f: &Frame)
         lo = lo.min(l);
         hi = hi.max(h);
     }
-    Vec3::new((lo.x + hi.x) * 0.5, hi.y, (lo.z + hi.z) * 0.5)
+    LightPoint::At(Vec3::new((lo.x + hi.x) * 0.5, hi.y, (lo.z + hi.z) * 0.5))
 }
 
 pub fn markdown(r: &Report) -> String {
