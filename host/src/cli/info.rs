@@ -36,8 +36,9 @@ pub fn info_command(opts: &GpuOptions) -> Result<()> {
                     }
                     Err(e) => format!("unusable: {e:#}"),
                 };
+                let sms = d.processors.map(|n| format!("; {n} SMs")).unwrap_or_default();
                 println!(
-                    "Vulkan device {}: {} ({}, {}; bindings up to {:.0} MB): {line}",
+                    "Vulkan device {}: {} ({}, {}; bindings up to {:.0} MB{sms}): {line}",
                     d.index,
                     d.name,
                     d.kind_name(),

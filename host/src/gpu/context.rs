@@ -50,6 +50,8 @@ pub struct DeviceInfo {
     pub driver_id: vk::DriverId,
     /// The most bytes one storage-buffer binding may span (`maxStorageBufferRange`).
     pub max_binding: u64,
+    /// Streaming multiprocessors, where the driver says (VK_NV_shader_sm_builtins).
+    pub processors: Option<u32>,
 }
 
 impl DeviceInfo {
@@ -117,6 +119,8 @@ pub struct Gpu {
     /// The most bytes one storage-buffer binding may span (`maxStorageBufferRange`).
     pub max_binding: u64,
     /// Pipelines capture driver statistics (see `Kernels::statistics`).
+    /// Streaming multiprocessors, where the driver says (VK_NV_shader_sm_builtins).
+    pub processors: Option<u32>,
     pub kernel_stats: bool,
     /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
     pub swapchain: bool,
@@ -248,6 +252,7 @@ impl Gpu {
             driver_id,
             kind,
             max_binding,
+            processors,
             ..
         } = chosen;
         // SAFETY: the device was created with this queue family.
@@ -283,6 +288,7 @@ impl Gpu {
             driver_id,
             kind,
             max_binding,
+            processors,
             kernel_stats,
             swapchain: !opts.window_extensions.is_empty(),
             ray_tracing,
@@ -313,11 +319,23 @@ impl Gpu {
         let all = unsafe { instance.enumerate_physical_devices() }.context("enumerating Vulkan devices")?;
         let mut candidates = Vec::new();
         for (index, &pd) in all.iter().enumerate() {
-            let mut drv = vk::PhysicalDeviceDriverProperties::default();
-            let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut drv);
             // SAFETY: `pd` comes from this instance.
+            let exts = unsafe { instance.enumerate_device_extension_properties(pd) }.unwrap_or_default();
+            let sm_ext = ash::nv::shader_sm_builtins::NAME;
+            let has_sms = exts
+                .iter()
+                .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == sm_ext));
+            let mut drv = vk::PhysicalDeviceDriverProperties::default();
+            let mut sms = vk::PhysicalDeviceShaderSMBuiltinsPropertiesNV::default();
+            let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut drv);
+            if has_sms {
+                props2 = props2.push_next(&mut sms);
+            }
+            // SAFETY: `pd` comes from this instance; the chain holds only structures of
+            // extensions it offers.
             unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
             let props = props2.properties;
+            let processors = (has_sms && sms.shader_sm_count > 0).then_some(sms.shader_sm_count);
             let name = props
                 .device_name_as_c_str()
                 .map(|c| c.to_string_lossy().into_owned())
@@ -352,6 +370,7 @@ impl Gpu {
                 kind: props.device_type,
                 driver_id: drv.driver_id,
                 max_binding: props.limits.max_storage_buffer_range as u64,
+                processors,
             });
         }
         Ok(candidates)

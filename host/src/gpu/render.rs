@@ -208,23 +208,25 @@ impl GpuRenderer {
         self.persistent = persistent;
     }
 
-    /// The path tracer's kernel for this frame. Scenes in two levels run persistent
-    /// ([`Kernel::PathTracePersistent`]): in workgroups of 1,024 invocations, which NVIDIA's
-    /// compiler must fit in an SM's 65,536 registers, 64 each, where its 8x8 tiles take 96
-    /// (128 with next-event estimation) for the two-level walk; every invocation takes its
-    /// next pixels from a counter, so no workgroup holds an SM while a few of its invocations
-    /// finish. H100 (bench/NOTES.md, session 29): the herd's, the sixteen bunnies' and the
-    /// forest's real-time frames 8-12% faster, 38-51% with next-event estimation, their frames
-    /// of 32 samples 48-54%; flattened scenes keep the tiles (the bunny's frame of 32 samples
-    /// was 43% slower persistent, its real-time frame 7% faster). Not on lavapipe: there
-    /// pixels an invocation took after its first lost samples (llvmpipe runs a workgroup's
-    /// subgroups one after another; the cause was not found), so it keeps the tiles.
-    fn path_kernel(&self) -> Kernel {
+    /// The path tracer's kernel for a frame of `samples` samples per pixel: persistent
+    /// ([`Kernel::PathTracePersistent`]) for scenes in two levels and for frames of one sample
+    /// per pixel, else 8x8 tiles. Persistent: workgroups of 1,024 invocations, which NVIDIA's
+    /// compiler must fit in an SM's 65,536 registers, 64 each (its 8x8 tiles take 96 for the
+    /// two-level walk, 128 with next-event estimation), every invocation taking its next pixel
+    /// from a counter, so no workgroup holds an SM while a few of its invocations finish.
+    /// H100 (bench/NOTES.md, session 29): two-level real-time frames 8-12% faster (37-51% with
+    /// NEE), their frames of 32 samples 43-54%; flattened scenes' frames of one sample 2-8%
+    /// faster from 800x800 to 4K, but their frames of several samples up to 44% slower (the
+    /// bunny at 800x800, 32 spp; 10% at 1080p and 8 spp), so those keep the tiles. Not on
+    /// lavapipe: llvmpipe runs a workgroup's subgroups one after another, so its first ones
+    /// take most of the pixels, and its loop limiter (65,535 iterations of a loop an
+    /// invocation, counted across the loop's entries) then ends their paths early.
+    fn path_kernel(&self, samples: u32) -> Kernel {
         let two_levels = self.tracer_constant() & FEATURE_INSTANCES != 0;
         match self.persistent {
             Some(true) => Kernel::PathTracePersistent,
             Some(false) => Kernel::PathTrace,
-            None if two_levels && !self.gpu.is_lavapipe() => Kernel::PathTracePersistent,
+            None if (two_levels || samples == 1) && !self.gpu.is_lavapipe() => Kernel::PathTracePersistent,
             None => Kernel::PathTrace,
         }
     }
@@ -740,7 +742,8 @@ impl GpuRenderer {
         // The path tracer's pipeline (the driver's tens of milliseconds the first time) is
         // made while the build is recorded.
         if self.driver.is_none() {
-            self.kernels.make_soon(self.path_kernel(), self.path_trace_constant());
+            self.kernels
+                .make_soon(self.path_kernel(samples), self.path_trace_constant());
         }
         let b = self.bufs.as_ref().context("no scene loaded")?;
         let k = &self.kernels;
@@ -796,9 +799,9 @@ impl GpuRenderer {
             Some(_) => ash::vk::Pipeline::null(),
             None => self
                 .kernels
-                .specialised(self.path_kernel(), self.path_trace_constant())?,
+                .specialised(self.path_kernel(samples), self.path_trace_constant())?,
         };
-        let persistent = self.path_kernel() == Kernel::PathTracePersistent;
+        let persistent = self.path_kernel(samples) == Kernel::PathTracePersistent;
         let (gx, gy) = if persistent {
             ((f.width * f.height).div_ceil(1024).min(PERSISTENT_GROUPS), 1)
         } else {
