@@ -347,99 +347,75 @@ pub fn instance_boxes(
     shared::instance::instance_box(flat_index(id.x, id.y), p.n, instances, objects, boxes);
 }
 
-#[spirv(compute(threads(8, 8)))]
-#[allow(clippy::too_many_arguments)]
-pub fn path_trace(
-    #[spirv(global_invocation_id)] id: UVec3,
-    #[spirv(push_constant)] p: &RenderPush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 16)] guides: &mut [[u32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
-    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
-) {
-    let w = world!(
-        tris,
-        spheres,
-        nodes,
-        wide,
-        order,
-        instances,
-        objects,
-        prim_object,
-        materials,
-        lights,
-        frame,
-        attrs,
-        punctual,
-        env,
-        textures,
-        texels,
-        features
-    );
-    path::render_pixel(id.x, id.y, p, &w, &mut path::Walk, accum, guides);
+/// The path tracer's entry points: the push constants, every binding the path loop reads
+/// and the scene made of them (`$w`), then `$body`; `$p`, `$w`, `$accum` and `$guides` are
+/// named by the caller, extra parameters (built-ins) come first.
+macro_rules! path_tracer {
+    ($(#[$attr:meta])* $name:ident($($(#[$pattr:meta])* $param:ident: $ty:ty),*) |$p:ident, $w:ident, $accum:ident, $guides:ident| $body:block) => {
+        $(#[$attr])*
+        #[allow(clippy::too_many_arguments)]
+        pub fn $name(
+            $($(#[$pattr])* $param: $ty,)*
+            #[spirv(push_constant)] $p: &RenderPush,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] $accum: &mut [[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 16)] $guides: &mut [[u32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
+            #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
+        ) {
+            let $w = world!(
+                tris,
+                spheres,
+                nodes,
+                wide,
+                order,
+                instances,
+                objects,
+                prim_object,
+                materials,
+                lights,
+                frame,
+                attrs,
+                punctual,
+                env,
+                textures,
+                texels,
+                features
+            );
+            $body
+        }
+    };
 }
 
-/// `path_trace` persistent (`path::render_tiles`): for scenes in two levels, whose walk
-/// NVIDIA's compiler then fits in 64 registers.
-#[spirv(compute(threads(1024)))]
-#[allow(clippy::too_many_arguments)]
-pub fn path_trace_persistent(
-    #[spirv(push_constant)] p: &RenderPush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 16)] guides: &mut [[u32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
-    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
-) {
-    let w = world!(
-        tris,
-        spheres,
-        nodes,
-        wide,
-        order,
-        instances,
-        objects,
-        prim_object,
-        materials,
-        lights,
-        frame,
-        attrs,
-        punctual,
-        env,
-        textures,
-        texels,
-        features
-    );
-    path::render_tiles(p, &w, &mut path::Walk, accum, guides);
+path_tracer! {
+    /// The path tracer in 8x8 tiles, an invocation a pixel (`path::render_pixel`).
+    #[spirv(compute(threads(8, 8)))]
+    path_trace(#[spirv(global_invocation_id)] id: UVec3) |p, w, accum, guides| {
+        path::render_pixel(id.x, id.y, p, &w, &mut path::Walk, accum, guides);
+    }
+}
+
+path_tracer! {
+    /// `path_trace` persistent (`path::render_tiles`): for scenes in two levels, whose walk
+    /// NVIDIA's compiler then fits in 64 registers, and frames of one sample.
+    #[spirv(compute(threads(1024)))]
+    path_trace_persistent() |p, w, accum, guides| {
+        path::render_tiles(p, &w, &mut path::Walk, accum, guides);
+    }
 }
 
 // The denoiser (`shared::denoise`): its own buffers in set 0 (a set of the build's layout:
