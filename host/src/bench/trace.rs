@@ -275,8 +275,9 @@ fn measure(
 
 /// The batches of rays cast without the path tracer: every pixel's primary ray; from every
 /// primary hit, a segment to a point on the first light (the top of the scene's bounds where
-/// none emits; [`light_point`]), as next-event estimation casts them, and a cosine-distributed bounce about the
-/// geometric normal (facing the ray), as a diffuse surface scatters.
+/// none emits; [`light_point`]), as next-event estimation casts them, and a
+/// cosine-distributed bounce about the geometric normal (facing the ray), as a diffuse
+/// surface scatters.
 struct Queries {
     primaries: Vec<Ray>,
     segments: Vec<Ray>,

@@ -119,8 +119,6 @@ pub struct Gpu {
     /// The most bytes one storage-buffer binding may span (`maxStorageBufferRange`).
     pub max_binding: u64,
     /// Pipelines capture driver statistics (see `Kernels::statistics`).
-    /// Streaming multiprocessors, where the driver says (VK_NV_shader_sm_builtins).
-    pub processors: Option<u32>,
     pub kernel_stats: bool,
     /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
     pub swapchain: bool,
@@ -252,7 +250,6 @@ impl Gpu {
             driver_id,
             kind,
             max_binding,
-            processors,
             ..
         } = chosen;
         // SAFETY: the device was created with this queue family.
@@ -288,7 +285,6 @@ impl Gpu {
             driver_id,
             kind,
             max_binding,
-            processors,
             kernel_stats,
             swapchain: !opts.window_extensions.is_empty(),
             ray_tracing,
