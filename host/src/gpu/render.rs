@@ -741,9 +741,9 @@ impl GpuRenderer {
         };
         // The path tracer's pipeline (the driver's tens of milliseconds the first time) is
         // made while the build is recorded.
+        let path_kernel = self.path_kernel(samples);
         if self.driver.is_none() {
-            self.kernels
-                .make_soon(self.path_kernel(samples), self.path_trace_constant());
+            self.kernels.make_soon(path_kernel, self.path_trace_constant());
         }
         let b = self.bufs.as_ref().context("no scene loaded")?;
         let k = &self.kernels;
@@ -797,11 +797,9 @@ impl GpuRenderer {
         let driver_features = self.kernels.tracer_constant(self.path_trace_constant());
         let trace = match self.driver {
             Some(_) => ash::vk::Pipeline::null(),
-            None => self
-                .kernels
-                .specialised(self.path_kernel(samples), self.path_trace_constant())?,
+            None => self.kernels.specialised(path_kernel, self.path_trace_constant())?,
         };
-        let persistent = self.path_kernel(samples) == Kernel::PathTracePersistent;
+        let persistent = path_kernel == Kernel::PathTracePersistent;
         let (gx, gy) = if persistent {
             ((f.width * f.height).div_ceil(1024).min(PERSISTENT_GROUPS), 1)
         } else {
