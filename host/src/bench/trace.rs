@@ -134,9 +134,20 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
         // auto` lays it out).
         let flat = [&args[..], &["--instancing", "off"]].concat();
         let p = match o.accel {
-            Accel::Lbvh => <SceneArgs as clap::Parser>::try_parse_from(flat)?.prepare()?,
+            Accel::Lbvh => <SceneArgs as clap::Parser>::try_parse_from(&flat)?.prepare()?,
             Accel::Driver => <SceneArgs as clap::Parser>::try_parse_from(args)?.prepare()?,
         };
+        // The batches' rays, made by the scene's first row and cast by every row; for the
+        // driver's row of a scene in two levels, made from the flattened scene as our rows'
+        // are (its hits name model-space primitives, which make no world-space rays).
+        let mut queries = None;
+        if o.accel == Accel::Driver && p.data.instancing.is_some() {
+            let flattened = <SceneArgs as clap::Parser>::try_parse_from(&flat)?
+                .prepare()
+                .with_context(|| format!("scene {scene}: the batches' rays are the flattened scene's"))?;
+            let mut r = GpuRenderer::new(gpu, &kernels)?;
+            queries = Some(Queries::of(&mut r, &flattened, o.driver_build)?);
+        }
         let mut tracers = match o.accel {
             Accel::Lbvh => vec![Tracer::Ours(Layout::Binary), Tracer::Ours(Layout::Wide)],
             Accel::Driver => vec![Tracer::Driver(o.driver_build)],
@@ -151,8 +162,6 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
         if levels.is_some() {
             tracers.push(Tracer::Levels);
         }
-        // The batches' rays, made by the scene's first row and cast by every row.
-        let mut queries = None;
         for tracer in tracers {
             let mut r = GpuRenderer::new(gpu, &kernels)?;
             let p = match (tracer, &levels) {
@@ -285,6 +294,19 @@ struct Queries {
 }
 
 impl Queries {
+    /// The batches of the flattened scene `p`, through our binary BVH.
+    fn of(r: &mut GpuRenderer, p: &Prepared, driver_build: DriverBuild) -> Result<Queries> {
+        r.set_build(BuildOptions::lbvh(p.bits));
+        r.set_accel(Accel::Lbvh, driver_build)?;
+        r.load(&p.data, &p.frame)?;
+        let frame = Frame {
+            max_depth: 1,
+            flags: p.frame.flags & !(FLAG_NEE | FLAG_RUSSIAN_ROULETTE),
+            ..p.frame
+        };
+        Queries::new(r, &frame, &p.data.lights)
+    }
+
     fn new(r: &mut GpuRenderer, frame: &Frame, lights: &[u32]) -> Result<Queries> {
         r.set_frame(frame)?;
         r.render(0, true)?;
@@ -411,12 +433,13 @@ pub fn markdown(r: &Report) -> String {
     let _ = writeln!(
         s,
         "Primary: depth 1; diffuse: bounces to depth 4 (no next-event estimation, no Russian \
-         roulette); shadow: any-hit segments from every primary hit to the first light's \
-         centre. Grays/s over the trace stage's GPU time. Build: transform and BVH build of a \
-         frame (the driver's: its structures' builds). SAH: surface-area cost of the tree traced \
+         roulette); shadow: any-hit segments from every primary hit to the first light (its \
+         centre; a sphere's near side). Grays/s over the trace stage's GPU time. Build: \
+         transform and BVH build of a frame (the driver's: its structures' builds). SAH: surface-area cost of the tree traced \
          (not known for the driver's). Frame: 1 spp, depth 4, BVH rebuilt. \
          Batch: closest-hit queries alone (`cast_rays`, no shading): every primary ray, and one \
-         cosine-distributed bounce from every primary hit, the same rays for every row of a scene. \
+         cosine-distributed bounce from every primary hit, the same rays for every row of a scene \
+         (made from the flattened scene's hits). \
          Binary and Wide trace the scene flattened, Binary, two levels its meshes' BVHs under a \
          top level over the instances (`--levels`).\n"
     );
