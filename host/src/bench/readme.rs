@@ -268,12 +268,15 @@ pub fn section(dir: &Path) -> Result<String> {
         for r in rows(&v).iter().chain(driver_rows) {
             let _ = writeln!(
                 s,
-                "| {} | {} | {:.2} | {:.2} | {:.2} |",
+                "| {} | {} | {:.2} | {:.2} | {} |",
                 r["scene"].as_str().unwrap_or("?"),
                 r["layout"].as_str().unwrap_or("?").to_lowercase(),
                 num(r, "primary_grays"),
                 num(r, "diffuse_grays"),
-                num(r, "shadow_grays"),
+                // `null` where the run made no batches.
+                r["shadow_grays"]
+                    .as_f64()
+                    .map_or("-".to_string(), |v| format!("{v:.2}")),
             );
         }
         s.push('\n');

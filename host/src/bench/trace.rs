@@ -84,12 +84,15 @@ pub struct Row {
     /// Billions of rays per second while tracing (medians).
     pub primary_grays: f64,
     pub diffuse_grays: f64,
-    pub shadow_grays: f64,
+    /// The batches (`cast_rays`; `None` where the scene's batches could not be made: the
+    /// driver's row of a scene in two levels too large to flatten). Shadow: any-hit segments
+    /// from every primary hit to the first light.
+    pub shadow_grays: Option<f64>,
     /// Closest-hit queries alone (`cast_rays`, no shading between them): the primary rays,
     /// and one cosine-distributed bounce from every primary hit. Beside the path tracer's
     /// rates above they show what the traversal would reach without the megakernel's shading.
-    pub batch_primary_grays: f64,
-    pub batch_bounce_grays: f64,
+    pub batch_primary_grays: Option<f64>,
+    pub batch_bounce_grays: Option<f64>,
     /// The real-time frame: 1 spp, depth 4, no NEE, BVH rebuilt (medians, ms).
     pub frame_build_ms: f64,
     pub frame_trace_ms: f64,
@@ -141,12 +144,18 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
         // driver's row of a scene in two levels, made from the flattened scene as our rows'
         // are (its hits name model-space primitives, which make no world-space rays).
         let mut queries = None;
+        let mut batches = true;
         if o.accel == Accel::Driver && p.data.instancing.is_some() {
-            let flattened = <SceneArgs as clap::Parser>::try_parse_from(&flat)?
-                .prepare()
-                .with_context(|| format!("scene {scene}: the batches' rays are the flattened scene's"))?;
-            let mut r = GpuRenderer::new(gpu, &kernels)?;
-            queries = Some(Queries::of(&mut r, &flattened, o.driver_build)?);
+            match <SceneArgs as clap::Parser>::try_parse_from(&flat)?.prepare() {
+                Ok(flattened) => {
+                    let mut r = GpuRenderer::new(gpu, &kernels)?;
+                    queries = Some(Queries::of(&mut r, &flattened, o.driver_build)?);
+                }
+                Err(e) => {
+                    eprintln!("scene {scene}: no batches (they are the flattened scene's rays): {e:#}");
+                    batches = false;
+                }
+            }
         }
         let mut tracers = match o.accel {
             Accel::Lbvh => vec![Tracer::Ours(Layout::Binary), Tracer::Ours(Layout::Wide)],
@@ -168,18 +177,18 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
                 (Tracer::Levels, Some(levels)) => levels,
                 _ => &p,
             };
-            let row = measure(&mut r, p, tracer, o, &mut queries)
+            let row = measure(&mut r, p, tracer, o, batches.then_some(&mut queries))
                 .with_context(|| format!("scene {scene}, {}", tracer.name()))?;
             eprintln!(
-                "{} {:?}: build {:.3} ms, primary {:.2}, diffuse {:.2}, shadow {:.2}, batch primary {:.2}, batch bounce {:.2} Grays/s",
+                "{} {:?}: build {:.3} ms, primary {:.2}, diffuse {:.2}, shadow {}, batch primary {}, batch bounce {} Grays/s",
                 row.scene,
                 row.layout,
                 row.build_ms,
                 row.primary_grays,
                 row.diffuse_grays,
-                row.shadow_grays,
-                row.batch_primary_grays,
-                row.batch_bounce_grays
+                rate_text(row.shadow_grays, 2),
+                rate_text(row.batch_primary_grays, 2),
+                rate_text(row.batch_bounce_grays, 2)
             );
             rows.push(row);
         }
@@ -195,14 +204,20 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
     })
 }
 
+/// `v` with `digits` decimals, `-` for none.
+fn rate_text(v: Option<f64>, digits: usize) -> String {
+    v.map_or("-".to_string(), |v| format!("{v:.digits$}"))
+}
+
 /// One row; `queries`, the batches' rays, are made from this row's hits where none are yet
-/// (a flattened scene's: the hits of two levels name model-space triangles).
+/// (a flattened scene's: the hits of two levels name model-space triangles), and not
+/// measured where `None`.
 fn measure(
     r: &mut GpuRenderer,
     p: &Prepared,
     tracer: Tracer,
     o: &Options,
-    queries: &mut Option<Queries>,
+    queries: Option<&mut Option<Queries>>,
 ) -> Result<Row> {
     let build = BuildOptions {
         wide: tracer == Tracer::Ours(Layout::Wide),
@@ -258,14 +273,21 @@ fn measure(
             })
         }
     };
-    let queries = match queries {
-        Some(q) => q,
-        None if tracer == Tracer::Levels => bail!("two levels' batches need a flattened row's rays first"),
-        None => queries.insert(Queries::new(r, &depth(1), &p.data.lights)?),
+    let (shadow, batch_primary, batch_bounce) = match queries {
+        None => (None, None, None),
+        Some(queries) => {
+            let queries = match queries {
+                Some(q) => q,
+                None if tracer == Tracer::Levels => bail!("two levels' batches need a flattened row's rays first"),
+                None => queries.insert(Queries::new(r, &depth(1), &p.data.lights)?),
+            };
+            (
+                Some(rate(r, &queries.segments, true, o.runs)?),
+                Some(rate(r, &queries.primaries, false, o.runs)?),
+                Some(rate(r, &queries.bounces, false, o.runs)?),
+            )
+        }
     };
-    let shadow = rate(r, &queries.segments, true, o.runs)?;
-    let batch_primary = rate(r, &queries.primaries, false, o.runs)?;
-    let batch_bounce = rate(r, &queries.bounces, false, o.runs)?;
     Ok(Row {
         scene: p.scene.name.clone(),
         primitives: p.data.prim_object.len(),
@@ -439,7 +461,7 @@ pub fn markdown(r: &Report) -> String {
          (not known for the driver's). Frame: 1 spp, depth 4, BVH rebuilt. \
          Batch: closest-hit queries alone (`cast_rays`, no shading): every primary ray, and one \
          cosine-distributed bounce from every primary hit, the same rays for every row of a scene \
-         (made from the flattened scene's hits). \
+         (made from the flattened scene's hits; `-` where it cannot be flattened). \
          Binary and Wide trace the scene flattened, Binary, two levels its meshes' BVHs under a \
          top level over the instances (`--levels`).\n"
     );
@@ -451,7 +473,7 @@ pub fn markdown(r: &Report) -> String {
     for row in &r.rows {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.3} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} ({:.3} + {:.3}) |",
+            "| {} | {} | {} | {:.3} | {} | {:.3} | {:.3} | {} | {} | {} | {:.3} ({:.3} + {:.3}) |",
             row.scene,
             row.primitives,
             row.layout,
@@ -459,9 +481,9 @@ pub fn markdown(r: &Report) -> String {
             row.sah.map_or("-".to_string(), |c| format!("{c:.1}")),
             row.primary_grays,
             row.diffuse_grays,
-            row.shadow_grays,
-            row.batch_primary_grays,
-            row.batch_bounce_grays,
+            rate_text(row.shadow_grays, 3),
+            rate_text(row.batch_primary_grays, 3),
+            rate_text(row.batch_bounce_grays, 3),
             row.frame_build_ms + row.frame_trace_ms,
             row.frame_build_ms,
             row.frame_trace_ms,
@@ -501,9 +523,9 @@ mod tests {
             sah: matches!(tracer, Tracer::Ours(_)).then_some(1.0),
             primary_grays: 1.0,
             diffuse_grays: 1.0,
-            shadow_grays: 1.0,
-            batch_primary_grays: 1.0,
-            batch_bounce_grays: 1.0,
+            shadow_grays: Some(1.0),
+            batch_primary_grays: Some(1.0),
+            batch_bounce_grays: Some(1.0),
             frame_build_ms: build,
             frame_trace_ms: trace,
         };
