@@ -362,8 +362,8 @@ pub fn closest_instance(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> (Hit,
 /// box is pushed or taken like an internal node's; taking it moves the ray to the mesh's
 /// model space and makes the mesh's root the next node, and the stack's depth there marks
 /// where the instance ends: popping back to it restores the world ray (what the top
-/// level's boxes read of it). One stack, one box
-/// test and one primitive test for both levels.
+/// level's boxes read of it). One stack, one box test and one primitive test for both
+/// levels.
 fn walk_levels<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> (Hit, u32) {
     let mut best = Hit::MISS;
     let mut best_instance = INVALID;

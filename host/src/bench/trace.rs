@@ -149,7 +149,7 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             match <SceneArgs as clap::Parser>::try_parse_from(&flat)?.prepare() {
                 Ok(flattened) => {
                     let mut r = GpuRenderer::new(gpu, &kernels)?;
-                    queries = Some(Queries::of(&mut r, &flattened, o.driver_build)?);
+                    queries = Some(Queries::of(&mut r, &flattened)?);
                 }
                 Err(e) => {
                     eprintln!("scene {scene}: no batches (they are the flattened scene's rays): {e:#}");
@@ -317,9 +317,9 @@ struct Queries {
 
 impl Queries {
     /// The batches of the flattened scene `p`, through our binary BVH.
-    fn of(r: &mut GpuRenderer, p: &Prepared, driver_build: DriverBuild) -> Result<Queries> {
+    fn of(r: &mut GpuRenderer, p: &Prepared) -> Result<Queries> {
         r.set_build(BuildOptions::lbvh(p.bits));
-        r.set_accel(Accel::Lbvh, driver_build)?;
+        r.set_accel(Accel::Lbvh, DriverBuild::default())?;
         r.load(&p.data, &p.frame)?;
         let frame = Frame {
             max_depth: 1,
@@ -457,8 +457,9 @@ pub fn markdown(r: &Report) -> String {
         "Primary: depth 1; diffuse: bounces to depth 4 (no next-event estimation, no Russian \
          roulette); shadow: any-hit segments from every primary hit to the first light (its \
          centre; a sphere's near side). Grays/s over the trace stage's GPU time. Build: \
-         transform and BVH build of a frame (the driver's: its structures' builds). SAH: surface-area cost of the tree traced \
-         (not known for the driver's). Frame: 1 spp, depth 4, BVH rebuilt. \
+         transform and BVH build of a frame (the driver's: its structures' builds). SAH: \
+         surface-area cost of the tree traced (not known for the driver's). Frame: 1 spp, \
+         depth 4, BVH rebuilt. \
          Batch: closest-hit queries alone (`cast_rays`, no shading): every primary ray, and one \
          cosine-distributed bounce from every primary hit, the same rays for every row of a scene \
          (made from the flattened scene's hits; `-` where it cannot be flattened). \
