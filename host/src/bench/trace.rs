@@ -530,7 +530,7 @@ mod tests {
             frame_build_ms: build,
             frame_trace_ms: trace,
         };
-        let r = Report {
+        let mut r = Report {
             date: "today".into(),
             device: "test".into(),
             command: "test".into(),
@@ -543,6 +543,13 @@ mod tests {
                 row("bunny", Tracer::Driver(DriverBuild::FastBuild), 0.3, 1.2),
             ],
         };
+        // A row without batches (the driver's of a scene that cannot be flattened).
+        let driver = &mut r.rows[2];
+        (
+            driver.shadow_grays,
+            driver.batch_primary_grays,
+            driver.batch_bounce_grays,
+        ) = (None, None, None);
         let dir = std::env::temp_dir().join(format!("raytrace-trace-plot-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = plot(&r, &dir, "t").unwrap();
@@ -551,5 +558,14 @@ mod tests {
         let md = markdown(&r);
         assert!(md.contains("| bunny | 1 | Wide | 0.200 | 1.0 |"), "{md}");
         assert!(md.contains("| bunny | 1 | Driver FastBuild | 0.300 | - |"), "{md}");
+        assert!(
+            md.contains("| 1.000 | 1.000 | - | - | - | 1.500 (0.300 + 1.200) |"),
+            "{md}"
+        );
+        let json = serde_json::to_value(&r.rows[2]).unwrap();
+        assert!(
+            json["shadow_grays"].is_null() && json["batch_bounce_grays"].is_null(),
+            "{json}"
+        );
     }
 }
