@@ -347,10 +347,11 @@ pub fn instance_boxes(
     shared::instance::instance_box(flat_index(id.x, id.y), p.n, instances, objects, boxes);
 }
 
-/// The path tracer's entry points: the push constants, every binding the path loop reads
-/// and the scene made of them (`$w`), then `$body`; `$p`, `$w`, `$accum` and `$guides` are
-/// named by the caller, extra parameters (built-ins) come first.
-macro_rules! path_tracer {
+/// The compute kernels over the scene (the path tracer's, `cast_rays`): the push constants,
+/// every binding the path loop reads and the scene made of them (`$w`), then `$body`; `$p`,
+/// `$w`, `$accum` and `$guides` are named by the caller (`_accum`, `_guides` where unused),
+/// extra parameters (built-ins, further bindings) come first.
+macro_rules! scene_kernel {
     ($(#[$attr:meta])* $name:ident($($(#[$pattr:meta])* $param:ident: $ty:ty),*) |$p:ident, $w:ident, $accum:ident, $guides:ident| $body:block) => {
         $(#[$attr])*
         #[allow(clippy::too_many_arguments)]
@@ -401,7 +402,7 @@ macro_rules! path_tracer {
     };
 }
 
-path_tracer! {
+scene_kernel! {
     /// The path tracer in 8x8 tiles, an invocation a pixel (`path::render_pixel`).
     #[spirv(compute(threads(8, 8)))]
     path_trace(#[spirv(global_invocation_id)] id: UVec3) |p, w, accum, guides| {
@@ -409,7 +410,7 @@ path_tracer! {
     }
 }
 
-path_tracer! {
+scene_kernel! {
     /// `path_trace` persistent (`path::render_tiles`): for scenes in two levels, whose walk
     /// NVIDIA's compiler then fits in 64 registers, and frames of one sample.
     #[spirv(compute(threads(1024)))]
@@ -477,52 +478,16 @@ pub fn display_image(
     display::display(flat_index(id.x, id.y), p, frame, accum, image);
 }
 
-/// Closest hits of a batch of rays (tests and benchmarks of the traversal).
-#[spirv(compute(threads(256)))]
-#[allow(clippy::too_many_arguments)]
-pub fn cast_rays(
-    #[spirv(global_invocation_id)] id: UVec3,
-    #[spirv(push_constant)] p: &RenderPush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] rays: &[Ray],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 14)] textures: &[TextureInfo],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 15)] texels: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
-    #[spirv(spec_constant(id = 0, default = 130111))] features: u32,
-) {
-    let w = world!(
-        tris,
-        spheres,
-        nodes,
-        wide,
-        order,
-        instances,
-        objects,
-        prim_object,
-        materials,
-        lights,
-        frame,
-        attrs,
-        punctual,
-        env,
-        textures,
-        texels,
-        features
-    );
-    path::cast(flat_index(id.x, id.y), p, &w, &mut path::Walk, rays, hits);
+scene_kernel! {
+    /// Closest hits of a batch of rays (tests and benchmarks of the traversal).
+    #[spirv(compute(threads(256)))]
+    cast_rays(
+        #[spirv(global_invocation_id)] id: UVec3,
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] rays: &[Ray],
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 10)] hits: &mut [Hit]
+    ) |p, w, _accum, _guides| {
+        path::cast(flat_index(id.x, id.y), p, &w, &mut path::Walk, rays, hits);
+    }
 }
 
 /// `io[3] = fma(io[0], io[1], io[2])`: whether the device's `fma` rounds once
