@@ -293,14 +293,12 @@ impl LightSample {
 /// `n` and shading normal `sn` on the side the path is on, `scale` its primitive's for
 /// [`offset_origin`]) of a non-delta material `m`: the environment map with probability
 /// `frame.env_prob`, else one light chosen uniformly among the emissive primitives and
-/// punctual lights, for an emitter one point on it uniformly by area; one shadow ray, cast
-/// in one place whatever the light (each call site of `World::any` inlines a traversal: a
-/// second one cost the bunny frame 13%, bench/NOTES session 17). Returns the weighted
-/// contribution.
+/// punctual lights, for an emitter one point on it uniformly by area. Returns the light
+/// sample, its shadow ray not yet cast: [`bounce`] casts it after the path has scattered, so
+/// that the surface and its material are no longer live during the walk.
 #[allow(clippy::too_many_arguments)]
-fn direct_light<T: Trace>(
+fn light_sample(
     w: &World,
-    tr: &mut T,
     m: &Material,
     d: Vec3,
     p: Vec3,
@@ -309,13 +307,13 @@ fn direct_light<T: Trace>(
     scale: f32,
     mis: bool,
     rng: &mut Rng,
-) -> Vec3 {
+) -> LightSample {
     let count = w.light_count();
     let features = w.scene.features;
     let env_prob = w.env_prob();
     let u = rng.next_f32();
     // The feature tests first: a kernel without a light kind then has no code for it.
-    let s = if features & FEATURE_ENVMAP != 0 && (u < env_prob || count == 0) {
+    if features & FEATURE_ENVMAP != 0 && (u < env_prob || count == 0) {
         env_light(w, m, d, p, n, sn, scale, mis, rng)
     } else {
         // The rest of the unit interval picks among the local lights.
@@ -329,14 +327,10 @@ fn direct_light<T: Trace>(
         } else {
             emitter_light(w, m, d, p, n, sn, scale, mis, pick, rng)
         }
-    };
-    if max3(s.value) <= 0.0 || tr.any(w, s.from, s.dir, s.t_max) {
-        return Vec3::ZERO;
     }
-    s.value
 }
 
-/// Next-event estimation toward emissive primitive `lights[pick]` (see [`direct_light`]): a
+/// Next-event estimation toward emissive primitive `lights[pick]` (see [`light_sample`]): a
 /// point uniformly by area, weighted against BSDF sampling by MIS.
 #[allow(clippy::too_many_arguments)]
 fn emitter_light(
@@ -392,7 +386,7 @@ fn emitter_light(
     }
 }
 
-/// Next-event estimation toward the environment map (see [`direct_light`]): a direction by
+/// Next-event estimation toward the environment map (see [`light_sample`]): a direction by
 /// the map's alias table, a shadow ray to infinity, weighted against BSDF sampling by MIS.
 #[allow(clippy::too_many_arguments)]
 fn env_light(
@@ -596,38 +590,61 @@ fn bounce<T: Trace>(
     let s = material::scatter(&m, d, ng, sp.ns, w.scene.features, rng);
     // Next-event estimation lights every non-delta surface, whether or not the direction
     // the BSDF sampled goes on (a GGX sample below the surface ends the path, not the light).
+    // Where its shadow ray is cast is chosen by measurement (H100, bench/NOTES session 31):
+    // a flattened scene's after the path has scattered, when only the path's own state is
+    // live beside the walk (real-time frames with NEE 4-11% faster), a scene in two levels'
+    // at once (cast after, its frames were 4-8% slower). Each specialisation keeps one of the
+    // two sites (each site of `Trace::any` inlines a traversal: a second one cost the bunny
+    // frame 13%, session 17).
+    let mut shadow = LightSample::NONE;
     if s.diffuse && mode.nee && q.depth + 1 < f.max_depth {
         let (side, shading_side) = facing(d, ng, sp.ns);
-        q.l += q.beta * direct_light(w, tr, &m, d, p, side, shading_side, scale, mode.mis, rng);
+        shadow = light_sample(w, &m, d, p, side, shading_side, scale, mode.mis, rng);
+        shadow.value = q.beta * shadow.value;
         q.rays += 1;
-    }
-    if s.absorbed {
-        return false;
-    }
-    q.beta *= s.weight;
-    q.origin = leave(p, ng, scale, s.dir);
-    q.dir = s.dir;
-    q.prev_pdf = s.pdf;
-    q.prev_diffuse = s.diffuse;
-    q.depth += 1;
-    // The cone goes on from the hit; a rough bounce opens it (a texture seen through a
-    // diffuse reflection needs little detail): by a radian after Lambert, by GGX's alpha.
-    q.cone_width = cone_width;
-    if s.diffuse {
-        q.cone_spread += if m.kind == MaterialKind::Pbr as u32 {
-            m.roughness * m.roughness
-        } else {
-            1.0
-        };
-    }
-    if mode.roulette && q.depth >= ROULETTE_AFTER {
-        let survive = max3(q.beta).min(0.95);
-        if rng.next_f32() >= survive {
-            return false;
+        if w.scene.features & FEATURE_INSTANCES != 0 {
+            cast_shadow(w, tr, q, &shadow);
+            shadow = LightSample::NONE;
         }
-        q.beta /= survive;
     }
-    q.depth < f.max_depth
+    let goes_on = 'path: {
+        if s.absorbed {
+            break 'path false;
+        }
+        q.beta *= s.weight;
+        q.origin = leave(p, ng, scale, s.dir);
+        q.dir = s.dir;
+        q.prev_pdf = s.pdf;
+        q.prev_diffuse = s.diffuse;
+        q.depth += 1;
+        // The cone goes on from the hit; a rough bounce opens it (a texture seen through a
+        // diffuse reflection needs little detail): by a radian after Lambert, by GGX's alpha.
+        q.cone_width = cone_width;
+        if s.diffuse {
+            q.cone_spread += if m.kind == MaterialKind::Pbr as u32 {
+                m.roughness * m.roughness
+            } else {
+                1.0
+            };
+        }
+        if mode.roulette && q.depth >= ROULETTE_AFTER {
+            let survive = max3(q.beta).min(0.95);
+            if rng.next_f32() >= survive {
+                break 'path false;
+            }
+            q.beta /= survive;
+        }
+        q.depth < f.max_depth
+    };
+    cast_shadow(w, tr, q, &shadow);
+    goes_on
+}
+
+/// Adds light sample `s`'s contribution to path `q` unless its shadow ray is blocked.
+fn cast_shadow<T: Trace>(w: &World, tr: &mut T, q: &mut Path, s: &LightSample) {
+    if max3(s.value) > 0.0 && !tr.any(w, s.from, s.dir, s.t_max) {
+        q.l += s.value;
+    }
 }
 
 /// Persistent path tracing (the host's `Kernel::PathTracePersistent`, workgroups of 1,024):
