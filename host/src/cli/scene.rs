@@ -14,7 +14,8 @@ use std::path::PathBuf;
 /// Scene and settings of a render; unset options keep the scene's own settings.
 #[derive(clap::Parser, Clone, Debug)]
 pub struct SceneArgs {
-    /// Built-in scene (cornell, suzanne, bunny, spheres, instances) or a TOML scene file.
+    /// Built-in scene (cornell, suzanne, bunny, spheres, instances, herd, forest), a TOML scene
+    /// file, or a model file (glTF, GLB, OBJ, PLY) opened as a scene.
     #[arg(default_value = "cornell")]
     pub scene: String,
     /// Samples per pixel.
