@@ -294,8 +294,7 @@ impl LightSample {
 /// [`offset_origin`]) of a non-delta material `m`: the environment map with probability
 /// `frame.env_prob`, else one light chosen uniformly among the emissive primitives and
 /// punctual lights, for an emitter one point on it uniformly by area. Returns the light
-/// sample, its shadow ray not yet cast: [`bounce`] casts it after the path has scattered, so
-/// that the surface and its material are no longer live during the walk.
+/// sample, its shadow ray not yet cast (see [`bounce`] for where it is).
 #[allow(clippy::too_many_arguments)]
 fn light_sample(
     w: &World,
@@ -524,6 +523,14 @@ impl Path {
 /// One segment of path `q` (which has `q.depth < max_depth`): trace it, add what it sees,
 /// scatter. Returns whether the path goes on. With `capture` (the first segment of a
 /// pixel's first sample, with [`FEATURE_GUIDES`]) its hit goes to `first`.
+///
+/// Where next-event estimation's shadow ray is cast is chosen by measurement (H100,
+/// bench/NOTES session 31): a flattened scene's here, after the path has scattered, when only
+/// the path's own state is live beside the walk (real-time frames with NEE 4-11% faster, the
+/// thesis frames of the flattened sixteen bunnies and the herd 7%); a scene in two levels'
+/// at once in [`segment`] (cast here, its thesis frames were 25% slower). Each
+/// specialisation keeps one of the two sites: each site of `Trace::any` inlines a traversal
+/// (a second one cost the bunny frame 13%, session 17).
 #[allow(clippy::too_many_arguments)]
 fn bounce<T: Trace>(
     w: &World,
@@ -533,6 +540,27 @@ fn bounce<T: Trace>(
     rng: &mut Rng,
     capture: bool,
     first: &mut Found,
+) -> bool {
+    let mut shadow = LightSample::NONE;
+    let goes_on = segment(w, tr, mode, q, rng, capture, first, &mut shadow);
+    if max3(shadow.value) > 0.0 && !tr.any(w, shadow.from, shadow.dir, shadow.t_max) {
+        q.l += shadow.value;
+    }
+    goes_on
+}
+
+/// [`bounce`] but for a flattened scene's shadow ray, which goes to `shadow` (its value
+/// weighted by the path's throughput) for `bounce` to cast.
+#[allow(clippy::too_many_arguments)]
+fn segment<T: Trace>(
+    w: &World,
+    tr: &mut T,
+    mode: Mode,
+    q: &mut Path,
+    rng: &mut Rng,
+    capture: bool,
+    first: &mut Found,
+    shadow: &mut LightSample,
 ) -> bool {
     let f = w.frame;
     let (o, d) = (q.origin, q.dir);
@@ -590,61 +618,51 @@ fn bounce<T: Trace>(
     let s = material::scatter(&m, d, ng, sp.ns, w.scene.features, rng);
     // Next-event estimation lights every non-delta surface, whether or not the direction
     // the BSDF sampled goes on (a GGX sample below the surface ends the path, not the light).
-    // Where its shadow ray is cast is chosen by measurement (H100, bench/NOTES session 31):
-    // a flattened scene's after the path has scattered, when only the path's own state is
-    // live beside the walk (real-time frames with NEE 4-11% faster), a scene in two levels'
-    // at once (cast after, its frames were 4-8% slower). Each specialisation keeps one of the
-    // two sites (each site of `Trace::any` inlines a traversal: a second one cost the bunny
-    // frame 13%, session 17).
-    let mut shadow = LightSample::NONE;
     if s.diffuse && mode.nee && q.depth + 1 < f.max_depth {
         let (side, shading_side) = facing(d, ng, sp.ns);
-        shadow = light_sample(w, &m, d, p, side, shading_side, scale, mode.mis, rng);
-        shadow.value = q.beta * shadow.value;
-        q.rays += 1;
+        let l = light_sample(w, &m, d, p, side, shading_side, scale, mode.mis, rng);
         if w.scene.features & FEATURE_INSTANCES != 0 {
-            cast_shadow(w, tr, q, &shadow);
-            shadow = LightSample::NONE;
-        }
-    }
-    let goes_on = 'path: {
-        if s.absorbed {
-            break 'path false;
-        }
-        q.beta *= s.weight;
-        q.origin = leave(p, ng, scale, s.dir);
-        q.dir = s.dir;
-        q.prev_pdf = s.pdf;
-        q.prev_diffuse = s.diffuse;
-        q.depth += 1;
-        // The cone goes on from the hit; a rough bounce opens it (a texture seen through a
-        // diffuse reflection needs little detail): by a radian after Lambert, by GGX's alpha.
-        q.cone_width = cone_width;
-        if s.diffuse {
-            q.cone_spread += if m.kind == MaterialKind::Pbr as u32 {
-                m.roughness * m.roughness
+            let lit = if max3(l.value) <= 0.0 || tr.any(w, l.from, l.dir, l.t_max) {
+                Vec3::ZERO
             } else {
-                1.0
+                l.value
+            };
+            q.l += q.beta * lit;
+        } else {
+            *shadow = LightSample {
+                value: q.beta * l.value,
+                ..l
             };
         }
-        if mode.roulette && q.depth >= ROULETTE_AFTER {
-            let survive = max3(q.beta).min(0.95);
-            if rng.next_f32() >= survive {
-                break 'path false;
-            }
-            q.beta /= survive;
-        }
-        q.depth < f.max_depth
-    };
-    cast_shadow(w, tr, q, &shadow);
-    goes_on
-}
-
-/// Adds light sample `s`'s contribution to path `q` unless its shadow ray is blocked.
-fn cast_shadow<T: Trace>(w: &World, tr: &mut T, q: &mut Path, s: &LightSample) {
-    if max3(s.value) > 0.0 && !tr.any(w, s.from, s.dir, s.t_max) {
-        q.l += s.value;
+        q.rays += 1;
     }
+    if s.absorbed {
+        return false;
+    }
+    q.beta *= s.weight;
+    q.origin = leave(p, ng, scale, s.dir);
+    q.dir = s.dir;
+    q.prev_pdf = s.pdf;
+    q.prev_diffuse = s.diffuse;
+    q.depth += 1;
+    // The cone goes on from the hit; a rough bounce opens it (a texture seen through a
+    // diffuse reflection needs little detail): by a radian after Lambert, by GGX's alpha.
+    q.cone_width = cone_width;
+    if s.diffuse {
+        q.cone_spread += if m.kind == MaterialKind::Pbr as u32 {
+            m.roughness * m.roughness
+        } else {
+            1.0
+        };
+    }
+    if mode.roulette && q.depth >= ROULETTE_AFTER {
+        let survive = max3(q.beta).min(0.95);
+        if rng.next_f32() >= survive {
+            return false;
+        }
+        q.beta /= survive;
+    }
+    q.depth < f.max_depth
 }
 
 /// Persistent path tracing (the host's `Kernel::PathTracePersistent`, workgroups of 1,024):
