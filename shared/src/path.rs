@@ -526,9 +526,9 @@ impl Path {
 ///
 /// Where next-event estimation's shadow ray is cast is chosen by measurement (H100,
 /// bench/NOTES session 31): a flattened scene's here, after the path has scattered, when only
-/// the path's own state is live beside the walk (real-time frames with NEE 4-11% faster, the
-/// thesis frames of the flattened sixteen bunnies and the herd 7%); a scene in two levels'
-/// at once in [`segment`] (cast here, its thesis frames were 25% slower). Each
+/// the path's own state is live beside the walk (real-time frames with NEE 2-11% faster, the
+/// thesis frame of the flattened sixteen bunnies 8%); a scene in two levels' at once in
+/// [`segment`] (cast here, its thesis frames were 25% slower). Each
 /// specialisation keeps one of the two sites: each site of `Trace::any` inlines a traversal
 /// (a second one cost the bunny frame 13%, session 17).
 #[allow(clippy::too_many_arguments)]
