@@ -419,6 +419,45 @@ scene_kernel! {
     }
 }
 
+// The shadow queue (a scene in two levels with next-event estimation): the path tracer of one
+// sample a pixel of a band of rows queues its shadow rays in binding 9 (the ray casts' rays:
+// a binding more would pass lavapipe's 32 storage buffers a kernel), `shadow_resolve` casts
+// them and adds the samples. Entry points of their own, so that each module holds one path
+// loop (one module holding both made NVIDIA's driver crash).
+
+scene_kernel! {
+    /// `path_trace` for the shadow queue (`path::queue_pixel`, rows from `p.row_base`).
+    #[spirv(compute(threads(8, 8)))]
+    path_queue(
+        #[spirv(global_invocation_id)] id: UVec3,
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] queue: &mut [[f32; 4]]
+    ) |p, w, _accum, guides| {
+        path::queue_pixel(id.x, p.row_base + id.y, p, &w, guides, queue);
+    }
+}
+
+scene_kernel! {
+    /// `path_trace_persistent` for the shadow queue (`path::queue_tiles`).
+    #[spirv(compute(threads(1024)))]
+    path_queue_persistent(
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] queue: &mut [[f32; 4]]
+    ) |p, w, _accum, guides| {
+        path::queue_tiles(p, &w, guides, queue);
+    }
+}
+
+scene_kernel! {
+    /// The shadow rays `path_queue` queued, cast, and each pixel's sample added
+    /// (`path::resolve_pixel`): an invocation a pixel of the band.
+    #[spirv(compute(threads(256)))]
+    shadow_resolve(
+        #[spirv(global_invocation_id)] id: UVec3,
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] queue: &[[f32; 4]]
+    ) |p, w, accum, guides| {
+        path::resolve_pixel(flat_index(id.x, id.y), p, &w, &mut path::Walk, accum, guides, queue);
+    }
+}
+
 // The denoiser (`shared::denoise`): its own buffers in set 0 (a set of the build's layout:
 // guides, history, filter, output), the frame and display image of set 1.
 

@@ -3,7 +3,9 @@
 //! brute force, material scattering, Russian roulette after three bounces, and next-event
 //! estimation toward emissive triangles and spheres weighted against BSDF sampling by
 //! multiple importance sampling (Veach 1997, power heuristic), and toward punctual lights.
-//! One invocation per pixel adds its samples' radiance into the accumulation image.
+//! One invocation per pixel adds its samples' radiance into the accumulation image (on the
+//! GPU, a scene in two levels with next-event estimation in two passes: [`queue_pixel`] traces
+//! a sample and queues its shadow rays, [`resolve_pixel`] casts them and adds the sample).
 use crate::denoise::{self, Guide};
 use crate::envmap::{Env, EnvEntry};
 use crate::instance::Placed;
@@ -78,6 +80,16 @@ pub trait Trace {
     fn closest(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
         self.found(w, origin, dir, t_max).hit
     }
+    /// A shadow ray of next-event estimation in a scene in two levels, bringing `value` if
+    /// nothing lies in `(0, t_max)`: what to add now (`value` or zero). [`Queued`] adds
+    /// nothing now: it queues the ray for [`resolve_pixel`].
+    fn shadow(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32, value: Vec3) -> Vec3 {
+        if self.any(w, origin, dir, t_max) {
+            Vec3::ZERO
+        } else {
+            value
+        }
+    }
 }
 
 /// The project's own traversal: the BVH (or brute force without [`FLAG_BVH`]).
@@ -94,6 +106,42 @@ impl Trace for Walk {
 
     fn closest(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
         w.closest(origin, dir, t_max)
+    }
+}
+
+/// The path tracer of the shadow queue ([`queue_pixel`]): [`Walk`], but a segment's shadow ray
+/// is kept (`pending`) for `queue_pixel` to queue. (No slice of the queue in here: a struct
+/// holding a storage buffer's slice made NVIDIA's compiler crash.)
+struct Queued {
+    pending: bool,
+    from: Vec3,
+    dir: Vec3,
+    t_max: f32,
+    value: Vec3,
+}
+
+impl Trace for Queued {
+    fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found {
+        w.found(origin, dir, t_max)
+    }
+
+    fn any(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+        w.any(origin, dir, t_max)
+    }
+
+    fn closest(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
+        w.closest(origin, dir, t_max)
+    }
+
+    fn shadow(&mut self, _w: &World, origin: Vec3, dir: Vec3, t_max: f32, value: Vec3) -> Vec3 {
+        *self = Queued {
+            pending: true,
+            from: origin,
+            dir,
+            t_max,
+            value,
+        };
+        Vec3::ZERO
     }
 }
 
@@ -488,6 +536,9 @@ struct Path {
     /// Radiance gathered so far, and the throughput of the bounces behind.
     l: Vec3,
     beta: Vec3,
+    /// In a scene in two levels, what next-event estimation brought, apart from `l`
+    /// ([`Path::radiance`]: the sum a shadow queue's resolve makes too).
+    nee: Vec3,
     /// The last scattering: its direction's density and whether it was diffuse (for MIS).
     prev_pdf: f32,
     prev_diffuse: bool,
@@ -510,12 +561,24 @@ impl Path {
             origin,
             dir,
             l: Vec3::ZERO,
+            nee: Vec3::ZERO,
             emitted: Vec3::ZERO,
             beta: Vec3::ONE,
             prev_pdf: 0.0,
             prev_diffuse: false,
             depth: 0,
             rays: 0,
+        }
+    }
+
+    /// The path's radiance: `l`, and in a scene in two levels with next-event estimation
+    /// what the shadow rays brought, added last as [`resolve_pixel`] adds it.
+    fn radiance(&self, w: &World) -> Vec3 {
+        let f = w.scene.features;
+        if f & FEATURE_INSTANCES != 0 && f & FEATURE_NEE != 0 {
+            self.l + self.nee
+        } else {
+            self.l
         }
     }
 }
@@ -525,10 +588,11 @@ impl Path {
 /// pixel's first sample, with [`FEATURE_GUIDES`]) its hit goes to `first`.
 ///
 /// Where next-event estimation's shadow ray is cast is chosen by measurement (H100,
-/// bench/NOTES session 31): a flattened scene's here, after the path has scattered, when only
-/// the path's own state is live beside the walk (real-time frames with NEE 2-11% faster, the
-/// thesis frame of the flattened sixteen bunnies 8%); a scene in two levels' at once in
-/// [`segment`] (cast here, its thesis frames were 25% slower). Each
+/// bench/NOTES sessions 31-32): a flattened scene's here, after the path has scattered, when
+/// only the path's own state is live beside the walk (real-time frames with NEE 2-11% faster,
+/// the thesis frame of the flattened sixteen bunnies 8%); a scene in two levels' by
+/// [`Trace::shadow`] in [`segment`], which on the GPU queues it for a pass of its own
+/// ([`queue_pixel`], [`resolve_pixel`]) and on the CPU executor casts it there. Each
 /// specialisation keeps one of the two sites: each site of `Trace::any` inlines a traversal
 /// (a second one cost the bunny frame 13%, session 17).
 #[allow(clippy::too_many_arguments)]
@@ -550,7 +614,8 @@ fn bounce<T: Trace>(
 }
 
 /// [`bounce`] but for a flattened scene's shadow ray, which goes to `shadow` (its value
-/// weighted by the path's throughput) for `bounce` to cast.
+/// weighted by the path's throughput) for `bounce` to cast; a scene in two levels' goes to
+/// [`Trace::shadow`], its value to [`Path::nee`].
 #[allow(clippy::too_many_arguments)]
 fn segment<T: Trace>(
     w: &World,
@@ -622,12 +687,9 @@ fn segment<T: Trace>(
         let (side, shading_side) = facing(d, ng, sp.ns);
         let l = light_sample(w, &m, d, p, side, shading_side, scale, mode.mis, rng);
         if w.scene.features & FEATURE_INSTANCES != 0 {
-            let lit = if max3(l.value) <= 0.0 || tr.any(w, l.from, l.dir, l.t_max) {
-                Vec3::ZERO
-            } else {
-                l.value
-            };
-            q.l += q.beta * lit;
+            if max3(l.value) > 0.0 {
+                q.nee += tr.shadow(w, l.from, l.dir, l.t_max, q.beta * l.value);
+            }
         } else {
             *shadow = LightSample {
                 value: q.beta * l.value,
@@ -684,6 +746,143 @@ pub fn render_tiles<T: Trace>(p: &RenderPush, w: &World, tr: &mut T, accum: &mut
         let (tile, lane) = (i / 32, i % 32);
         let (x, y) = ((tile % tiles_x) * 8 + lane % 8, (tile / tiles_x) * 4 + lane / 8);
         render_pixel(x, y, p, w, tr, accum, guides);
+    }
+}
+
+/// [`render_tiles`] for the shadow queue: the pixels of the band `p.row_base..p.row_base +
+/// p.rows`, each queued ([`queue_pixel`]). (Its own copy of the loop: the path tracer's kernels
+/// keep the code they were measured with.)
+pub fn queue_tiles(p: &RenderPush, w: &World, guides: &mut [[u32; 4]], queue: &mut [[f32; 4]]) {
+    let f = w.frame;
+    let tiles_x = f.width.div_ceil(8);
+    let n = tiles_x * p.rows.div_ceil(4) * 32;
+    let last = guides.len() as u32 - 1;
+    loop {
+        let i = sync::atomic_add_device::<false>(&mut sync::at_mut(guides, last)[0], 1);
+        if i >= n {
+            return;
+        }
+        let (tile, lane) = (i / 32, i % 32);
+        let (x, y) = (
+            (tile % tiles_x) * 8 + lane % 8,
+            p.row_base + (tile / tiles_x) * 4 + lane / 8,
+        );
+        queue_pixel(x, y, p, w, guides, queue);
+    }
+}
+
+/// Where slot `k` of band pixel `i` starts in the shadow queue of a band of `band` pixels:
+/// the queue holds two planes of the paths' sums (`i`: radiance without next-event
+/// estimation and rays; `band + i`: the first hit's emission and the slots queued), then
+/// per slot three planes (the ray's origin and `t_max`, its direction, its value), each
+/// `band` entries, so that a warp's lanes read neighbouring entries.
+pub fn queue_slot(band: u32, k: u32, i: u32) -> u32 {
+    (2 + 3 * k) * band + i
+}
+
+/// Entries of the shadow queue of a band of `band` pixels with paths of at most `max_depth`
+/// segments (next-event estimation queues at most one shadow ray a segment but the last).
+pub fn queue_entries(band: u32, max_depth: u32) -> u64 {
+    (2 + 3 * max_depth.saturating_sub(1) as u64) * band as u64
+}
+
+/// The path tracer's pass of the shadow queue (`path_queue`, `path_queue_persistent`: the
+/// host's choice for a scene in two levels with next-event estimation on the GPU): sample
+/// `p.sample_base` of pixel `(x, y)` of the band `p.row_base..p.row_base + p.rows` traced as
+/// [`pixel_samples_guided`] traces it, its shadow rays queued rather than cast (`queue`, see
+/// [`queue_slot`]); the frame's first dispatch also writes the pixel's guide (its sums zero). [`resolve_pixel`] casts the shadow rays and adds the sample.
+/// Splitting them keeps the walk's registers of the shadow rays out of the path tracer's
+/// (H100, bench/NOTES session 32).
+pub fn queue_pixel(x: u32, y: u32, p: &RenderPush, w: &World, guides: &mut [[u32; 4]], queue: &mut [[f32; 4]]) {
+    let f = w.frame;
+    if x >= f.width || y < p.row_base || y >= p.row_base + p.rows || y >= f.height {
+        return;
+    }
+    let band = p.rows * f.width;
+    let i = (y - p.row_base) * f.width + x;
+    let pixel = y * f.width + x;
+    let guided = w.scene.features & FEATURE_GUIDES != 0;
+    let mut tr = Queued {
+        pending: false,
+        from: Vec3::ZERO,
+        dir: Vec3::ZERO,
+        t_max: 0.0,
+        value: Vec3::ZERO,
+    };
+    let mode = Mode::of(w);
+    let mut rng = Rng::new(pixel, p.sample_base, f.seed);
+    let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
+    let mut q = Path::new(o, d, f.pixel_spread);
+    let mut first = Found::MISS;
+    let mut queued = 0;
+    let mut live = f.max_depth > 0;
+    while live {
+        let capture = guided && q.depth == 0;
+        live = bounce(w, &mut tr, mode, &mut q, &mut rng, capture, &mut first);
+        if tr.pending {
+            let slot = queue_slot(band, queued, i);
+            let (o, d, v) = (tr.from, tr.dir, tr.value);
+            *sync::at_mut(queue, slot) = [o.x, o.y, o.z, tr.t_max];
+            *sync::at_mut(queue, slot + band) = [d.x, d.y, d.z, 0.0];
+            *sync::at_mut(queue, slot + 2 * band) = [v.x, v.y, v.z, 0.0];
+            tr.pending = false;
+            queued += 1;
+        }
+    }
+    *sync::at_mut(queue, i) = [q.l.x, q.l.y, q.l.z, q.rays as f32];
+    *sync::at_mut(queue, band + i) = [q.emitted.x, q.emitted.y, q.emitted.z, queued as f32];
+    if guided && p.count == 0 {
+        let g = if f.max_depth > 0 {
+            first_hit_guide(x, y, p, w, &first)
+        } else {
+            Guide::NONE
+        };
+        g.store(guides, f.width * f.height, pixel);
+    }
+}
+
+/// `shadow_resolve`: the shadow rays [`queue_pixel`] queued for band pixel `i` cast in order,
+/// the lit ones' values added to the path's radiance (as [`Path::radiance`] adds them), and
+/// the sample added to `accum` (and the guide's sums) as [`render_pixel`] adds a sample.
+pub fn resolve_pixel<T: Trace>(
+    i: u32,
+    p: &RenderPush,
+    w: &World,
+    tr: &mut T,
+    accum: &mut [[f32; 4]],
+    guides: &mut [[u32; 4]],
+    queue: &[[f32; 4]],
+) {
+    let f = w.frame;
+    let band = p.rows * f.width;
+    if i >= band {
+        return;
+    }
+    let pixel = p.row_base * f.width + i;
+    let (sums, emitted) = (*sync::at(queue, i), *sync::at(queue, band + i));
+    let mut nee = Vec3::ZERO;
+    let mut k = 0;
+    while k < emitted[3] as u32 {
+        let slot = queue_slot(band, k, i);
+        let (o, d) = (*sync::at(queue, slot), *sync::at(queue, slot + band));
+        if !tr.any(w, xyz(o), xyz(d), o[3]) {
+            nee += xyz(*sync::at(queue, slot + 2 * band));
+        }
+        k += 1;
+    }
+    let l = xyz(sums) + nee;
+    let lit = finite3(l);
+    let s = if lit { l } else { Vec3::ZERO };
+    let a = sync::at_mut(accum, pixel);
+    *a = [a[0] + s.x, a[1] + s.y, a[2] + s.z, a[3] + sums[3]];
+    if w.scene.features & FEATURE_GUIDES != 0 {
+        let e = if lit { xyz(emitted) } else { Vec3::ZERO };
+        let g = Guide {
+            color: (s - e).into(),
+            emission: e.into(),
+            ..Guide::NONE
+        };
+        Guide::add_sums(&g, guides, f.width * f.height, pixel);
     }
 }
 
@@ -763,8 +962,9 @@ pub fn pixel_samples_guided<T: Trace>(x: u32, y: u32, p: &RenderPush, w: &World,
         let capture = guides && started == 1 && q.depth == 0;
         live = bounce(w, tr, mode, &mut q, &mut rng, capture, &mut first);
         if !live {
-            if finite3(q.l) {
-                sum += q.l;
+            let l = q.radiance(w);
+            if finite3(l) {
+                sum += l;
                 if guides {
                     emission += q.emitted;
                 }

@@ -482,6 +482,10 @@ pub struct RenderPush {
     pub count: u32,
     /// `DISPLAY_*` flags (display pass) or `CAST_*` flags (ray casts).
     pub flags: u32,
+    /// The shadow queue's passes: the band of rows `row_base..row_base + rows` the dispatch
+    /// renders (`crate::path::queue_pixel`, `crate::path::resolve_pixel`).
+    pub row_base: u32,
+    pub rows: u32,
 }
 
 // Features a path-tracing kernel can leave out: the bits of its specialisation constant 0
@@ -596,7 +600,7 @@ const _: () = assert!(size_of::<PunctualLight>() == 64);
 const _: () = assert!(size_of::<Material>() == 112);
 const _: () = assert!(size_of::<Camera>() == 96);
 const _: () = assert!(size_of::<Frame>() == 320);
-const _: () = assert!(size_of::<RenderPush>() == 16);
+const _: () = assert!(size_of::<RenderPush>() == 24);
 const _: () = assert!(size_of::<Ray>() == 32);
 const _: () = assert!(size_of::<Hit>() == 16);
 

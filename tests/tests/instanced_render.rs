@@ -10,7 +10,7 @@ use raytrace::cpu::render_cpu;
 use raytrace::gpu::{Denoise, GpuRenderer, Kernels};
 use raytrace::picture::diff_stats;
 use raytrace::scene::{auto_instances, InstancingMode, Scene, Shape};
-use shared::types::{Ray, FEATURE_INSTANCES, INVALID};
+use shared::types::{Ray, FEATURE_INSTANCES, FEATURE_NEE, INVALID};
 use std::sync::Arc;
 
 fn prepared(scene: &str, size: u32, spp: u32, instancing: &str) -> Prepared {
@@ -371,6 +371,60 @@ fn the_persistent_path_tracer_renders_every_pixel_as_the_tiles_do() {
                 assert!(
                     tiles_guides == persistent_guides,
                     "{scene} at {size} ({denoise:?}): the guides differ"
+                );
+            }
+        }
+    }
+    assert_no_validation_errors(&gpu);
+}
+
+/// Scenes in two levels with next-event estimation queue their shadow rays
+/// (`path_queue`, `path_queue_persistent`: the path tracer writes each light sample to a
+/// queue, one sample a dispatch; `shadow_resolve` casts them and adds the lit ones): the sums are the bits of the
+/// shadow rays cast in place, in one band of rows and in several (bands of 8 and of 20 rows
+/// of a 36-row frame, the last band shorter), in tiles and persistent (not on lavapipe, see above), and so are the
+/// denoiser's guides of a frame of one sample. The Cornell box (an instanced light) and the
+/// pond (a world-space group, sphere light).
+#[test]
+fn queued_shadow_rays_render_as_cast_in_place() {
+    let Some(gpu) = gpu("queued_shadow_rays_render_as_cast_in_place") else {
+        return;
+    };
+    let kernels = Arc::new(Kernels::new(&gpu).expect("kernels"));
+    let persistent: &[bool] = if gpu.is_lavapipe() { &[false] } else { &[false, true] };
+    for scene in ["cornell", POND] {
+        let p = prepared(scene, 36, 4, "on");
+        assert_ne!(p.frame.features & FEATURE_NEE, 0, "{scene}: no next-event estimation");
+        let render = |queue: bool, rows: Option<u32>, persistent: bool, spp: u32, denoise: Denoise| {
+            let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
+            r.set_shadow_queue(Some(queue));
+            r.set_queue_rows(rows);
+            r.set_persistent(Some(persistent));
+            r.load(&p.data, &p.frame).expect("load");
+            r.set_denoise(denoise).expect("denoiser");
+            r.render(spp, true).expect("render");
+            let guides = match denoise {
+                Denoise::Off => Vec::new(),
+                _ => r.guides().expect("guides"),
+            };
+            (r.sums().expect("sums"), guides)
+        };
+        let (in_place, _) = render(false, None, false, 4, Denoise::Off);
+        let (in_place_1, in_place_guides) = render(false, None, false, 1, Denoise::EveryFrame);
+        assert!(in_place.iter().all(|s| s[3] > 0.0), "{scene}: a pixel without rays");
+        for &persistent in persistent {
+            for rows in [None, Some(8), Some(20)] {
+                let (queued, _) = render(true, rows, persistent, 4, Denoise::Off);
+                let apart = in_place.iter().zip(&queued).filter(|(a, b)| a != b).count();
+                assert_eq!(
+                    apart, 0,
+                    "{scene}, bands {rows:?}, persistent {persistent}: {apart} pixels differ"
+                );
+                let (queued_1, queued_guides) = render(true, rows, persistent, 1, Denoise::EveryFrame);
+                assert!(queued_1 == in_place_1, "{scene}, bands {rows:?}: one sample differs");
+                assert!(
+                    queued_guides == in_place_guides,
+                    "{scene}, bands {rows:?}, persistent {persistent}: the guides differ"
                 );
             }
         }

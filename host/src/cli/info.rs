@@ -102,7 +102,13 @@ pub fn kernels_command(opts: &GpuOptions) -> Result<()> {
                 let p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
                 let nee_name = if nee { " (NEE)" } else { "" };
                 let levels = if instancing == "on" { " (two levels)" } else { "" };
-                for kernel in [Kernel::PathTrace, Kernel::PathTracePersistent] {
+                // Two levels with NEE: the shadow queue's kernels too (what frames run there).
+                let queue: &[Kernel] = if nee && instancing == "on" {
+                    &[Kernel::PathQueue, Kernel::PathQueuePersistent, Kernel::ShadowResolve]
+                } else {
+                    &[]
+                };
+                for &kernel in [Kernel::PathTrace, Kernel::PathTracePersistent].iter().chain(queue) {
                     let lines = k.specialised_statistics(kernel, p.frame.features)?;
                     println!("{} for {scene}{nee_name}{levels}: {}", kernel.entry(), lines.join(", "));
                 }

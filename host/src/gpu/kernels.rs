@@ -13,7 +13,9 @@ use std::time::Instant;
 /// Storage-buffer bindings of set 0 (see `shared::types`).
 pub const BINDINGS: usize = 14;
 
-const _: () = assert!(size_of::<BuildParams>() == size_of::<RenderPush>());
+// One push-constant range for every kernel: the largest push.
+const _: () = assert!(size_of::<BuildParams>() <= size_of::<RenderPush>());
+const _: () = assert!(size_of::<shared::denoise::DenoisePush>() <= size_of::<RenderPush>());
 
 /// Entry points of `shader-crate`.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
@@ -40,6 +42,9 @@ pub enum Kernel {
     InstanceBoxes,
     PathTrace,
     PathTracePersistent,
+    PathQueue,
+    PathQueuePersistent,
+    ShadowResolve,
     DisplayImage,
     CastRays,
     FmaProbe,
@@ -51,10 +56,18 @@ pub enum Kernel {
 impl Kernel {
     /// The path tracer and the ray casts: kernels specialised to the frame's features.
     pub fn is_tracer(self) -> bool {
-        matches!(self, Kernel::PathTrace | Kernel::PathTracePersistent | Kernel::CastRays)
+        matches!(
+            self,
+            Kernel::PathTrace
+                | Kernel::PathTracePersistent
+                | Kernel::PathQueue
+                | Kernel::PathQueuePersistent
+                | Kernel::ShadowResolve
+                | Kernel::CastRays
+        )
     }
 
-    pub const ALL: [Kernel; 28] = [
+    pub const ALL: [Kernel; 31] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -77,6 +90,9 @@ impl Kernel {
         Kernel::InstanceBoxes,
         Kernel::PathTrace,
         Kernel::PathTracePersistent,
+        Kernel::PathQueue,
+        Kernel::PathQueuePersistent,
+        Kernel::ShadowResolve,
         Kernel::DisplayImage,
         Kernel::CastRays,
         Kernel::FmaProbe,
@@ -115,6 +131,9 @@ impl Kernel {
             Kernel::InstanceBoxes => "instance_boxes",
             Kernel::PathTrace => "path_trace",
             Kernel::PathTracePersistent => "path_trace_persistent",
+            Kernel::PathQueue => "path_queue",
+            Kernel::PathQueuePersistent => "path_queue_persistent",
+            Kernel::ShadowResolve => "shadow_resolve",
             Kernel::DisplayImage => "display_image",
             Kernel::CastRays => "cast_rays",
             Kernel::FmaProbe => "fma_probe",
@@ -184,7 +203,7 @@ impl Kernels {
         }
         let ranges = [vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            .size(size_of::<BuildParams>() as u32)];
+            .size(size_of::<RenderPush>() as u32)];
         let layouts = k.set_layouts;
         k.layout = unsafe {
             d.create_pipeline_layout(

@@ -15,8 +15,8 @@ use shared::denoise::GUIDE_PLANES;
 use shared::envmap::EnvEntry;
 use shared::types::{
     grid, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_OBJECT,
-    CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FLAG_BVH, INVALID, TILE_SIDE,
-    WORKGROUP,
+    CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FLAG_BVH, INVALID,
+    TILE_SIDE, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -45,6 +45,7 @@ struct SceneBuffers {
     frame: Buffer,
     accum: Buffer,
     image: Buffer,
+    /// The ray casts' rays, and the path tracer's shadow queue ([`GpuRenderer::shadow_queue`]).
     rays: Buffer,
     hits: Buffer,
     attrs: Buffer,
@@ -166,7 +167,17 @@ pub struct GpuRenderer {
     /// Whether the path tracer runs persistent (see [`Self::path_kernel`]); `None`: as the
     /// scene and device ask.
     persistent: Option<bool>,
+    /// Whether shadow rays of scenes in two levels are queued (see [`Self::shadow_queue`]);
+    /// `None`: where the scene has them. And the rows of a band of the queue, `None`: as
+    /// many as [`QUEUE_BYTES`] holds.
+    queue_shadows: Option<bool>,
+    queue_rows: Option<u32>,
 }
+
+/// Bytes the shadow queue ([`GpuRenderer::shadow_queue`]) takes at most (or the device's largest
+/// binding): frames whose band of every row needs more trace bands of fewer rows, one after
+/// another. 1080p at depth 4 takes 365 MB in one band, 800x800 at depth 16 481 MB.
+const QUEUE_BYTES: u64 = 512 << 20;
 
 /// Workgroups of 1,024 invocations the persistent path tracer is dispatched as at most
 /// (those the device cannot hold at once start when others end, find no pixels left and
@@ -199,6 +210,8 @@ impl GpuRenderer {
             driver: None,
             driver_build: DriverBuild::default(),
             persistent: None,
+            queue_shadows: None,
+            queue_rows: None,
         })
     }
 
@@ -206,6 +219,59 @@ impl GpuRenderer {
     /// [`Self::path_kernel`] decides (`None`): tests compare the two kernels.
     pub fn set_persistent(&mut self, persistent: Option<bool>) {
         self.persistent = persistent;
+    }
+
+    /// Queues next-event estimation's shadow rays (`Some(true)`), casts them in place
+    /// (`Some(false)`), or as [`Self::shadow_queue`] decides (`None`): tests compare the two.
+    pub fn set_shadow_queue(&mut self, queue: Option<bool>) {
+        self.queue_shadows = queue;
+    }
+
+    /// Bands of `rows` rows for the shadow queue (`None`: as many as [`QUEUE_BYTES`] holds):
+    /// tests render frames of several bands.
+    pub fn set_queue_rows(&mut self, rows: Option<u32>) {
+        self.queue_rows = rows;
+    }
+
+    /// Whether frames trace the shadow rays of next-event estimation in a pass of their own
+    /// (`path_queue` or `path_queue_persistent` traces a sample of every pixel of a band of
+    /// rows and queues its light samples, `shadow_resolve` casts them and adds the lit ones;
+    /// the same bits as cast in place): for scenes in two levels with next-event estimation,
+    /// on the project's walk. Cast in place, the two-level walk of the shadow rays beside the
+    /// path's made NEE frames twice those without on the H100 (the herd 13.0 against 6.5 ms);
+    /// queued, the real-time NEE frames of the herd, the forest and the sixteen bunnies in two
+    /// levels are 23-26% faster (12.9 -> 9.6, 18.5 -> 14.2, 8.4 -> 6.2 ms) and their
+    /// 32-sample frames 9-11% (bench/NOTES.md, session 32). Flattened scenes cast in place:
+    /// their NEE frames cost about what their shadow rays alone do.
+    fn shadow_queue(&self) -> bool {
+        let c = self.tracer_constant();
+        let two_levels_nee = c & FEATURE_INSTANCES != 0 && c & FEATURE_NEE != 0;
+        self.driver.is_none() && self.queue_shadows.unwrap_or(two_levels_nee) && two_levels_nee
+    }
+
+    /// Rows of a band of the shadow queue: as many as [`QUEUE_BYTES`] holds, a multiple of 8.
+    fn queue_rows(&self) -> u32 {
+        let f = &self.frame;
+        let row = shared::path::queue_entries(f.width, f.max_depth) * 16;
+        let rows = (QUEUE_BYTES.min(self.gpu.max_binding) / row.max(1)) as u32 / 8 * 8;
+        self.queue_rows.unwrap_or(rows.max(8)).clamp(1, f.height.max(1))
+    }
+
+    /// Makes the shadow queue (the ray casts' rays buffer, binding 9: a set of bindings
+    /// more would pass lavapipe's 32 storage buffers a kernel) large enough for a band of the
+    /// frame, where frames queue.
+    fn reserve_queue(&mut self) -> Result<()> {
+        if !self.shadow_queue() {
+            return Ok(());
+        }
+        let bytes = shared::path::queue_entries(self.queue_rows() * self.frame.width, self.frame.max_depth) * 16;
+        let b = self.bufs.as_mut().context("no scene loaded")?;
+        if b.rays.size < bytes {
+            b.set = None;
+            b.rays = Buffer::new(&self.gpu, "rays and shadow queue", bytes, MemoryLocation::GpuOnly)?;
+            b.bind(&self.gpu, &self.kernels, self.levels.as_ref())?;
+        }
+        Ok(())
     }
 
     /// The path tracer's kernel for a frame of `samples` samples per pixel: persistent
@@ -220,14 +286,19 @@ impl GpuRenderer {
     /// bunny at 800x800, 32 spp; 10% at 1080p and 8 spp), so those keep the tiles. Not on
     /// lavapipe: llvmpipe runs a workgroup's subgroups one after another, so its first ones
     /// take most of the pixels, and its loop limiter (65,535 iterations of a loop an
-    /// invocation, counted across the loop's entries) then ends their paths early.
+    /// invocation, counted across the loop's entries) then ends their paths early. Where
+    /// frames queue their shadow rays ([`Self::shadow_queue`]), the queue's kernels of both kinds.
     fn path_kernel(&self, samples: u32) -> Kernel {
         let two_levels = self.tracer_constant() & FEATURE_INSTANCES != 0;
-        match self.persistent {
-            Some(true) => Kernel::PathTracePersistent,
-            Some(false) => Kernel::PathTrace,
-            None if (two_levels || samples == 1) && !self.gpu.is_lavapipe() => Kernel::PathTracePersistent,
-            None => Kernel::PathTrace,
+        let persistent = match self.persistent {
+            Some(p) => p,
+            None => (two_levels || samples == 1) && !self.gpu.is_lavapipe(),
+        };
+        match (self.shadow_queue(), persistent) {
+            (false, true) => Kernel::PathTracePersistent,
+            (false, false) => Kernel::PathTrace,
+            (true, true) => Kernel::PathQueuePersistent,
+            (true, false) => Kernel::PathQueue,
         }
     }
 
@@ -669,6 +740,7 @@ impl GpuRenderer {
         b.frame.write(std::slice::from_ref(frame))?;
         self.frame = *frame;
         self.samples = 0;
+        self.reserve_queue()?;
         if self
             .denoiser
             .as_ref()
@@ -742,6 +814,7 @@ impl GpuRenderer {
         // The path tracer's pipeline (the driver's tens of milliseconds the first time) is
         // made while the build is recorded.
         let path_kernel = self.path_kernel(samples);
+        self.reserve_queue()?;
         if self.driver.is_none() {
             self.kernels.make_soon(path_kernel, self.path_trace_constant());
         }
@@ -799,13 +872,49 @@ impl GpuRenderer {
             Some(_) => ash::vk::Pipeline::null(),
             None => self.kernels.specialised(path_kernel, self.path_trace_constant())?,
         };
-        let persistent = path_kernel == Kernel::PathTracePersistent;
+        let persistent = matches!(path_kernel, Kernel::PathTracePersistent | Kernel::PathQueuePersistent);
         let (gx, gy) = if persistent {
             ((f.width * f.height).div_ceil(1024).min(PERSISTENT_GROUPS), 1)
         } else {
             (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE))
         };
         let mut done = 0;
+        if self.shadow_queue() {
+            // One sample a dispatch, band after band: the path tracer queues, `shadow_resolve`
+            // casts and adds.
+            let resolve = self
+                .kernels
+                .specialised(Kernel::ShadowResolve, self.path_trace_constant())?;
+            let rows = self.queue_rows();
+            let g = &self.bufs.as_ref().context("no scene loaded")?.guides;
+            for s in 0..samples {
+                for row_base in (0..f.height).step_by(rows as usize) {
+                    let push = RenderPush {
+                        sample_base: self.first_sample + self.samples + s,
+                        samples: 1,
+                        count: guides_from + s,
+                        row_base,
+                        rows: rows.min(f.height - row_base),
+                        ..Default::default()
+                    };
+                    let band = push.rows * f.width;
+                    let (gx, gy) = if persistent {
+                        // The pixel counter: the guides' last entry (`path::render_tiles`).
+                        cmds.fill_range(g, g.size - 16, 16, 0);
+                        cmds.barrier();
+                        (band.div_ceil(1024).min(PERSISTENT_GROUPS), 1)
+                    } else {
+                        (f.width.div_ceil(TILE_SIDE), push.rows.div_ceil(TILE_SIDE))
+                    };
+                    cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(&push), gx, gy);
+                    cmds.barrier();
+                    let (x, y) = grid(band.div_ceil(WORKGROUP));
+                    cmds.dispatch_pipeline(k, resolve, &sets, bytemuck::bytes_of(&push), x, y);
+                    cmds.barrier();
+                }
+            }
+            done = samples;
+        }
         while done < samples {
             let n = (samples - done).min(SAMPLES_PER_DISPATCH);
             let push = RenderPush {
@@ -1038,14 +1147,14 @@ impl GpuRenderer {
         flags: u32,
         repeats: u32,
     ) -> Result<Vec<Hit>> {
-        if (b.rays.size as usize) < size_of_val(rays) {
-            b.rays = Buffer::new(&self.gpu, "rays", size_of_val(rays) as u64, MemoryLocation::GpuOnly)?;
-            b.hits = Buffer::new(
-                &self.gpu,
-                "hits",
-                (rays.len() * size_of::<Hit>()) as u64,
-                MemoryLocation::GpuOnly,
-            )?;
+        let hits_bytes = (rays.len() * size_of::<Hit>()) as u64;
+        if b.rays.size < size_of_val(rays) as u64 || b.hits.size < hits_bytes {
+            if b.rays.size < size_of_val(rays) as u64 {
+                b.rays = Buffer::new(&self.gpu, "rays", size_of_val(rays) as u64, MemoryLocation::GpuOnly)?;
+            }
+            if b.hits.size < hits_bytes {
+                b.hits = Buffer::new(&self.gpu, "hits", hits_bytes, MemoryLocation::GpuOnly)?;
+            }
             b.bind(&self.gpu, &self.kernels, self.levels.as_ref())?;
         }
         self.upload(&b.rays, rays)?;
