@@ -71,6 +71,10 @@ impl Trace for Driver<'_> {
         }
     }
 
+    fn closest(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
+        self.found(w, origin, dir, t_max).hit
+    }
+
     fn any(&mut self, _w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
         if !usable(origin, dir, t_max) {
             return false;

@@ -67,18 +67,22 @@ impl Found {
     };
 }
 
-/// How a path's rays find what they hit: the project's own BVH walk ([`Walk`]), or the
-/// driver's acceleration structure through a ray-tracing pipeline (`crate::driver`). The
-/// path loop is generic over it, so both tracers shade, sample and count rays with the
-/// same code.
+/// How a path's rays find what they hit: the project's own BVH walk ([`Walk`], the
+/// methods' defaults), or the driver's acceleration structure through a ray-tracing pipeline
+/// (`crate::driver`). The path loop is generic over it, so both tracers shade, sample and
+/// count rays with the same code.
 pub trait Trace {
     /// [`World::found`]: the closest hit in `(0, t_max)` and where its primitive is.
-    fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found;
+    fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found {
+        w.found(origin, dir, t_max)
+    }
     /// [`World::any`]: whether anything lies in `(0, t_max)`.
-    fn any(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool;
+    fn any(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+        w.any(origin, dir, t_max)
+    }
     /// [`World::closest`]: the closest hit in `(0, t_max)`.
     fn closest(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
-        self.found(w, origin, dir, t_max).hit
+        w.closest(origin, dir, t_max)
     }
     /// A shadow ray of next-event estimation in a scene in two levels, bringing `value` if
     /// nothing lies in `(0, t_max)`: what to add now (`value` or zero). [`Queued`] adds
@@ -95,19 +99,7 @@ pub trait Trace {
 /// The project's own traversal: the BVH (or brute force without [`FLAG_BVH`]).
 pub struct Walk;
 
-impl Trace for Walk {
-    fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found {
-        w.found(origin, dir, t_max)
-    }
-
-    fn any(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
-        w.any(origin, dir, t_max)
-    }
-
-    fn closest(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
-        w.closest(origin, dir, t_max)
-    }
-}
+impl Trace for Walk {}
 
 /// The path tracer of the shadow queue ([`queue_pixel`]): [`Walk`], but a segment's shadow ray
 /// is kept (`pending`) for `queue_pixel` to queue. (No slice of the queue in here: a struct
@@ -121,18 +113,6 @@ struct Queued {
 }
 
 impl Trace for Queued {
-    fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found {
-        w.found(origin, dir, t_max)
-    }
-
-    fn any(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
-        w.any(origin, dir, t_max)
-    }
-
-    fn closest(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
-        w.closest(origin, dir, t_max)
-    }
-
     fn shadow(&mut self, _w: &World, origin: Vec3, dir: Vec3, t_max: f32, value: Vec3) -> Vec3 {
         *self = Queued {
             pending: true,
