@@ -873,10 +873,19 @@ impl GpuRenderer {
             None => self.kernels.specialised(path_kernel, self.path_trace_constant())?,
         };
         let persistent = matches!(path_kernel, Kernel::PathTracePersistent | Kernel::PathQueuePersistent);
-        let (gx, gy) = if persistent {
-            ((f.width * f.height).div_ceil(1024).min(PERSISTENT_GROUPS), 1)
-        } else {
-            (f.width.div_ceil(TILE_SIDE), f.height.div_ceil(TILE_SIDE))
+        // The path tracer over the push's rows; persistent, its pixel counter (the guides' last
+        // entry, `path::render_tiles`) zeroed first.
+        let guides = &self.bufs.as_ref().context("no scene loaded")?.guides;
+        let trace_rows = |cmds: &mut Commands, push: &RenderPush| {
+            let (gx, gy) = if persistent {
+                cmds.fill_range(guides, guides.size - 16, 16, 0);
+                cmds.barrier();
+                ((push.rows * f.width).div_ceil(1024).min(PERSISTENT_GROUPS), 1)
+            } else {
+                (f.width.div_ceil(TILE_SIDE), push.rows.div_ceil(TILE_SIDE))
+            };
+            cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(push), gx, gy);
+            cmds.barrier();
         };
         let mut done = 0;
         if self.shadow_queue() {
@@ -886,7 +895,6 @@ impl GpuRenderer {
                 .kernels
                 .specialised(Kernel::ShadowResolve, self.path_trace_constant())?;
             let rows = self.queue_rows();
-            let g = &self.bufs.as_ref().context("no scene loaded")?.guides;
             for s in 0..samples {
                 for row_base in (0..f.height).step_by(rows as usize) {
                     let push = RenderPush {
@@ -897,18 +905,8 @@ impl GpuRenderer {
                         rows: rows.min(f.height - row_base),
                         ..Default::default()
                     };
-                    let band = push.rows * f.width;
-                    let (gx, gy) = if persistent {
-                        // The pixel counter: the guides' last entry (`path::render_tiles`).
-                        cmds.fill_range(g, g.size - 16, 16, 0);
-                        cmds.barrier();
-                        (band.div_ceil(1024).min(PERSISTENT_GROUPS), 1)
-                    } else {
-                        (f.width.div_ceil(TILE_SIDE), push.rows.div_ceil(TILE_SIDE))
-                    };
-                    cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(&push), gx, gy);
-                    cmds.barrier();
-                    let (x, y) = grid(band.div_ceil(WORKGROUP));
+                    trace_rows(cmds, &push);
+                    let (x, y) = grid((push.rows * f.width).div_ceil(WORKGROUP));
                     cmds.dispatch_pipeline(k, resolve, &sets, bytemuck::bytes_of(&push), x, y);
                     cmds.barrier();
                 }
@@ -921,20 +919,12 @@ impl GpuRenderer {
                 sample_base: self.first_sample + self.samples + done,
                 samples: n,
                 count: guides_from + done,
+                rows: f.height,
                 ..Default::default()
             };
             match self.driver.as_mut() {
                 Some(d) => d.record_launch(cmds, PATH_TRACE, driver_features, sets, &push, f.width, f.height)?,
-                None => {
-                    if persistent {
-                        // The pixel counter: the guides' last entry (`path::render_tiles`).
-                        let g = &self.bufs.as_ref().context("no scene loaded")?.guides;
-                        cmds.fill_range(g, g.size - 16, 16, 0);
-                        cmds.barrier();
-                    }
-                    cmds.dispatch_pipeline(k, trace, &sets, bytemuck::bytes_of(&push), gx, gy);
-                    cmds.barrier();
-                }
+                None => trace_rows(cmds, &push),
             }
             done += n;
         }
