@@ -357,110 +357,185 @@ pub fn closest_instance(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> (Hit,
     walk_levels::<false>(s, origin, dir, t_max)
 }
 
-/// Stack traversal of the two levels ([`FEATURE_INSTANCES`]): [`walk`]'s loop, where a hit
-/// leaf of the top level is an instance to enter rather than a primitive to intersect. Its
-/// box is pushed or taken like an internal node's; taking it moves the ray to the mesh's
-/// model space and makes the mesh's root the next node, and the stack's depth there marks
-/// where the instance ends: popping back to it restores the world ray (what the top
-/// level's boxes read of it). One stack, one box test and one primitive test for both
-/// levels.
+/// Stack traversal of the two levels ([`FEATURE_INSTANCES`]): [`Levels`] stepped to its end.
 fn walk_levels<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> (Hit, u32) {
-    let mut best = Hit::MISS;
-    let mut best_instance = INVALID;
-    let n = s.n_instances;
-    if n == 0 || !usable(origin, dir, t_max) {
-        return (best, best_instance);
+    let mut w = Levels::new();
+    if w.start(s, origin, dir, t_max) {
+        while w.step::<ANY>(s) {}
     }
-    let mut r = TriRay::new(origin, dir);
-    // What the top level's boxes need of the world ray besides `origin`: its direction and
-    // shear serve primitive tests only, which the top level has none of (keeping them, four
-    // registers more, made the real-time two-level frames 1.3-2.1% slower on the H100).
-    let world_inv = r.inv_dir;
-    let mut limit = t_max;
-    if slab(s, &r, at(s.nodes, s.top), limit) == f32::INFINITY {
-        return (best, best_instance);
+    (w.best, w.best_instance)
+}
+
+/// A walk of the two levels between its steps: [`walk`]'s loop, where a hit leaf of the top
+/// level is an instance to enter rather than a primitive to intersect. Its box is pushed or
+/// taken like an internal node's; taking it moves the ray to the mesh's model space and makes
+/// the mesh's root the next node, and the stack's depth there marks where the instance ends:
+/// popping back to it restores the world ray (what the top level's boxes read of it). One
+/// stack, one box test and one primitive test for both levels. A walk is started
+/// ([`Levels::start`]) and stepped ([`Levels::step`]) until it ends, so that a kernel can
+/// start a lane's next ray as soon as its walk ends (`path::resolve_tiles`).
+pub struct Levels {
+    /// The world ray, and what the top level's boxes need of it besides `origin`: its
+    /// direction and shear serve primitive tests only, which the top level has none of
+    /// (keeping them in `r`, four registers more, made the real-time two-level frames 1.3-2.1%
+    /// slower on the H100).
+    origin: Vec3,
+    dir: Vec3,
+    world_inv: Vec3,
+    /// The ray of the level walked.
+    r: TriRay,
+    limit: f32,
+    /// The hit so far ([`Hit::MISS`] for none; any-hit walks end at the first) and its
+    /// instance.
+    pub best: Hit,
+    pub best_instance: u32,
+    stack: [MaybeUninit<u32>; STACK],
+    sp: usize,
+    /// The instance being walked ([`INVALID`]: the top level), its mesh and the stack's depth
+    /// where it was entered.
+    current: u32,
+    mesh: MeshRef,
+    base: usize,
+    /// The node the next step visits.
+    node: u32,
+}
+
+impl Levels {
+    pub fn new() -> Levels {
+        Levels {
+            origin: Vec3::ZERO,
+            dir: Vec3::ZERO,
+            world_inv: Vec3::ZERO,
+            r: TriRay::new(Vec3::ZERO, Vec3::X),
+            limit: 0.0,
+            best: Hit::MISS,
+            best_instance: INVALID,
+            stack: [MaybeUninit::<u32>::uninit(); STACK],
+            sp: 0,
+            current: INVALID,
+            mesh: MeshRef::default(),
+            base: 0,
+            node: 0,
+        }
     }
-    let top_leaves = n - 1;
-    let mut stack = [MaybeUninit::<u32>::uninit(); STACK];
-    let mut sp = 0usize;
-    // The instance being walked (INVALID: the top level), its mesh and the stack's depth
-    // where it was entered.
-    let mut current = INVALID;
-    let mut mesh = MeshRef::default();
-    let mut base = 0usize;
-    // Top-level node 0, the root (for one instance, its leaf).
-    let mut node = 0u32;
-    loop {
+
+    /// Starts the walk of `origin + t dir`, `t` in `(0, t_max)`; false if it has ended
+    /// already (a ray that can hit nothing, or misses the top level's root box). The stack's
+    /// entries are left as they are: each is read only after its push.
+    pub fn start(&mut self, s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+        self.best = Hit::MISS;
+        self.best_instance = INVALID;
+        if s.n_instances == 0 || !usable(origin, dir, t_max) {
+            return false;
+        }
+        self.origin = origin;
+        self.dir = dir;
+        self.r = TriRay::new(origin, dir);
+        self.world_inv = self.r.inv_dir;
+        self.limit = t_max;
+        self.sp = 0;
+        self.current = INVALID;
+        self.base = 0;
+        // Top-level node 0, the root (for one instance, its leaf).
+        self.node = 0;
+        slab(s, &self.r, at(s.nodes, s.top), t_max) != f32::INFINITY
+    }
+
+    /// Visits the next node; false once the walk has ended (an any-hit walk, `ANY`, at its
+    /// first hit).
+    pub fn step<const ANY: bool>(&mut self, s: &Scene) -> bool {
+        let top_leaves = s.n_instances - 1;
         let mut next = INVALID;
-        if current == INVALID && node >= top_leaves {
+        if self.current == INVALID && self.node >= top_leaves {
             // Enter the instance.
-            current = at(s.nodes, s.top + node).a;
-            let instance = at(s.instances, current);
-            mesh = instance.mesh();
-            base = sp;
-            let (o, d) = instance.ray_to_model(origin, dir);
-            r = TriRay::new(o, d);
-            if mesh.prims() == 1 {
-                let prim = mesh.global(0, s.n_tris);
-                let (t, u, v) = primitive_of(s, &r, prim, mesh.object, limit);
-                if t < limit {
-                    limit = t;
-                    best = Hit { t, prim, u, v };
-                    best_instance = current;
+            self.current = at(s.nodes, s.top + self.node).a;
+            let instance = at(s.instances, self.current);
+            self.mesh = instance.mesh();
+            self.base = self.sp;
+            let (o, d) = instance.ray_to_model(self.origin, self.dir);
+            self.r = TriRay::new(o, d);
+            if self.mesh.prims() == 1 {
+                let prim = self.mesh.global(0, s.n_tris);
+                let (t, u, v) = primitive_of(s, &self.r, prim, self.mesh.object, self.limit);
+                if t < self.limit {
+                    self.limit = t;
+                    self.best = Hit { t, prim, u, v };
+                    self.best_instance = self.current;
                 }
-            } else if mesh.prims() > 1 {
+            } else if self.mesh.prims() > 1 {
                 next = 0;
             }
         } else {
-            let top = current == INVALID;
+            let top = self.current == INVALID;
             let (first_leaf, offset) = if top {
                 (top_leaves, s.top)
             } else {
-                (mesh.prims() - 1, mesh.nodes)
+                (self.mesh.prims() - 1, self.mesh.nodes)
             };
-            let inner = *at(s.nodes, offset + node);
+            let inner = *at(s.nodes, offset + self.node);
             let at_level = Level {
                 top,
                 offset,
                 first_leaf,
-                mesh: &mesh,
-                instance: current,
+                mesh: &self.mesh,
+                instance: self.current,
             };
-            let (a, ta) = at_level.visit(s, &r, inner.a, &mut limit, &mut best, &mut best_instance);
-            if ANY && best.prim != INVALID {
-                return (best, best_instance);
+            let (a, ta) = at_level.visit(
+                s,
+                &self.r,
+                inner.a,
+                &mut self.limit,
+                &mut self.best,
+                &mut self.best_instance,
+            );
+            if ANY && self.best.prim != INVALID {
+                return false;
             }
-            let (b, tb) = at_level.visit(s, &r, inner.b, &mut limit, &mut best, &mut best_instance);
+            let (b, tb) = at_level.visit(
+                s,
+                &self.r,
+                inner.b,
+                &mut self.limit,
+                &mut self.best,
+                &mut self.best_instance,
+            );
             let (near, far) = if tb < ta { (b, a) } else { (a, b) };
             if near != INVALID {
-                if far != INVALID && sp < STACK {
-                    elem_mut(&mut stack, sp as u32).write(far);
-                    sp += 1;
+                if far != INVALID && self.sp < STACK {
+                    elem_mut(&mut self.stack, self.sp as u32).write(far);
+                    self.sp += 1;
                 }
                 next = near;
             }
         }
-        if ANY && best.prim != INVALID {
-            return (best, best_instance);
+        if ANY && self.best.prim != INVALID {
+            return false;
         }
         if next != INVALID {
-            node = next;
-        } else {
-            if current != INVALID && sp == base {
-                // The instance is done: back to the top level, whose boxes read the ray's
-                // origin and reciprocals only. (Computing the reciprocals again here instead
-                // of keeping them was 2% slower on the H100.)
-                current = INVALID;
-                r.origin = origin;
-                r.inv_dir = world_inv;
-            }
-            if sp == 0 {
-                return (best, best_instance);
-            }
-            sp -= 1;
-            // SAFETY: entry `sp` was written by its push.
-            node = unsafe { elem(&stack, sp as u32).assume_init() };
+            self.node = next;
+            return true;
         }
+        if self.current != INVALID && self.sp == self.base {
+            // The instance is done: back to the top level, whose boxes read the ray's origin
+            // and reciprocals only. (Computing the reciprocals again here instead of keeping
+            // them was 2% slower on the H100.)
+            self.current = INVALID;
+            self.r.origin = self.origin;
+            self.r.inv_dir = self.world_inv;
+        }
+        if self.sp == 0 {
+            return false;
+        }
+        self.sp -= 1;
+        // SAFETY: entry `sp` was written by its push.
+        self.node = unsafe { elem(&self.stack, self.sp as u32).assume_init() };
+        true
+    }
+}
+
+impl Default for Levels {
+    fn default() -> Levels {
+        Levels::new()
     }
 }
 
