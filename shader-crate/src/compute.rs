@@ -458,6 +458,17 @@ scene_kernel! {
     }
 }
 
+scene_kernel! {
+    /// `shadow_resolve` persistent (`path::resolve_tiles`): a lane starts its next shadow ray
+    /// as soon as its walk ends.
+    #[spirv(compute(threads(1024)))]
+    shadow_resolve_persistent(
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 9)] queue: &[[f32; 4]]
+    ) |p, w, accum, guides| {
+        path::resolve_tiles(p, &w, accum, guides, queue);
+    }
+}
+
 // The denoiser (`shared::denoise`): its own buffers in set 0 (a set of the build's layout:
 // guides, history, filter, output), the frame and display image of set 1.
 

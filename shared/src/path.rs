@@ -839,11 +839,10 @@ pub fn resolve_pixel<T: Trace>(
     if i >= band {
         return;
     }
-    let pixel = p.row_base * f.width + i;
-    let (sums, emitted) = (*sync::at(queue, i), *sync::at(queue, band + i));
+    let slots = sync::at(queue, band + i)[3] as u32;
     let mut nee = Vec3::ZERO;
     let mut k = 0;
-    while k < emitted[3] as u32 {
+    while k < slots {
         let slot = queue_slot(band, k, i);
         let (o, d) = (*sync::at(queue, slot), *sync::at(queue, slot + band));
         if !tr.any(w, xyz(o), xyz(d), o[3]) {
@@ -851,6 +850,75 @@ pub fn resolve_pixel<T: Trace>(
         }
         k += 1;
     }
+    add_resolved(i, nee, p, w, accum, guides, queue);
+}
+
+/// `shadow_resolve_persistent` (scenes in two levels, whose queue only it resolves):
+/// [`resolve_pixel`] for pixel after pixel of the band, each the next number of the counter
+/// of [`render_tiles`], but a lane whose shadow ray ends starts its next ray (the pixel's
+/// next slot, or the first of the next pixel with any) at once, in the walk's own loop
+/// ([`traverse::Levels`]), instead of waiting for the warp's longest walk to end (Aila and
+/// Laine 2009's persistent traversal with rays fetched as lanes finish). The same rays,
+/// lit values added in the same order: the same bits as [`resolve_pixel`].
+pub fn resolve_tiles(p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]], queue: &[[f32; 4]]) {
+    let f = w.frame;
+    let band = p.rows * f.width;
+    let last = guides.len() as u32 - 1;
+    let mut walk = traverse::Levels::new();
+    // The band pixel resolved (INVALID: none yet), its slots, the next slot to cast.
+    let mut i = INVALID;
+    let (mut slots, mut k) = (0, 0);
+    let mut nee = Vec3::ZERO;
+    // Whether slot `k`'s ray is cast, and still walking.
+    let (mut cast, mut walking) = (false, false);
+    loop {
+        if walking {
+            walking = walk.step::<true>(&w.scene);
+        } else {
+            if cast {
+                if walk.best.prim == INVALID {
+                    nee += xyz(*sync::at(queue, queue_slot(band, k, i) + 2 * band));
+                }
+                k += 1;
+                cast = false;
+            }
+            if k < slots {
+                let slot = queue_slot(band, k, i);
+                let (o, d) = (*sync::at(queue, slot), *sync::at(queue, slot + band));
+                walking = walk.start(&w.scene, xyz(o), xyz(d), o[3]);
+                cast = true;
+            } else {
+                if i != INVALID {
+                    add_resolved(i, nee, p, w, accum, guides, queue);
+                }
+                i = sync::atomic_add_device::<false>(&mut sync::at_mut(guides, last)[0], 1);
+                if i >= band {
+                    return;
+                }
+                slots = sync::at(queue, band + i)[3] as u32;
+                k = 0;
+                nee = Vec3::ZERO;
+            }
+        }
+    }
+}
+
+/// Adds band pixel `i`'s sample to `accum` (and the guide's sums) as [`render_pixel`] adds a
+/// sample: its path's radiance without next-event estimation from the queue plus `nee`, the
+/// lit values of its shadow rays.
+fn add_resolved(
+    i: u32,
+    nee: Vec3,
+    p: &RenderPush,
+    w: &World,
+    accum: &mut [[f32; 4]],
+    guides: &mut [[u32; 4]],
+    queue: &[[f32; 4]],
+) {
+    let f = w.frame;
+    let band = p.rows * f.width;
+    let pixel = p.row_base * f.width + i;
+    let (sums, emitted) = (*sync::at(queue, i), *sync::at(queue, band + i));
     let l = xyz(sums) + nee;
     let lit = finite3(l);
     let s = if lit { l } else { Vec3::ZERO };

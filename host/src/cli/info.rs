@@ -104,7 +104,12 @@ pub fn kernels_command(opts: &GpuOptions) -> Result<()> {
                 let levels = if instancing == "on" { " (two levels)" } else { "" };
                 // Two levels with NEE: the shadow queue's kernels too (what frames run there).
                 let queue: &[Kernel] = if nee && instancing == "on" {
-                    &[Kernel::PathQueue, Kernel::PathQueuePersistent, Kernel::ShadowResolve]
+                    &[
+                        Kernel::PathQueue,
+                        Kernel::PathQueuePersistent,
+                        Kernel::ShadowResolve,
+                        Kernel::ShadowResolvePersistent,
+                    ]
                 } else {
                     &[]
                 };

@@ -45,6 +45,7 @@ pub enum Kernel {
     PathQueue,
     PathQueuePersistent,
     ShadowResolve,
+    ShadowResolvePersistent,
     DisplayImage,
     CastRays,
     FmaProbe,
@@ -63,11 +64,12 @@ impl Kernel {
                 | Kernel::PathQueue
                 | Kernel::PathQueuePersistent
                 | Kernel::ShadowResolve
+                | Kernel::ShadowResolvePersistent
                 | Kernel::CastRays
         )
     }
 
-    pub const ALL: [Kernel; 31] = [
+    pub const ALL: [Kernel; 32] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -93,6 +95,7 @@ impl Kernel {
         Kernel::PathQueue,
         Kernel::PathQueuePersistent,
         Kernel::ShadowResolve,
+        Kernel::ShadowResolvePersistent,
         Kernel::DisplayImage,
         Kernel::CastRays,
         Kernel::FmaProbe,
@@ -134,6 +137,7 @@ impl Kernel {
             Kernel::PathQueue => "path_queue",
             Kernel::PathQueuePersistent => "path_queue_persistent",
             Kernel::ShadowResolve => "shadow_resolve",
+            Kernel::ShadowResolvePersistent => "shadow_resolve_persistent",
             Kernel::DisplayImage => "display_image",
             Kernel::CastRays => "cast_rays",
             Kernel::FmaProbe => "fma_probe",

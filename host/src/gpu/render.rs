@@ -873,14 +873,18 @@ impl GpuRenderer {
             None => self.kernels.specialised(path_kernel, self.path_trace_constant())?,
         };
         let persistent = matches!(path_kernel, Kernel::PathTracePersistent | Kernel::PathQueuePersistent);
-        // The path tracer over the push's rows; persistent, its pixel counter (the guides' last
+        // A persistent kernel's workgroups for `pixels`, its pixel counter (the guides' last
         // entry, `path::render_tiles`) zeroed first.
         let guides = &self.bufs.as_ref().context("no scene loaded")?.guides;
+        let persistent_grid = |cmds: &mut Commands, pixels: u32| {
+            cmds.fill_range(guides, guides.size - 16, 16, 0);
+            cmds.barrier();
+            (pixels.div_ceil(1024).min(PERSISTENT_GROUPS), 1)
+        };
+        // The path tracer over the push's rows.
         let trace_rows = |cmds: &mut Commands, push: &RenderPush| {
             let (gx, gy) = if persistent {
-                cmds.fill_range(guides, guides.size - 16, 16, 0);
-                cmds.barrier();
-                ((push.rows * f.width).div_ceil(1024).min(PERSISTENT_GROUPS), 1)
+                persistent_grid(cmds, push.rows * f.width)
             } else {
                 (f.width.div_ceil(TILE_SIDE), push.rows.div_ceil(TILE_SIDE))
             };
@@ -890,10 +894,14 @@ impl GpuRenderer {
         let mut done = 0;
         if self.shadow_queue() {
             // One sample a dispatch, band after band: the path tracer queues, `shadow_resolve`
-            // casts and adds.
-            let resolve = self
-                .kernels
-                .specialised(Kernel::ShadowResolve, self.path_trace_constant())?;
+            // casts and adds; persistent where the path tracer is (not on lavapipe: see
+            // `path_kernel`).
+            let resolve_kernel = if persistent {
+                Kernel::ShadowResolvePersistent
+            } else {
+                Kernel::ShadowResolve
+            };
+            let resolve = self.kernels.specialised(resolve_kernel, self.path_trace_constant())?;
             let rows = self.queue_rows();
             for s in 0..samples {
                 for row_base in (0..f.height).step_by(rows as usize) {
@@ -906,7 +914,11 @@ impl GpuRenderer {
                         ..Default::default()
                     };
                     trace_rows(cmds, &push);
-                    let (x, y) = grid((push.rows * f.width).div_ceil(WORKGROUP));
+                    let (x, y) = if persistent {
+                        persistent_grid(cmds, push.rows * f.width)
+                    } else {
+                        grid((push.rows * f.width).div_ceil(WORKGROUP))
+                    };
                     cmds.dispatch_pipeline(k, resolve, &sets, bytemuck::bytes_of(&push), x, y);
                     cmds.barrier();
                 }
