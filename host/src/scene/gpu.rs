@@ -67,18 +67,25 @@ pub const MAX_FLATTENED: u64 = 200_000_000;
 pub const FLAT_BYTES: u64 = 293;
 
 /// Whether [`InstancingMode::Auto`] instances a scene of `flattened` primitives, `distinct`
-/// of them distinct, whose one build serves `samples` samples. Measured on the H100 (1080p,
-/// 1 sample a pixel, depth 4; bench/NOTES.md, session 24): the flattened rebuild costs about
-/// 0.38 ns a primitive (herd: 3.8 ms for 10M) and tracing two levels about 0.75 ns a sample
-/// more than one BVH (instances +1.2 ms, herd +1.4 ms), so instancing pays where the copies
-/// it saves exceed twice the samples: the herd's real-time frames (10M primitives, 69,669
-/// distinct: 7.9 against 10.2 ms), not the sixteen bunnies' (1.1M: 4.8 against 3.6 ms), nor
-/// a still of many samples. A scene must also repeat its meshes at least twice over, and
-/// save at least [`AUTO_MIN_SAVED`] copies.
+/// of them distinct, whose one build serves `samples` samples. Measured on the H100
+/// (bench/NOTES.md, session 33): the flattened rebuild costs about 0.5 ns a copy, and the
+/// sixteen bunnies (1.1M primitives) trace in two levels about 0.15 ns a sample slower than
+/// flattened at depth 4, 0.58 at depth 16, so instancing pays where the copies it saves are at
+/// least a third of the samples: their real-time frames (3.10 against 3.36 ms), not a still of
+/// 32 samples (102 against 90 ms of trace). The herd's flattened tree (10M primitives) traces
+/// slower than its two levels at any number of samples (real time 6.1 against 5.0 ms of
+/// trace, 32 samples 161 against 140 ms), so above [`AUTO_FLAT_SLOWER`] primitives two levels
+/// always. A scene must also repeat its meshes at least twice over, and save at least
+/// [`AUTO_MIN_SAVED`] copies.
 pub fn auto_instances(flattened: u64, distinct: u64, samples: u64) -> bool {
     let saved = flattened.saturating_sub(distinct);
-    flattened >= 2 * distinct && saved >= AUTO_MIN_SAVED.max(2 * samples)
+    flattened >= 2 * distinct && saved >= AUTO_MIN_SAVED && (3 * saved >= samples || flattened >= AUTO_FLAT_SLOWER)
 }
+
+/// Flattened primitives from which [`auto_instances`] always takes two levels: between the
+/// sixteen bunnies' 1.1M (their flattened tree traces faster) and the herd's 10M (slower);
+/// where in between is not measured.
+pub const AUTO_FLAT_SLOWER: u64 = 4_000_000;
 
 /// Copies below which instancing never pays: their rebuild takes under 0.04 ms.
 pub const AUTO_MIN_SAVED: u64 = 100_000;
@@ -394,8 +401,8 @@ impl Scene {
                     format!("objects are instances: {reuse}, too many to flatten")
                 } else {
                     format!(
-                        "objects are instances: {reuse}; the rebuild saved outweighs the two levels' \
-                         trace for {samples} samples a build (auto)"
+                        "objects are instances: {reuse}; for {samples} samples a build the two levels \
+                         trace faster than the flattened rebuild and trace (auto)"
                     )
                 };
                 match instanced(why) {
@@ -404,8 +411,8 @@ impl Scene {
                 }
             }
             InstancingMode::Auto => flat(format!(
-                "flattened: {reuse}; for {samples} samples a build one BVH traces faster than the rebuild \
-                 costs (auto)"
+                "flattened: {reuse}; for {samples} samples a build one BVH traces faster than two levels \
+                 by more than the rebuild costs (auto)"
             )),
         }
     }

@@ -19,7 +19,7 @@ mod transform;
 mod validate;
 
 pub use error::SceneError;
-pub use gpu::{auto_instances, Instancing, InstancingMode, SceneGpu, AUTO_MIN_SAVED, MAX_FLATTENED};
+pub use gpu::{auto_instances, Instancing, InstancingMode, SceneGpu, AUTO_FLAT_SLOWER, AUTO_MIN_SAVED, MAX_FLATTENED};
 pub use transform::{Animation, Bob, Orbit, Transform, Wave};
 
 use glam::Vec3;
