@@ -114,6 +114,31 @@ fn levels_at(scene: &SceneGpu, i: &Instancing, objects: &[Object], build: BuildO
     build_levels(&meshes, &placements, build).unwrap_or_default()
 }
 
+/// What the path tracer reads of `scene`: `traced` (its primitives and BVH), the objects and
+/// lights bindings (`objects`, `lights`), `frame`, and the scene's materials, attributes,
+/// lights, environment and textures.
+fn world<'a>(
+    scene: &'a SceneGpu,
+    traced: Scene<'a>,
+    objects: &'a [Object],
+    lights: &'a [u32],
+    frame: &'a Frame,
+) -> World<'a> {
+    World {
+        scene: traced,
+        objects,
+        prim_object: &scene.prim_object,
+        materials: &scene.materials,
+        lights,
+        frame,
+        attrs: &scene.attrs,
+        punctual: &scene.punctual,
+        env: scene.env.as_ref().map_or(&[], |e| e.entries.as_slice()),
+        textures: &scene.textures.infos,
+        texels: &scene.textures.texels,
+    }
+}
+
 /// Renders `samples` samples per pixel of `scene` with `frame`; `progress` is called with
 /// the number of rows finished.
 pub fn render_cpu(
@@ -198,19 +223,7 @@ pub fn render_cpu_samples(
             features,
         },
     };
-    let world = World {
-        scene: traced,
-        objects: &objects,
-        prim_object: &scene.prim_object,
-        materials: &scene.materials,
-        lights: &lights,
-        frame,
-        attrs: &scene.attrs,
-        punctual: &scene.punctual,
-        env: scene.env.as_ref().map_or(&[], |e| e.entries.as_slice()),
-        textures: &scene.textures.infos,
-        texels: &scene.textures.texels,
-    };
+    let world = world(scene, traced, &objects, &lights, frame);
     let push = RenderPush {
         sample_base: first,
         samples,
@@ -293,22 +306,11 @@ mod tests {
             assert!(features & FEATURE_INSTANCES != 0 && features & FEATURE_NEE != 0);
             let objects = [scene.objects.as_slice(), &scene.objects].concat();
             let lights = scene.light_words();
-            let world = World {
-                scene: Scene {
-                    coverage: scene.coverage(),
-                    ..levels.scene(features)
-                },
-                objects: &objects,
-                prim_object: &scene.prim_object,
-                materials: &scene.materials,
-                lights: &lights,
-                frame,
-                attrs: &scene.attrs,
-                punctual: &scene.punctual,
-                env: scene.env.as_ref().map_or(&[], |e| e.entries.as_slice()),
-                textures: &scene.textures.infos,
-                texels: &scene.textures.texels,
+            let traced = Scene {
+                coverage: scene.coverage(),
+                ..levels.scene(features)
             };
+            let world = world(scene, traced, &objects, &lights, frame);
             let (w, h) = (frame.width, frame.height);
             let band = w * h;
             let push = RenderPush {
