@@ -103,6 +103,17 @@ pub fn fit(
     }
 }
 
+/// Before a refit of a kept tree: every internal node's box emptied
+/// (`shared::refit::empty_box`), for `fit` to fit again.
+#[spirv(compute(threads(256)))]
+pub fn empty_boxes(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
+) {
+    refit::empty_box(flat_index(id.x, id.y), p, node_words);
+}
+
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
     ($k:ty, $morton:ident, $morton_counted:ident, $scatter:ident, $rank:ident, $build:ident) => {

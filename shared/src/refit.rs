@@ -191,6 +191,16 @@ fn store_box(words: &mut [u32], node: u32, lo: [f32; 3], hi: [f32; 3]) {
     });
 }
 
+/// Before [`fit`] runs again on a kept tree (a refit: the primitives moved, the Karras tree,
+/// its parents and its leaf ranges stay): empties internal node `i`'s box, as the tree
+/// kernel leaves it in a build, since the fit merges into the boxes above its blocks. The
+/// boxes of the leaves and of the nodes inside a block are written whole by the fit.
+pub fn empty_box(i: u32, p: &BuildParams, words: &mut [u32]) {
+    if i + 1 < p.n {
+        store_box(words, i, [f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    }
+}
+
 /// Phase 1 of [`fit`]: clears the block's links.
 pub fn fit_clear(lane: u32, st: &mut FitState) {
     *elem_mut(&mut st.links, lane) = 0;

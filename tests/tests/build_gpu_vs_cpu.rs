@@ -146,6 +146,60 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
     assert_no_validation_errors(&gpu);
 }
 
+/// A refit (`GpuLbvh::record_refit`, `cpu::refit`) keeps a build's tree and fits its boxes
+/// to the primitives as they are now: here other primitives of the same count (the tree then
+/// fits them badly, but soundly). Both backends' refits are equal bit for bit and valid,
+/// including the adversarial inputs (equal centres, a far outlier) and the sizes past which
+/// the fit tests fewer ancestors before merging; a refit back to the first primitives gives
+/// the build's tree again.
+#[test]
+fn refits_equal_on_gpu_and_cpu() {
+    let Some((gpu, mut lbvh)) = builder("refits_equal_on_gpu_and_cpu") else {
+        return;
+    };
+    let wg = WORKGROUP as usize;
+    let mut inputs: Vec<(Distribution, usize)> = Vec::new();
+    for dist in Distribution::ALL {
+        inputs.extend([0, 1, 2, 3, wg + 1, 17 * wg + 1, 100_000].map(|n| (dist, n)));
+    }
+    inputs.push((Distribution::Random, 300_000));
+    for (dist, n) in inputs {
+        for bits in [MortonBits::B30, MortonBits::B63] {
+            let opts = BuildOptions::lbvh(bits);
+            let name = format!("{dist:?}-{n} ({bits:?})");
+            let (t, s) = generate(n, dist, n % 2 == 1, 500 + n as u64);
+            let (t2, s2) = generate(n, Distribution::Random, n % 2 == 1, 900 + n as u64);
+            assert_eq!((t.len(), s.len()), (t2.len(), s2.len()));
+            lbvh.upload(&t, &s).unwrap();
+            lbvh.build(opts, false).unwrap();
+            let built = lbvh.result(opts).unwrap();
+            let c = cpu::build(&t, &s, opts).0;
+            assert_eq!(built.nodes, c.nodes, "{name}: the builds differ");
+            lbvh.upload(&t2, &s2).unwrap();
+            lbvh.refit(opts).unwrap();
+            let g = lbvh.result(opts).unwrap();
+            let r = cpu::refit(&c, &t2, &s2, opts).unwrap();
+            assert_eq!(g.nodes, r.nodes, "{name}: the refits differ");
+            assert_eq!((&g.parents, &g.sorted_prims), (&c.parents, &c.sorted_prims), "{name}");
+            if let Err(e) = validate(&r.nodes, &r.parents, &t2, &s2) {
+                panic!("{name}: the refit BVH is invalid:\n{e}");
+            }
+            lbvh.upload(&t, &s).unwrap();
+            lbvh.refit(opts).unwrap();
+            assert_eq!(lbvh.result(opts).unwrap().nodes, c.nodes, "{name}: refit back");
+        }
+    }
+    // What cannot be refit is refused by name.
+    let (t, s) = generate(100, Distribution::Random, false, 3);
+    let c = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30)).0;
+    let e = cpu::refit(&c, &t[..99], &s, BuildOptions::lbvh(MortonBits::B30)).unwrap_err();
+    assert!(e.contains("100 primitives given 99"), "{e}");
+    let treelets = BUILDS[2];
+    assert!(cpu::refit(&c, &t, &s, treelets).unwrap_err().contains("treelets"));
+    assert!(lbvh.refit(treelets).unwrap_err().to_string().contains("treelets"));
+    assert_no_validation_errors(&gpu);
+}
+
 #[test]
 fn bunny_builds_identically_on_gpu_and_cpu() {
     let Some((gpu, mut lbvh)) = builder("bunny_builds_identically_on_gpu_and_cpu") else {

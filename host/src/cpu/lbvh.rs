@@ -184,19 +184,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         }
         bytemuck::pod_collect_to_vec(&words)
     } else {
-        // The fit sees them as 32-bit words.
-        let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(&nodes);
-        for g in 0..groups {
-            let mut st = refit::FitState {
-                boxes: [0.0; 6 * refit::BLOCK as usize],
-                links: [0; refit::BLOCK as usize],
-                leaf_links: [0; refit::BLOCK as usize],
-            };
-            lanes(|l| refit::fit_clear(l, &mut st));
-            lanes(|l| refit::fit_links(l, g, &mut st, &p, &visits, &words));
-            lanes(|l| refit::fit::<true>(l, g, &mut st, &p, prims, &parents, &visits, &mut words));
-        }
-        bytemuck::pod_collect_to_vec(&words)
+        fit(&p, prims, &parents, &visits, &nodes)
     };
     lap("refit", &mut times);
     if opts.wide && n > 0 {
@@ -206,6 +194,91 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     out.nodes = nodes;
     out.parents = parents;
     (out, times)
+}
+
+/// The build's fit (`shared::refit::fit`) over the Karras tree `nodes` (its leaf ranges'
+/// far ends in `visits[n..]`), as the GPU runs it; returns the fitted nodes.
+fn fit(p: &BuildParams, prims: refit::Prims, parents: &[u32], visits: &[u32], nodes: &[Node]) -> Vec<Node> {
+    // The fit sees the nodes as 32-bit words.
+    let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(nodes);
+    for g in 0..p.n.div_ceil(refit::BLOCK) {
+        let mut st = refit::FitState {
+            boxes: [0.0; 6 * refit::BLOCK as usize],
+            links: [0; refit::BLOCK as usize],
+            leaf_links: [0; refit::BLOCK as usize],
+        };
+        lanes(|l| refit::fit_clear(l, &mut st));
+        lanes(|l| refit::fit_links(l, g, &mut st, p, visits, &words));
+        lanes(|l| refit::fit::<true>(l, g, &mut st, p, prims, parents, visits, &mut words));
+    }
+    bytemuck::pod_collect_to_vec(&words)
+}
+
+/// Refits `earlier` (a binary build without treelets, of as many primitives) over `tris`
+/// and `spheres` as they are now, as `GpuLbvh::record_refit` does: the tree is kept (its
+/// sorted order, links and parents), every internal box emptied (`refit::empty_box`) and the
+/// build's fit run again. The bounds and codes stay the earlier build's (those the tree was
+/// built from). Errors name a mismatch in the primitives' count.
+pub fn refit(
+    earlier: &BuildResult,
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    opts: BuildOptions,
+) -> Result<BuildResult, String> {
+    let n = (tris.len() + spheres.len()) as u32;
+    if earlier.sorted_prims.len() != n as usize || earlier.nodes.len() != (2 * n).saturating_sub(1) as usize {
+        return Err(format!(
+            "a refit of a tree over {} primitives given {n}",
+            earlier.sorted_prims.len()
+        ));
+    }
+    if opts.wide || opts.restructures() {
+        return Err("a refit keeps the Karras tree: a binary build without treelets".into());
+    }
+    if n == 0 {
+        return Ok(earlier.clone());
+    }
+    let p = BuildParams {
+        n_tris: tris.len() as u32,
+        n,
+        shift: 0,
+        passes: 0,
+    };
+    // The leaf ranges' far ends, which the GPU's tree kernel left in its visit buffer: the
+    // tree kernel again over the kept codes (the same links, checked).
+    let mut visits = vec![0u32; 2 * n as usize];
+    let mut tree = vec![Node::default(); earlier.nodes.len()];
+    let mut parents = vec![0u32; earlier.nodes.len()];
+    let ends = |keys: &[u64], tree: &mut [Node], parents: &mut [u32], visits: &mut [u32]| match opts.bits {
+        MortonBits::B30 => {
+            let keys: Vec<u32> = keys.iter().map(|&k| k as u32).collect();
+            (0..n).for_each(|i| karras::build(i, &p, &keys, tree, parents, visits));
+        }
+        MortonBits::B63 => (0..n).for_each(|i| karras::build(i, &p, keys, tree, parents, visits)),
+    };
+    ends(&earlier.sorted_keys, &mut tree, &mut parents, &mut visits);
+    let linked = |a: &Node, b: &Node| (a.a, a.b) == (b.a, b.b);
+    if !tree
+        .iter()
+        .zip(&earlier.nodes)
+        .take(n as usize - 1)
+        .all(|(a, b)| linked(a, b))
+    {
+        return Err("the earlier build's nodes are not its codes' Karras tree".into());
+    }
+    let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(&earlier.nodes);
+    (0..n).for_each(|i| refit::empty_box(i, &p, &mut words));
+    let emptied: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
+    let prims = refit::Prims {
+        order: &earlier.sorted_prims,
+        tris,
+        spheres,
+    };
+    Ok(BuildResult {
+        nodes: fit(&p, prims, &earlier.parents, &visits, &emptied),
+        wide: Vec::new(),
+        ..earlier.clone()
+    })
 }
 
 /// The wide collapse (`shared::wide`): mark, scan and write, as the GPU runs them.

@@ -32,6 +32,7 @@ pub enum Kernel {
     KarrasBuildU32,
     KarrasBuildU64,
     Fit,
+    EmptyBoxes,
     WideClimb,
     WideMark,
     WideScan,
@@ -69,7 +70,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 32] = [
+    pub const ALL: [Kernel; 33] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -82,6 +83,7 @@ impl Kernel {
         Kernel::KarrasBuildU32,
         Kernel::KarrasBuildU64,
         Kernel::Fit,
+        Kernel::EmptyBoxes,
         Kernel::WideClimb,
         Kernel::WideMark,
         Kernel::WideScan,
@@ -124,6 +126,7 @@ impl Kernel {
             Kernel::KarrasBuildU32 => "karras_build_u32",
             Kernel::KarrasBuildU64 => "karras_build_u64",
             Kernel::Fit => "fit",
+            Kernel::EmptyBoxes => "empty_boxes",
             Kernel::WideClimb => "wide_climb",
             Kernel::WideMark => "wide_mark",
             Kernel::WideScan => "wide_scan",
@@ -160,7 +163,7 @@ pub struct Kernels {
     /// Layouts of set 0 (build) and set 1 (render).
     pub set_layouts: [vk::DescriptorSetLayout; 2],
     pub layout: vk::PipelineLayout,
-    /// Every pipeline, made when first asked for (a render uses 8 of the 27 entry points),
+    /// Every pipeline, made when first asked for (a flattened render uses 8 of the 33 compute entry points),
     /// each from its entry point's own module, with the value of
     /// specialisation constant 0 where it is set. Each is made outside the map's lock, once:
     /// a second ask waits for the first (see [`Kernels::make_soon`]).

@@ -440,6 +440,59 @@ impl GpuLbvh {
         Ok(())
     }
 
+    /// Records a refit into `cmds` (which must be recording): the tree the last build made
+    /// with `opts` over the same number of primitives is kept (its sorted order, links,
+    /// parents and leaf ranges, all in the buffers still), every internal box is emptied
+    /// (`empty_boxes`) and the build's fit runs again over the primitives as they are now:
+    /// the bounds, Morton codes, sort and tree stages are skipped. A timestamp before and
+    /// one after, labelled "refit". Only a binary tree without treelets can be refit: the
+    /// fit reads the Karras tree's leaf ranges, which restructuring changes, and a wide
+    /// BVH would be collapsed again.
+    pub fn record_refit(&self, cmds: &mut Commands, opts: BuildOptions) -> Result<()> {
+        anyhow::ensure!(
+            !opts.wide && !opts.restructures(),
+            "a refit keeps the Karras tree: a binary build without treelets"
+        );
+        let b = self.bufs.as_ref().context("no primitives uploaded")?;
+        let p = BuildParams {
+            n_tris: self.n_tris,
+            n: self.n,
+            shift: 0,
+            passes: 0,
+        };
+        cmds.timestamp("start");
+        if self.n > 0 {
+            let k = &self.kernels;
+            let set = b.sets.sets[0];
+            let items = self.n.div_ceil(WORKGROUP);
+            cmds.dispatch(k, set, Kernel::EmptyBoxes, &p, items)?;
+            cmds.barrier();
+            let refit = match self.gpu.refit_kernel(false) {
+                (kernel, Some(constant)) => k.specialised(kernel, constant)?,
+                (kernel, None) => k.pipeline(kernel)?,
+            };
+            let (x, y) = grid(items);
+            cmds.dispatch_pipeline(k, refit, &[set], bytemuck::bytes_of(&p), x, y);
+            cmds.barrier();
+        }
+        cmds.timestamp("refit");
+        Ok(())
+    }
+
+    /// Refits the last build's tree over the primitives as they are now (see
+    /// [`Self::record_refit`]); returns its GPU nanoseconds.
+    pub fn refit(&mut self, opts: BuildOptions) -> Result<f64> {
+        let mut cmds = std::mem::replace(&mut self.cmds, Commands::none(&self.gpu));
+        let r = (|| {
+            cmds.begin()?;
+            self.record_refit(&mut cmds, opts)?;
+            cmds.submit_wait().context("running the BVH refit")?;
+            cmds.timings()
+        })();
+        self.cmds = cmds;
+        Ok(r?.iter().filter(|(l, _)| *l == "refit").map(|(_, ns)| ns).sum())
+    }
+
     /// Builds the BVH of the uploaded primitives; returns each stage's GPU nanoseconds.
     pub fn build(&mut self, opts: BuildOptions, capture: bool) -> Result<Vec<(&'static str, f64)>> {
         self.run(opts, capture, true, 1)
