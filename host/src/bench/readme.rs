@@ -178,8 +178,8 @@ pub fn section(dir: &Path) -> Result<String> {
         let _ = writeln!(
             s,
             "Real-time frames: 1920x1080, 1 spp, depth 4, everything rebuilt every frame (instanced: \
-             the top level over the objects, and the world-space group of objects that deform; \
-             sources: {}):\n",
+             the top level over the objects, and the world-space group of objects that deform, \
+             built, then refit by the next 3 frames; sources: {}):\n",
             sources.join(", ")
         );
         let _ = writeln!(s, "| scene | primitives | GPU frame p50 | fps | rebuild | trace |");

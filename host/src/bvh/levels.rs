@@ -207,7 +207,7 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
 
 /// How both backends build mesh `mesh`'s BVH in two levels whose frames build with `opts`:
 /// binary (the two-level walk does not read the wide layout); the world-space group's, built
-/// again every frame, as the frame's; every other mesh's, built once when the scene is loaded
+/// (or refit: `GpuLbvh::record_refit`) every frame, as the frame's; every other mesh's, built once when the scene is loaded
 /// and traced by every frame after, restructured by treelets whatever the frame asks (H100,
 /// `bench realtime --instancing on`: the herd's, the sixteen bunnies' and the forest's frames
 /// 5% faster; bench/NOTES.md, session 29).

@@ -65,7 +65,7 @@ pub struct SceneArgs {
     pub treelets: Treelets,
     /// Objects as instances of their meshes (two-level BVH: each mesh built once, the top
     /// level over the objects every frame; objects that wave or are marked instance = false
-    /// form a world-space group built every frame) or flattened into one BVH: auto takes two
+    /// form a world-space group refit or built every frame) or flattened into one BVH: auto takes two
     /// levels where the scene marks instance = true, where the rebuild it saves outweighs
     /// tracing two levels (the copies saved exceed twice the samples a build serves: measured
     /// on the H100), or where flattening would not fit.
@@ -82,6 +82,12 @@ pub struct SceneArgs {
     /// How the driver builds its bottom level every frame (with --accel driver).
     #[arg(long, value_enum, default_value = "fast-build")]
     pub driver_build: DriverBuild,
+    /// Frames of a scene in two levels that refit its world-space group's BVH (the objects
+    /// that wave: their triangles move, their topology stays) between two builds of it;
+    /// 0 builds it every frame. Refitting empties the tree's boxes and fits them again: the
+    /// build's other stages are skipped, and the tree drifts from the one a build would make.
+    #[arg(long, default_value_t = crate::gpu::GROUP_REFITS)]
+    pub group_refits: u32,
     /// Kernel features beyond what the scene needs: `all`, or +NAME / -NAME for triangles,
     /// spheres, nee, metal, dielectric, thin-lens (comma-separated).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
@@ -213,6 +219,8 @@ pub struct Prepared {
     /// where it does.
     pub accel: AccelChoice,
     pub driver_build: DriverBuild,
+    /// Frames that refit a world-space group between its builds (`--group-refits`).
+    pub group_refits: u32,
     /// The kernel features the frame runs with, and why.
     pub features: Features,
 }
@@ -284,6 +292,7 @@ impl SceneArgs {
             layout: self.bvh,
             accel: self.accel,
             driver_build: self.driver_build,
+            group_refits: self.group_refits,
         })
     }
 

@@ -134,6 +134,12 @@ pub struct GpuRenderer {
     /// Triangles of the two levels' world-space group (`Instancing::world_tris`): a frame
     /// transforms and builds them with `lbvh`, as a flattened scene, then copies them in.
     world_tris: u32,
+    /// How the group's tree in `lbvh` was last built, while the frames after may refit it
+    /// (see [`GROUP_REFITS`]), and the refits since.
+    group_tree: Option<BuildOptions>,
+    group_refits: u32,
+    /// Refits of the group between two builds of it (`GROUP_REFITS` unless set).
+    group_refits_max: u32,
     cmds: Commands,
     bufs: Option<SceneBuffers>,
     frame: Frame,
@@ -179,6 +185,18 @@ pub struct GpuRenderer {
 /// another. 1080p at depth 4 takes 365 MB in one band, 800x800 at depth 16 481 MB.
 const QUEUE_BYTES: u64 = 512 << 20;
 
+/// Frames that refit the world-space group's tree of a scene in two levels (`GpuLbvh::record_refit`:
+/// its triangles move, its topology does not) between two builds of it, unless
+/// [`GpuRenderer::set_group_refits`] says otherwise. Builds without treelets only (a
+/// restructured tree's leaf ranges are not the Karras tree's). A refit costs a third of a
+/// build (the forest's pond of 30,720 triangles: the frame's rebuild 0.205 -> 0.144 ms) but
+/// the tree drifts from the one a build would make: the pond's surface-area cost rose by
+/// 0.9% on average over 3 refits, 9% over 59, and at 59 the forest's trace lost more than the
+/// refits saved. H100, `bench realtime --scenes forest,pond.toml --nee`, two passes, 0 -> 3:
+/// forest 7.99 -> 7.96 ms (NEE 10.09-10.15 -> 10.04-10.11), pond 1.71-1.72 -> 1.66-1.67
+/// (NEE 2.66 -> 2.62); bench/NOTES.md, session 34.
+pub const GROUP_REFITS: u32 = 3;
+
 /// Workgroups of 1,024 invocations the persistent path tracer is dispatched as at most
 /// (those the device cannot hold at once start when others end, find no pixels left and
 /// end): more than any GPU holds at once today (an H100 holds 132, one an SM).
@@ -192,6 +210,9 @@ impl GpuRenderer {
             lbvh: GpuLbvh::new(gpu, kernels)?,
             levels: None,
             world_tris: 0,
+            group_tree: None,
+            group_refits: 0,
+            group_refits_max: GROUP_REFITS,
             cmds: Commands::new(gpu)?,
             bufs: None,
             frame: Frame::default(),
@@ -521,6 +542,13 @@ impl GpuRenderer {
     /// How the BVH is built every frame.
     pub fn set_build(&mut self, build: BuildOptions) {
         self.build = build;
+        self.group_tree = None;
+    }
+
+    /// Frames that refit a scene's world-space group between two builds of it (0: built
+    /// every frame).
+    pub fn set_group_refits(&mut self, refits: u32) {
+        self.group_refits_max = refits;
     }
 
     /// How the BVH is built every frame.
@@ -547,6 +575,7 @@ impl GpuRenderer {
         // same (an edit adds, removes or moves objects: only the top level is built again).
         let previous = self.levels.take();
         self.world_tris = 0;
+        self.group_tree = None;
         let gpu = &self.gpu.clone();
         let dev = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::GpuOnly);
         let host = |name: &str, bytes: usize| Buffer::new(gpu, name, bytes as u64, MemoryLocation::CpuToGpu);
@@ -847,12 +876,22 @@ impl GpuRenderer {
                 transform(cmds, self.world_tris, self.world_tris)?;
                 if self.driver.is_some() {
                     l.record_world_tris(cmds, &self.lbvh, self.world_tris)?;
+                    self.group_tree = None;
                 } else {
                     let build = BuildOptions {
                         wide: false,
                         ..self.build
                     };
-                    self.lbvh.record(cmds, build, false, false)?;
+                    // Its triangles move, its topology stays: the tree built last is refit,
+                    // and built again every `group_refits_max + 1` frames.
+                    let refit = self.group_tree == Some(build) && !build.restructures();
+                    if refit && self.group_refits < self.group_refits_max {
+                        self.lbvh.record_refit(cmds, build)?;
+                        self.group_refits += 1;
+                    } else {
+                        self.lbvh.record(cmds, build, false, false)?;
+                        (self.group_tree, self.group_refits) = (Some(build), 0);
+                    }
                     l.record_world(cmds, &self.lbvh, self.world_tris)?;
                 }
             }

@@ -369,7 +369,7 @@ fn trunk(sides: u32) -> Vec<Triangle> {
 /// A forest of 16,384 cells, 128 on a side: every other cell a tree (a trunk and a canopy of
 /// 81,920 triangles: two instances), the rest Stanford bunnies in the real-time looks, an
 /// eighth of them spinning and some bobbing, and a pond of 30,720 triangles in a clearing
-/// whose surface waves (deformed and built again every frame: the world-space group); 24,386
+/// whose surface waves (deformed every frame, its BVH built or refit: the world-space group); 24,386
 /// objects and 1.23 billion triangles, 182,437 distinct. Rendered through two levels;
 /// flattened it would need hundreds of gigabytes.
 fn forest(label: &str) -> Result<Scene, SceneError> {
@@ -392,7 +392,7 @@ fn forest(label: &str) -> Result<Scene, SceneError> {
     let canopy = Shape::Mesh(b.mesh("builtin:canopy", canopy(6)));
     let trunk = Shape::Mesh(b.mesh("builtin:trunk", trunk(32)));
     // A pond in front of the camera, waving: its triangles move every frame, so it is
-    // transformed and built again every frame (the world-space group of the two levels).
+    // transformed every frame, its BVH built or refit (the world-space group of the two levels).
     let water = b.material("water", material::metal([0.40, 0.55, 0.62], 0.05));
     let (pond_at, pond_size) = (Vec3::new(0.0, 0.05, -140.0), Vec3::new(40.0, 1.0, 24.0));
     let scaled = |v: [f32; 4]| [v[0] * pond_size.x, v[1], v[2] * pond_size.z, v[3]];
@@ -548,7 +548,7 @@ mod tests {
         let (instanced, distinct) = i.counts();
         assert_eq!(instanced, tris as u64 + 1);
         assert!(distinct < 200_000, "{distinct}");
-        // The waving pond: the world-space group, transformed and built every frame.
+        // The waving pond: the world-space group, transformed every frame.
         assert_eq!(i.world_tris, 2 * 160 * 96);
         assert!(
             gpu.instancing_why.contains("1 in the world-space group"),

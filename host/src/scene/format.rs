@@ -123,7 +123,7 @@ struct ObjectFile {
     #[serde(default)]
     animation: AnimationFile,
     /// In a scene of two levels: an instance of its mesh (true) or in the world-space group
-    /// rebuilt every frame (false); absent: the renderer decides.
+    /// transformed every frame (false); absent: the renderer decides.
     instance: Option<bool>,
 }
 

@@ -368,7 +368,7 @@ impl Scene {
         let group = match grouped {
             0 => String::new(),
             n => {
-                format!("; {n} in the world-space group rebuilt every frame (they wave or are marked instance = false)")
+                format!("; {n} in the world-space group transformed every frame (they wave or are marked instance = false), its BVH built, then refit between builds")
             }
         };
         let instanced = |why: String| {
@@ -427,7 +427,7 @@ impl Scene {
     /// its mesh (each mesh's primitives once, in model space; a sphere object shows a mesh
     /// of one sphere), but those that wave or that the scene marks `instance = false`: their
     /// triangles form the world-space group (mesh 0, instance 0: what a flattened scene
-    /// would hold of them, transformed and built again every frame, placed by the identity).
+    /// would hold of them, transformed every frame and its BVH built or refit, placed by the identity).
     /// Errors name the object that cannot be instanced: a sphere scaled unevenly (an
     /// instance's sphere is hit as the ellipsoid its transform makes, a flattened one as a
     /// sphere of the largest scale), a transform that cannot be inverted.

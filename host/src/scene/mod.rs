@@ -123,7 +123,7 @@ pub struct SceneObject {
     pub material: u32,
     pub animation: Animation,
     /// Whether a scene of two levels shows the object as an instance of its mesh
-    /// (`instance = true` in TOML) or in the world-space group rebuilt every frame
+    /// (`instance = true` in TOML) or in the world-space group transformed every frame
     /// (`false`); `None`: the renderer decides (`Scene::gpu_data_for`).
     pub instance: Option<bool>,
 }

@@ -98,6 +98,7 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
     let kernels = Arc::new(Kernels::new(&gpu)?);
     let mut renderer = GpuRenderer::new(&gpu, &kernels)?;
     renderer.set_build(prepared.build(1));
+    renderer.set_group_refits(prepared.group_refits);
     // `--accel auto` decides for the scene as it opens (the T key switches later).
     let (tracer, why) = prepared.tracer(&gpu);
     renderer.set_accel(tracer, prepared.driver_build)?;
