@@ -45,6 +45,10 @@ pub struct BuildRow {
     pub total_p90_us: f64,
     /// Median of builds run back to back in one submission (as the renderer's frames run).
     pub streamed_us: f64,
+    /// Median GPU time of a refit of the built tree (`GpuLbvh::refit`: its internal boxes
+    /// emptied and fitted again, the other stages skipped), as `total` is timed; none where
+    /// the tree cannot be refit (treelets, wide).
+    pub refit_us: Option<f64>,
     pub mprims_per_s: f64,
     pub bvh_bytes_per_prim: f64,
     pub scratch_bytes_per_prim: f64,
@@ -156,6 +160,22 @@ pub fn bench_build(
         // Check after timing: the GPU's output must equal the CPU executor's, and be valid.
         lbvh.build(opts, true)?;
         let gpu_result = lbvh.result(opts)?;
+        // A refit over the same primitives must leave the tree as built.
+        let refit_us = if opts.wide || opts.restructures() {
+            None
+        } else {
+            let mut times = Vec::new();
+            for _ in 0..runs {
+                times.push(lbvh.refit(opts)? / 1e3);
+            }
+            if lbvh.result(opts)?.nodes != gpu_result.nodes {
+                bail!(
+                    "refitting the BVH of {} over the same primitives changed it",
+                    input.name
+                );
+            }
+            Some(median(times))
+        };
         let cpu_runs = if n >= 1_000_000 { 1 } else { 3 };
         let mut cpu_times = Vec::new();
         let mut cpu_result = None;
@@ -200,6 +220,7 @@ pub fn bench_build(
             total_p10_us: percentile(&totals, 0.1),
             total_p90_us: percentile(&totals, 0.9),
             streamed_us: median(streamed),
+            refit_us,
             mprims_per_s: n as f64 / total_us,
             bvh_bytes_per_prim: bvh_bytes as f64 / n.max(1) as f64,
             scratch_bytes_per_prim: scratch as f64 / n.max(1) as f64,
@@ -226,7 +247,9 @@ pub fn markdown(r: &BuildReport) -> String {
          median over builds without them (p10-p90 beside it), as the renderer runs the build \
          (each timestamp costs about a microsecond), each its own submission with a CPU wait \
          after it; `streamed` is the median over builds run back to back in one submission, \
-         as the renderer's frames run them (no idle GPU between builds). BVH bytes count the \
+         as the renderer's frames run them (no idle GPU between builds); `refit`: a refit of the \
+         built tree (internal boxes emptied, the fit run again; bounds, codes, sort and tree \
+         kept), timed as `total` (none for treelets or wide trees, which cannot be refit). BVH bytes count the \
          nodes traced only (a wide build: the wide nodes it wrote; its buffer has room for \
          the worst case, a node per binary internal node, counted under scratch with the \
          binary tree); scratch is everything else the builder holds (inputs included). SAH: \
@@ -239,9 +262,9 @@ pub fn markdown(r: &BuildReport) -> String {
     }
     let _ = writeln!(
         s,
-        " total (p10-p90) | streamed | Mprims/s | BVH B/prim | scratch B/prim | SAH | depth | CPU executor ms | equals CPU |"
+        " total (p10-p90) | streamed | refit | Mprims/s | BVH B/prim | scratch B/prim | SAH | depth | CPU executor ms | equals CPU |"
     );
-    let _ = writeln!(s, "|{}", "---|".repeat(4 + COLUMNS.len() + 9));
+    let _ = writeln!(s, "|{}", "---|".repeat(4 + COLUMNS.len() + 10));
     for row in &r.rows {
         let _ = write!(
             s,
@@ -258,11 +281,12 @@ pub fn markdown(r: &BuildReport) -> String {
         }
         let _ = writeln!(
             s,
-            " {:.1} ({:.1}-{:.1}) | {:.1} | {:.0} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {} |",
+            " {:.1} ({:.1}-{:.1}) | {:.1} | {} | {:.0} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {} |",
             row.total_us,
             row.total_p10_us,
             row.total_p90_us,
             row.streamed_us,
+            row.refit_us.map_or("-".to_string(), |us| format!("{us:.1}")),
             row.mprims_per_s,
             row.bvh_bytes_per_prim,
             row.scratch_bytes_per_prim,
