@@ -65,13 +65,42 @@ macro_rules! refit_kernel {
             barrier();
             let group = flat_group(gid.x, gid.y);
             let prims = refit::Prims { order, tris, spheres };
-            refit::refit::<$ordered, $treelets>(lid.x, group, st, p, prims, parents, visits, node_words);
+            refit::refit::<$ordered, $treelets, true>(lid.x, group, st, p, prims, parents, visits, node_words);
         }
     };
 }
 
 refit_kernel!(refit_treelets, true, true);
 refit_kernel!(refit_treelets_relaxed, false, true);
+
+/// The counter refit of a tree restructured before (`shared::refit::refit` without the
+/// block's counters, every visit counter zeroed first): specialisation constant 0 is 1 for
+/// the ordered counters (0 on lavapipe), plus 2 to restructure treelets again.
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn refit_restructured(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
+    #[spirv(spec_constant(id = 0, default = 3))] variant: u32,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+    #[spirv(workgroup)] st: &mut RefitState,
+) {
+    let (i, g) = (lid.x, flat_group(gid.x, gid.y));
+    let prims = refit::Prims { order, tris, spheres };
+    let w = node_words;
+    match variant {
+        3 => refit::refit::<true, true, false>(i, g, st, p, prims, parents, visits, w),
+        2 => refit::refit::<false, true, false>(i, g, st, p, prims, parents, visits, w),
+        1 => refit::refit::<true, false, false>(i, g, st, p, prims, parents, visits, w),
+        _ => refit::refit::<false, false, false>(i, g, st, p, prims, parents, visits, w),
+    }
+}
 
 /// The box fit (`shared::refit::fit`); specialisation constant 0 is 1 for its ordered
 /// variant, 0 for the relaxed one (lavapipe).

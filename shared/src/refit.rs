@@ -68,8 +68,13 @@ fn leaf_box(i: u32, p: &BuildParams, prims: Prims) -> (u32, [f32; 3], [f32; 3]) 
 ///
 /// With `TREELETS`, every node fitted becomes the root of a treelet restructured for the
 /// least surface-area cost (see [`crate::treelet`]).
+///
+/// `BLOCKS` keeps the counters of nodes whose leaves all lie in the block in workgroup memory,
+/// which needs the Karras tree's leaf ranges (`visits[n..]`). A tree restructured once no
+/// longer has them (a treelet's nodes cover other leaves after it), so a refit of it, or a
+/// further round of restructuring, runs without: every counter device-scope, zeroed before.
 #[allow(clippy::too_many_arguments)]
-pub fn refit<const ORDERED: bool, const TREELETS: bool>(
+pub fn refit<const ORDERED: bool, const TREELETS: bool, const BLOCKS: bool>(
     lane: u32,
     group: u32,
     st: &mut RefitState,
@@ -95,8 +100,10 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool>(
         let left = (*at(words, pb + 1) >> 32) as u32;
         let right = (*at(words, pb + 3) >> 32) as u32;
         let grandparent = *at(parents, parent);
-        let far = *at(visits, n + parent);
-        let local = parent.wrapping_sub(base) < BLOCK && far.wrapping_sub(base) < BLOCK;
+        let local = BLOCKS && parent.wrapping_sub(base) < BLOCK && {
+            let far = *at(visits, n + parent);
+            far.wrapping_sub(base) < BLOCK
+        };
         // The first arrival at a node stops; the second fits it and climbs on.
         let earlier = if local {
             sync::workgroup_add_ordered::<ORDERED>(elem_mut(&mut st.visits, parent - base), 1)

@@ -23,32 +23,43 @@ fn builder(test: &str) -> Option<(Arc<Gpu>, GpuLbvh)> {
 type StageBytes = fn(&BuildResult) -> Vec<u8>;
 
 /// The builds every input is checked with: both code widths, binary and collapsed into the
-/// wide BVH, and 30-bit codes with treelet restructuring.
-const BUILDS: [BuildOptions; 5] = [
+/// wide BVH, and 30-bit codes with treelet restructuring, once and in three rounds.
+const BUILDS: [BuildOptions; 6] = [
     BuildOptions {
         bits: MortonBits::B30,
         treelets: false,
         wide: false,
+        rounds: 1,
     },
     BuildOptions {
         bits: MortonBits::B63,
         treelets: false,
         wide: false,
+        rounds: 1,
     },
     BuildOptions {
         bits: MortonBits::B30,
         treelets: true,
         wide: false,
+        rounds: 1,
     },
     BuildOptions {
         bits: MortonBits::B30,
         treelets: false,
         wide: true,
+        rounds: 1,
     },
     BuildOptions {
         bits: MortonBits::B63,
         treelets: false,
         wide: true,
+        rounds: 1,
+    },
+    BuildOptions {
+        bits: MortonBits::B30,
+        treelets: true,
+        wide: false,
+        rounds: 3,
     },
 ];
 
@@ -63,7 +74,7 @@ fn check_uploaded(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[
     let g = lbvh.result(opts).unwrap();
     let (c, _) = cpu::build(tris, spheres, opts);
     let name = match (opts.treelets, opts.wide) {
-        (true, _) => format!("{name}-treelets"),
+        (true, _) => format!("{name}-treelets{}", opts.rounds),
         (_, true) => format!("{name}-wide"),
         _ => name.to_string(),
     };
@@ -150,8 +161,9 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
 /// to the primitives as they are now: here other primitives of the same count (the tree then
 /// fits them badly, but soundly). Both backends' refits are equal bit for bit and valid,
 /// including the adversarial inputs (equal centres, a far outlier) and the sizes past which
-/// the fit tests fewer ancestors before merging; a refit back to the first primitives gives
-/// the build's tree again.
+/// the fit tests fewer ancestors before merging, for Karras trees (the fit) and trees
+/// restructured by treelets, once or in three rounds (the counter refit); a refit back to the
+/// first primitives gives the build's tree again.
 #[test]
 fn refits_equal_on_gpu_and_cpu() {
     let Some((gpu, mut lbvh)) = builder("refits_equal_on_gpu_and_cpu") else {
@@ -163,10 +175,10 @@ fn refits_equal_on_gpu_and_cpu() {
         inputs.extend([0, 1, 2, 3, wg + 1, 17 * wg + 1, 100_000].map(|n| (dist, n)));
     }
     inputs.push((Distribution::Random, 300_000));
+    let [b30, b63, treelets, _, _, rounds] = BUILDS;
     for (dist, n) in inputs {
-        for bits in [MortonBits::B30, MortonBits::B63] {
-            let opts = BuildOptions::lbvh(bits);
-            let name = format!("{dist:?}-{n} ({bits:?})");
+        for opts in [b30, b63, treelets, rounds] {
+            let name = format!("{dist:?}-{n} ({opts:?})");
             let (t, s) = generate(n, dist, n % 2 == 1, 500 + n as u64);
             let (t2, s2) = generate(n, Distribution::Random, n % 2 == 1, 900 + n as u64);
             assert_eq!((t.len(), s.len()), (t2.len(), s2.len()));
@@ -191,12 +203,12 @@ fn refits_equal_on_gpu_and_cpu() {
     }
     // What cannot be refit is refused by name.
     let (t, s) = generate(100, Distribution::Random, false, 3);
-    let c = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30)).0;
-    let e = cpu::refit(&c, &t[..99], &s, BuildOptions::lbvh(MortonBits::B30)).unwrap_err();
+    let c = cpu::build(&t, &s, b30).0;
+    let e = cpu::refit(&c, &t[..99], &s, b30).unwrap_err();
     assert!(e.contains("100 primitives given 99"), "{e}");
-    let treelets = BUILDS[2];
-    assert!(cpu::refit(&c, &t, &s, treelets).unwrap_err().contains("treelets"));
-    assert!(lbvh.refit(treelets).unwrap_err().to_string().contains("treelets"));
+    let wide = BUILDS[3];
+    assert!(cpu::refit(&c, &t, &s, wide).unwrap_err().contains("wide"));
+    assert!(lbvh.refit(wide).unwrap_err().to_string().contains("wide"));
     assert_no_validation_errors(&gpu);
 }
 
@@ -219,7 +231,7 @@ fn room_for_the_wide_bvh_is_made_by_the_first_wide_build() {
         return;
     };
     let (t, s) = generate(3000, Distribution::Random, true, 11);
-    let [binary, _, _, wide, _] = BUILDS;
+    let [binary, _, _, wide, _, _] = BUILDS;
     // The renderer's builder (its transform kernel writes the primitives, nothing is captured)
     // holds no host copy of the primitives: `upload` makes it.
     lbvh.reserve(t.len(), s.len()).unwrap();

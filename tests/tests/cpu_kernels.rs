@@ -136,10 +136,11 @@ fn karras_splits_match_the_papers_figure() {
 #[test]
 fn every_input_shape_gives_a_valid_tree() {
     let wg = WORKGROUP as usize;
-    for (bits, treelets) in [
-        (MortonBits::B30, false),
-        (MortonBits::B63, false),
-        (MortonBits::B30, true),
+    for (bits, treelets, rounds) in [
+        (MortonBits::B30, false, 1),
+        (MortonBits::B63, false, 1),
+        (MortonBits::B30, true, 1),
+        (MortonBits::B30, true, 3),
     ] {
         for dist in Distribution::ALL {
             for n in [0, 1, 2, 3, 4, 7, 8, wg - 1, wg, wg + 1, 5000] {
@@ -151,10 +152,11 @@ fn every_input_shape_gives_a_valid_tree() {
                         bits,
                         treelets,
                         wide: false,
+                        rounds,
                     },
                 );
                 let stats = validate(&r.nodes, &r.parents, &t, &s)
-                    .unwrap_or_else(|e| panic!("{dist:?} n={n} {bits:?} treelets {treelets}: {e}"));
+                    .unwrap_or_else(|e| panic!("{dist:?} n={n} {bits:?} treelets {treelets} x{rounds}: {e}"));
                 assert_eq!(stats.leaves, n);
                 if dist == Distribution::AllEqual && n % 2 == 1 && !treelets {
                     // Only identical triangles (odd n has no spheres): every code is equal, and

@@ -5,12 +5,14 @@
 //! beside instances) renders as flattened and follows its wave on both backends; `--explain`
 //! says what was chosen; scenes that cannot be instanced are named.
 use integration_tests::{assert_no_validation_errors, gpu};
+use raytrace::bvh::{MeshPrims, Placement};
 use raytrace::cli::{compare, Prepared, SceneArgs};
 use raytrace::cpu::render_cpu;
-use raytrace::gpu::{Denoise, GpuRenderer, Kernels, GROUP_REFITS};
+use raytrace::gpu::{Denoise, GpuRenderer, Kernels, GROUP_REFITS, TOP_REFITS};
 use raytrace::picture::diff_stats;
 use raytrace::scene::{auto_instances, InstancingMode, Scene, Shape};
-use shared::types::{Ray, FEATURE_INSTANCES, FEATURE_NEE, INVALID};
+use shared::instance::instance_box;
+use shared::types::{Ray, Triangle, FEATURE_INSTANCES, FEATURE_NEE, INVALID};
 use std::sync::Arc;
 
 fn prepared(scene: &str, size: u32, spp: u32, instancing: &str) -> Prepared {
@@ -261,8 +263,10 @@ fn the_gpu_builds_and_refits_a_mixed_scenes_group_as_the_cpu() {
     // Frames go on: objects moved to later moments (the wave's phase, the spinning bunnies),
     // the group transformed, its tree built by the first frame, refit by the next
     // `GROUP_REFITS` over its triangles as they are then, built again by the one after; the
-    // top level over it every frame. The CPU's levels with the group's tree made the same way
-    // (`cpu::refit`) are sound and equal, bit for bit.
+    // top level, built (restructured) when the scene loads, refit by the next `TOP_REFITS`
+    // frames over the instances' boxes as they are then, built again by the one after. The
+    // CPU's levels with both trees made the same way (`cpu::refit`) are sound and equal, bit
+    // for bit.
     let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
     r.set_build(p.build(1));
     r.load(&p.data, &p.frame).expect("load");
@@ -271,29 +275,63 @@ fn the_gpu_builds_and_refits_a_mixed_scenes_group_as_the_cpu() {
         wide: false,
         ..p.build(1)
     };
-    let mut built = None;
-    for f in 0..GROUP_REFITS + 2 {
+    let top_opts = raytrace::bvh::top_build(opts);
+    // The top level's inputs, by the kernel both backends run.
+    let boxes = |meshes: &[MeshPrims], placements: &[Placement]| {
+        let l = raytrace::bvh::layout(meshes, placements).expect("layout");
+        let n = l.instances.len() as u32;
+        let mut b = vec![Triangle::default(); n as usize];
+        (0..n).for_each(|k| instance_box(k, n, &l.instances, &l.objects, &mut b));
+        b
+    };
+    let (meshes, placements) = raytrace::cpu::levels_inputs(&p.data, i, &p.data.objects);
+    let mut top = (raytrace::cpu::build(&boxes(&meshes, &placements), &[], top_opts).0, 0);
+    let mut group_built = None;
+    for f in 0..TOP_REFITS + 2 {
         let t = 1.1 + f as f32 * 0.05;
         let objects = p.scene.objects_in(&p.data, t);
         r.set_objects(&objects).expect("move");
         r.render(1, true).expect("render");
         let (meshes, placements) = raytrace::cpu::levels_inputs(&p.data, i, &objects);
-        let group = raytrace::bvh::mesh_build(&placements, 0, opts);
-        let tree = match &built {
+        let group_opts = raytrace::bvh::mesh_build(&placements, 0, opts);
+        let group = match &group_built {
             Some(b) if f % (GROUP_REFITS + 1) != 0 => {
-                raytrace::cpu::refit(b, &meshes[0].tris, &[], group).expect("refit")
+                raytrace::cpu::refit(b, &meshes[0].tris, &[], group_opts).expect("refit")
             }
-            _ => built
-                .insert(raytrace::cpu::build(&meshes[0].tris, &[], group).0)
+            _ => group_built
+                .insert(raytrace::cpu::build(&meshes[0].tris, &[], group_opts).0)
                 .clone(),
         };
-        if ![0, 1, 2, GROUP_REFITS, GROUP_REFITS + 1].contains(&f) {
+        let b = boxes(&meshes, &placements);
+        top = if top.1 < TOP_REFITS {
+            (
+                raytrace::cpu::refit(&top.0, &b, &[], top_opts).expect("refit"),
+                top.1 + 1,
+            )
+        } else {
+            (raytrace::cpu::build(&b, &[], top_opts).0, 0)
+        };
+        let checked = [
+            0,
+            1,
+            2,
+            GROUP_REFITS,
+            GROUP_REFITS + 1,
+            TOP_REFITS - 1,
+            TOP_REFITS,
+            TOP_REFITS + 1,
+        ];
+        if !checked.contains(&f) {
             continue;
         }
         let mut cpu = raytrace::bvh::build_levels(&meshes, &placements, opts).expect("levels");
+        assert_eq!(cpu.boxes, b);
         let first = cpu.mesh_nodes[0] as usize;
-        cpu.nodes[first..first + tree.nodes.len()].copy_from_slice(&tree.nodes);
-        cpu.mesh_parents[0] = tree.parents;
+        cpu.nodes[first..first + group.nodes.len()].copy_from_slice(&group.nodes);
+        cpu.mesh_parents[0] = group.parents;
+        let at = cpu.top as usize;
+        cpu.nodes[at..].copy_from_slice(&top.0.nodes);
+        cpu.top_parents = top.0.parents.clone();
         raytrace::bvh::validate_levels(&cpu, &meshes, &placements).expect("valid levels");
         assert_eq!(r.bvh().expect("nodes").nodes, cpu.nodes, "frame {f}: the levels differ");
         assert_eq!(

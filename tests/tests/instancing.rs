@@ -518,10 +518,32 @@ fn gpu_builds_both_levels_as_the_cpu_executor_does() {
                 }
             })
             .collect();
+        // The frame after a build refits the top level: the CPU's refit of its top level
+        // over the moved instances' boxes.
         let rows_of = |ps: &[Placement]| ps.iter().map(|p| p.rows).collect::<Vec<_>>();
+        let top_opts = raytrace::bvh::top_build(opts());
+        let top = raytrace::cpu::build(&cpu.boxes, &[], top_opts).0;
+        assert_eq!(&cpu.nodes[cpu.top as usize..], &top.nodes[..]);
         g.set_transforms(&rows_of(&moved)).expect("new transforms");
         g.rebuild_top().expect("top level");
-        let cpu = levels(&meshes, &moved);
+        assert_eq!(g.top_refits(), Some(1));
+        let fresh = levels(&meshes, &moved);
+        let refit = raytrace::cpu::refit(&top, &fresh.boxes, &[], top_opts).expect("refit");
+        let mut refitted = fresh.clone();
+        refitted.nodes.truncate(fresh.top as usize);
+        refitted.nodes.extend_from_slice(&refit.nodes);
+        refitted.top_parents = refit.parents;
+        raytrace::bvh::validate_levels(&refitted, &meshes, &moved).expect("valid refit levels");
+        assert_eq!(
+            g.nodes().expect("nodes"),
+            refitted.nodes,
+            "offset {offset}: the moved scene's levels, refit"
+        );
+        // Built again: the CPU's levels of the moved scene.
+        g.set_top_refits(0);
+        g.rebuild_top().expect("top level");
+        assert_eq!(g.top_refits(), Some(0));
+        let cpu = fresh;
         assert_eq!(
             g.nodes().expect("nodes"),
             cpu.nodes,
@@ -552,6 +574,11 @@ fn bench_levels_measures_the_top_level_and_checks_it_against_the_cpu() {
     assert!(r.matches_cpu);
     assert!(
         r.top_p10_us > 0.0 && r.top_p10_us <= r.top_us && r.top_us <= r.top_p90_us,
+        "{}",
+        raytrace::bench::levels::markdown(&r)
+    );
+    assert!(
+        r.top_refit_p10_us > 0.0 && r.top_refit_p10_us <= r.top_refit_us && r.top_refit_us <= r.top_refit_p90_us,
         "{}",
         raytrace::bench::levels::markdown(&r)
     );

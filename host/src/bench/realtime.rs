@@ -95,8 +95,9 @@ pub struct Report {
     pub spf: u32,
     pub depth: u32,
     pub frames: usize,
-    /// Frames that refit a world-space group between two builds of it.
+    /// Frames that refit a world-space group, and the top level, between two builds of it.
     pub group_refits: u32,
+    pub top_refits: u32,
     pub rows: Vec<Row>,
 }
 
@@ -144,6 +145,9 @@ pub struct Options {
     /// Frames that refit a world-space group between its builds (see `raytrace render --help`).
     #[arg(long, default_value_t = crate::gpu::GROUP_REFITS)]
     pub group_refits: u32,
+    /// Frames that refit the top level between its builds (see `raytrace render --help`).
+    #[arg(long, default_value_t = crate::gpu::TOP_REFITS)]
+    pub top_refits: u32,
 }
 
 /// Runs every scene of `o` and returns the report.
@@ -183,6 +187,7 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             let mut r = GpuRenderer::new(gpu, &kernels)?;
             r.set_build(p.build(o.spf));
             r.set_group_refits(o.group_refits);
+            r.set_top_refits(o.top_refits);
             r.set_accel(o.accel, o.driver_build)?;
             let mut live = LiveScene::with_instancing(p.scene, o.instancing);
             rows.push(run_scene(gpu, &mut r, &mut live, o, nee).with_context(|| format!("scene {scene}"))?);
@@ -199,6 +204,7 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
         depth: o.depth,
         frames: o.frames,
         group_refits: o.group_refits,
+        top_refits: o.top_refits,
         rows,
     })
 }
@@ -342,15 +348,15 @@ pub fn markdown(r: &Report) -> String {
     let _ = writeln!(
         s,
         "Every frame: objects' transforms uploaded (animation advancing 1/60 s), transform of every \
-         primitive, full BVH rebuild (two levels, instanced: the top level over the objects rebuilt, \
-         each mesh's BVH kept, a world-space group of waving objects refit {} frames between two \
-         builds of it), path tracing into a fresh accumulation image, display pass; one \
+         primitive, full BVH rebuild (two levels, instanced: the top level over the objects built, \
+         restructured by treelets, and refit by the {} frames after each build; each mesh's BVH kept; \
+         a world-space group of waving objects built, and refit by the {} frames after each build), path tracing into a fresh accumulation image, display pass; one \
          submission, waited for. GPU times from timestamp queries; wall time is the host's clock around \
          upload, submission and wait. Denoised: the same frames again with the real-time denoiser \
          (SVGF) in place of the display pass, every frame denoised (a still scene's too, past the \
          96 samples per pixel from which the viewer shows its accumulation instead); its GPU frame \
          time, fps, and the denoiser's passes alone.\n",
-        r.group_refits
+        r.top_refits, r.group_refits
     );
     let _ = writeln!(
         s,

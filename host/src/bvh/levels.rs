@@ -205,10 +205,31 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
     Ok(l)
 }
 
+/// How both backends build the top level in two levels whose frames build with `opts`:
+/// restructured by treelets (one round), since the frames between two builds refit it
+/// (`GpuLevels::record_top`, `TOP_REFITS`): restructured every frame, the forest's 24,386
+/// instances took 0.63 ms to build against 0.14 plain, and traced 2.2% faster.
+pub fn top_build(opts: BuildOptions) -> BuildOptions {
+    BuildOptions {
+        wide: false,
+        treelets: true,
+        rounds: 1,
+        ..opts
+    }
+}
+
+/// Rounds of treelet restructuring of the meshes built once (`BuildOptions::rounds`): 3
+/// against 1 lowered the surface-area cost of the bunny's tree 35.9 -> 34.8 and the forest's
+/// canopy's 44.2 -> 43.2 (4: 34.7, 43.2), and took the two-level frames on the H100 0.7-1.0%
+/// faster (`bench realtime --instancing on --nee`, two passes: forest 8.02 -> 7.95 ms, NEE 10.12
+/// -> 10.03; herd 5.14 -> 5.10, 6.52 -> 6.48; sixteen bunnies 3.11 -> 3.08, 4.34 -> 4.30;
+/// bench/NOTES.md, session 34), for two more refits' time each at load (a few ms).
+pub const MESH_ROUNDS: u32 = 3;
+
 /// How both backends build mesh `mesh`'s BVH in two levels whose frames build with `opts`:
 /// binary (the two-level walk does not read the wide layout); the world-space group's, built
 /// (or refit: `GpuLbvh::record_refit`) every frame, as the frame's; every other mesh's, built once when the scene is loaded
-/// and traced by every frame after, restructured by treelets whatever the frame asks (H100,
+/// and traced by every frame after, restructured by treelets in [`MESH_ROUNDS`] rounds whatever the frame asks (H100,
 /// `bench realtime --instancing on`: the herd's, the sixteen bunnies' and the forest's frames
 /// 5% faster; bench/NOTES.md, session 29).
 pub fn mesh_build(placements: &[Placement], mesh: usize, opts: BuildOptions) -> BuildOptions {
@@ -216,11 +237,13 @@ pub fn mesh_build(placements: &[Placement], mesh: usize, opts: BuildOptions) -> 
     BuildOptions {
         wide: false,
         treelets: opts.treelets || !group,
+        rounds: if group { opts.rounds } else { MESH_ROUNDS },
         ..opts
     }
 }
 
-/// Builds both levels on the CPU executor with `opts` (the meshes as [`mesh_build`] says),
+/// Builds both levels on the CPU executor with `opts` (the meshes as [`mesh_build`] says, the
+/// top level as [`top_build`] does),
 /// in the [`layout`] of `placements`, whose errors it returns.
 pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildOptions) -> Result<Levels, String> {
     let layout = layout(meshes, placements).map_err(|e| e.to_string())?;
@@ -251,7 +274,7 @@ pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildO
         instance_box(i, n, &l.instances, &l.objects, &mut l.boxes);
     }
     if !l.boxes.is_empty() {
-        let r = crate::cpu::build(&l.boxes, &[], opts).0;
+        let r = crate::cpu::build(&l.boxes, &[], top_build(opts)).0;
         l.nodes.extend_from_slice(&r.nodes);
         l.top_parents = r.parents;
     }

@@ -4,8 +4,8 @@ mod levels;
 mod validate;
 
 pub use levels::{
-    build_levels, inverse_rows, layout, mesh_build, validate_levels, LayoutError, Levels, LevelsLayout, MeshPrims,
-    Placement,
+    build_levels, inverse_rows, layout, mesh_build, top_build, validate_levels, LayoutError, Levels, LevelsLayout,
+    MeshPrims, Placement,
 };
 pub use validate::{validate, validate_wide, BvhStats, WideStats};
 
@@ -38,6 +38,10 @@ pub struct BuildOptions {
     pub bits: MortonBits,
     pub treelets: bool,
     pub wide: bool,
+    /// Rounds of treelet restructuring (with `treelets`): the refit's own, then each further
+    /// one a refit of the restructured tree that restructures it again (its counters all
+    /// device-scope: `shared::refit::refit` without `BLOCKS`).
+    pub rounds: u32,
 }
 
 impl BuildOptions {
@@ -47,6 +51,7 @@ impl BuildOptions {
             bits,
             treelets: false,
             wide: false,
+            rounds: 1,
         }
     }
 

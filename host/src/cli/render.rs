@@ -76,6 +76,7 @@ fn load_gpu_samples(r: &mut GpuRenderer, p: &Prepared, first: u32) -> Result<()>
     r.set_first_sample(first);
     r.set_build(p.build(p.spp));
     r.set_group_refits(p.group_refits);
+    r.set_top_refits(p.top_refits);
     r.set_accel(p.tracer(r.gpu()).0, p.driver_build)?;
     r.load(&p.data, &p.frame)?;
     r.set_denoise(if p.frame.flags & FLAG_DENOISE != 0 {

@@ -88,6 +88,11 @@ pub struct SceneArgs {
     /// build's other stages are skipped, and the tree drifts from the one a build would make.
     #[arg(long, default_value_t = crate::gpu::GROUP_REFITS)]
     pub group_refits: u32,
+    /// Frames of a scene in two levels that refit its top level (the instances' boxes taken
+    /// again, the tree kept) between two builds of it, each restructured by treelets; 0
+    /// builds it every frame.
+    #[arg(long, default_value_t = crate::gpu::TOP_REFITS)]
+    pub top_refits: u32,
     /// Kernel features beyond what the scene needs: `all`, or +NAME / -NAME for triangles,
     /// spheres, nee, metal, dielectric, thin-lens (comma-separated).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
@@ -219,8 +224,10 @@ pub struct Prepared {
     /// where it does.
     pub accel: AccelChoice,
     pub driver_build: DriverBuild,
-    /// Frames that refit a world-space group between its builds (`--group-refits`).
+    /// Frames that refit a world-space group between its builds (`--group-refits`), and the
+    /// top level (`--top-refits`).
     pub group_refits: u32,
+    pub top_refits: u32,
     /// The kernel features the frame runs with, and why.
     pub features: Features,
 }
@@ -293,6 +300,7 @@ impl SceneArgs {
             accel: self.accel,
             driver_build: self.driver_build,
             group_refits: self.group_refits,
+            top_refits: self.top_refits,
         })
     }
 
@@ -345,6 +353,7 @@ impl Prepared {
                 self.frame.n_prims as u64,
             ),
             wide: self.layout == Layout::Wide,
+            rounds: 1,
         }
     }
 

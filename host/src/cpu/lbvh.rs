@@ -180,7 +180,21 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
                 visits: [0; refit::BLOCK as usize],
             };
             lanes(|l| refit::clear(l, &mut st));
-            lanes(|l| refit::refit::<true, true>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words));
+            lanes(|l| {
+                refit::refit::<true, true, true>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words)
+            });
+        }
+        // Further rounds over the restructured tree, every counter device-scope, zeroed.
+        for _ in 1..if n > 1 { opts.rounds } else { 1 } {
+            visits[..n as usize - 1].fill(0);
+            for g in 0..groups {
+                let mut st = refit::RefitState {
+                    visits: [0; refit::BLOCK as usize],
+                };
+                lanes(|l| {
+                    refit::refit::<true, true, false>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words)
+                });
+            }
         }
         bytemuck::pod_collect_to_vec(&words)
     } else {
@@ -214,11 +228,12 @@ fn fit(p: &BuildParams, prims: refit::Prims, parents: &[u32], visits: &[u32], no
     bytemuck::pod_collect_to_vec(&words)
 }
 
-/// Refits `earlier` (a binary build without treelets, of as many primitives) over `tris`
-/// and `spheres` as they are now, as `GpuLbvh::record_refit` does: the tree is kept (its
-/// sorted order, links and parents), every internal box emptied (`refit::empty_box`) and the
-/// build's fit run again. The bounds and codes stay the earlier build's (those the tree was
-/// built from). Errors name a mismatch in the primitives' count.
+/// Refits `earlier` (a binary build of as many primitives) over `tris` and `spheres` as they
+/// are now, as `GpuLbvh::record_refit` does: the tree is kept (its sorted order, links and
+/// parents). A Karras tree has every internal box emptied (`refit::empty_box`) and the
+/// build's fit run again; a tree restructured by treelets (`opts.restructures()`) the counter
+/// refit without the block's counters. The bounds and codes stay the earlier build's (those
+/// the tree was built from). Errors name a mismatch in the primitives' count.
 pub fn refit(
     earlier: &BuildResult,
     tris: &[Triangle],
@@ -232,8 +247,8 @@ pub fn refit(
             earlier.sorted_prims.len()
         ));
     }
-    if opts.wide || opts.restructures() {
-        return Err("a refit keeps the Karras tree: a binary build without treelets".into());
+    if opts.wide {
+        return Err("a wide BVH cannot be refit: a binary build".into());
     }
     if n == 0 {
         return Ok(earlier.clone());
@@ -244,6 +259,29 @@ pub fn refit(
         shift: 0,
         passes: 0,
     };
+    let prims = refit::Prims {
+        order: &earlier.sorted_prims,
+        tris,
+        spheres,
+    };
+    if opts.restructures() {
+        let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&earlier.nodes);
+        let mut parents = earlier.parents.clone();
+        let mut visits = vec![0u32; 2 * n as usize];
+        for g in 0..n.div_ceil(refit::BLOCK) {
+            let mut st = refit::RefitState {
+                visits: [0; refit::BLOCK as usize],
+            };
+            lanes(|l| {
+                refit::refit::<true, false, false>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words)
+            });
+        }
+        return Ok(BuildResult {
+            nodes: bytemuck::pod_collect_to_vec(&words),
+            wide: Vec::new(),
+            ..earlier.clone()
+        });
+    }
     // The leaf ranges' far ends, which the GPU's tree kernel left in its visit buffer: the
     // tree kernel again over the kept codes (the same links, checked).
     let mut visits = vec![0u32; 2 * n as usize];
@@ -269,11 +307,6 @@ pub fn refit(
     let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(&earlier.nodes);
     (0..n).for_each(|i| refit::empty_box(i, &p, &mut words));
     let emptied: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
-    let prims = refit::Prims {
-        order: &earlier.sorted_prims,
-        tris,
-        spheres,
-    };
     Ok(BuildResult {
         nodes: fit(&p, prims, &earlier.parents, &visits, &emptied),
         wide: Vec::new(),

@@ -520,6 +520,15 @@ impl Gpu {
         }
     }
 
+    /// The refit of a restructured tree (`refit_restructured`) for this device, restructuring
+    /// again where `treelets` asks, and the value of its specialisation constant.
+    pub fn restructured_kernel(&self, treelets: bool) -> (super::Kernel, u32) {
+        (
+            super::Kernel::RefitRestructured,
+            u32::from(!self.is_lavapipe()) | 2 * u32::from(treelets),
+        )
+    }
+
     /// "name (driver)" for reports.
     pub fn describe(&self) -> String {
         format!("{} ({})", self.name, self.driver)

@@ -39,6 +39,7 @@ pub enum Kernel {
     WideWrite,
     RefitTreelets,
     RefitTreeletsRelaxed,
+    RefitRestructured,
     Transform,
     InstanceBoxes,
     PathTrace,
@@ -70,7 +71,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 33] = [
+    pub const ALL: [Kernel; 34] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -90,6 +91,7 @@ impl Kernel {
         Kernel::WideWrite,
         Kernel::RefitTreelets,
         Kernel::RefitTreeletsRelaxed,
+        Kernel::RefitRestructured,
         Kernel::Transform,
         Kernel::InstanceBoxes,
         Kernel::PathTrace,
@@ -133,6 +135,7 @@ impl Kernel {
             Kernel::WideWrite => "wide_write",
             Kernel::RefitTreelets => "refit_treelets",
             Kernel::RefitTreeletsRelaxed => "refit_treelets_relaxed",
+            Kernel::RefitRestructured => "refit_restructured",
             Kernel::Transform => "transform",
             Kernel::InstanceBoxes => "instance_boxes",
             Kernel::PathTrace => "path_trace",

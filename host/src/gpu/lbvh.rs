@@ -420,6 +420,17 @@ impl GpuLbvh {
         let (x, y) = grid(items);
         cmds.dispatch_pipeline(k, refit, &[set_ab], bytemuck::bytes_of(&p), x, y);
         cmds.barrier();
+        if opts.restructures() && n > 1 {
+            // Further rounds: the visit counters zeroed (the refit left every one at 2).
+            let (kernel, constant) = self.gpu.restructured_kernel(true);
+            let again = k.specialised(kernel, constant)?;
+            for _ in 1..opts.rounds {
+                cmds.fill_range(&b.visits, 0, (n as u64 - 1) * 4, 0);
+                cmds.barrier();
+                cmds.dispatch_pipeline(k, again, &[set_ab], bytemuck::bytes_of(&p), x, y);
+                cmds.barrier();
+            }
+        }
         if opts.wide {
             stamp(cmds, STAGES[4]);
             let s = wide::Scratch::new(n);
@@ -442,17 +453,15 @@ impl GpuLbvh {
 
     /// Records a refit into `cmds` (which must be recording): the tree the last build made
     /// with `opts` over the same number of primitives is kept (its sorted order, links,
-    /// parents and leaf ranges, all in the buffers still), every internal box is emptied
-    /// (`empty_boxes`) and the build's fit runs again over the primitives as they are now:
-    /// the bounds, Morton codes, sort and tree stages are skipped. A timestamp before and
-    /// one after, labelled "refit". Only a binary tree without treelets can be refit: the
-    /// fit reads the Karras tree's leaf ranges, which restructuring changes, and a wide
-    /// BVH would be collapsed again.
+    /// parents and leaf ranges, all in the buffers still) and fitted again over the
+    /// primitives as they are now: the bounds, Morton codes, sort and tree stages are
+    /// skipped. A Karras tree has every internal box emptied (`empty_boxes`) and the build's
+    /// fit run again; a tree restructured by treelets (whose leaf ranges the fit cannot use)
+    /// the counter refit with every counter device-scope, zeroed first
+    /// (`refit_restructured`). A timestamp before and one after, labelled "refit". A wide
+    /// BVH cannot be refit (it would be collapsed again).
     pub fn record_refit(&self, cmds: &mut Commands, opts: BuildOptions) -> Result<()> {
-        anyhow::ensure!(
-            !opts.wide && !opts.restructures(),
-            "a refit keeps the Karras tree: a binary build without treelets"
-        );
+        anyhow::ensure!(!opts.wide, "a wide BVH cannot be refit: a binary build");
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         let p = BuildParams {
             n_tris: self.n_tris,
@@ -465,12 +474,18 @@ impl GpuLbvh {
             let k = &self.kernels;
             let set = b.sets.sets[0];
             let items = self.n.div_ceil(WORKGROUP);
-            cmds.dispatch(k, set, Kernel::EmptyBoxes, &p, items)?;
-            cmds.barrier();
-            let refit = match self.gpu.refit_kernel(false) {
-                (kernel, Some(constant)) => k.specialised(kernel, constant)?,
-                (kernel, None) => k.pipeline(kernel)?,
+            let refit = if opts.restructures() {
+                cmds.fill_range(&b.visits, 0, (self.n as u64 - 1).max(1) * 4, 0);
+                let (kernel, constant) = self.gpu.restructured_kernel(false);
+                k.specialised(kernel, constant)?
+            } else {
+                cmds.dispatch(k, set, Kernel::EmptyBoxes, &p, items)?;
+                match self.gpu.refit_kernel(false) {
+                    (kernel, Some(constant)) => k.specialised(kernel, constant)?,
+                    (kernel, None) => k.pipeline(kernel)?,
+                }
             };
+            cmds.barrier();
             let (x, y) = grid(items);
             cmds.dispatch_pipeline(k, refit, &[set], bytemuck::bytes_of(&p), x, y);
             cmds.barrier();

@@ -5,7 +5,7 @@
 //! world boxes (the `instance_boxes` kernel), its nodes copied after the meshes'. The same
 //! [`LevelsLayout`] as the CPU executor's (`bvh::build_levels`), and the same bits.
 use super::{frame_timings, stage_ms, BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels, BINDINGS};
-use crate::bvh::{inverse_rows, layout, mesh_build, BuildOptions, LevelsLayout, MeshPrims, Placement};
+use crate::bvh::{inverse_rows, layout, mesh_build, top_build, BuildOptions, LevelsLayout, MeshPrims, Placement};
 use anyhow::{anyhow, ensure, Context, Result};
 use gpu_allocator::MemoryLocation;
 use shared::instance::Instance;
@@ -37,7 +37,21 @@ pub struct GpuLevels {
     /// Meshes whose BVH was built here, and those copied from the levels before.
     pub built: usize,
     pub kept: usize,
+    /// Top-level refits since its last build (`None` before the first build), and how many
+    /// the frames make between two builds.
+    top_refits: Option<u32>,
+    top_refits_max: u32,
 }
+
+/// Frames that refit the top level (its instances' boxes taken again, the tree kept: the
+/// counter refit of a restructured tree, `refit_restructured`) between two builds of it
+/// (`bvh::top_build`: restructured by treelets), unless [`GpuLevels::set_top_refits`] says
+/// otherwise. H100, `bench realtime --instancing on --nee`, two passes, built plain every
+/// frame -> restructured and refit by 59: forest 7.94 -> 7.75 ms (NEE 10.02 -> 9.81; its p99
+/// 8.03 -> 8.27, the frame of the build), herd 5.08 -> 4.99 (NEE 6.44 -> 6.35); refit by 15
+/// the same medians; restructured every frame the forest's build took 0.63 ms (bench/NOTES.md,
+/// session 34).
+pub const TOP_REFITS: u32 = 59;
 
 /// What identifies a mesh's primitives: their counts and a hash of their bits.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
@@ -125,6 +139,8 @@ impl GpuLevels {
             keys: meshes.iter().map(MeshKey::of).collect(),
             built: 0,
             kept: 0,
+            top_refits: None,
+            top_refits_max: TOP_REFITS,
         };
         l.objects.write(&l.layout.objects)?;
         l.instances.write(&l.layout.instances)?;
@@ -269,9 +285,10 @@ impl GpuLevels {
         &self.tris
     }
 
-    /// Records the top level's build into `cmds` (which must be recording): the instances'
-    /// world boxes, the build over them, its nodes copied after the meshes'.
-    pub fn record_top(&self, cmds: &mut Commands) -> Result<()> {
+    /// Records the top level's update into `cmds` (which must be recording): the instances'
+    /// world boxes, then the build over them ([`top_build`]) or, the [`TOP_REFITS`] frames
+    /// after one, a refit of its tree; its nodes copied after the meshes'.
+    pub fn record_top(&mut self, cmds: &mut Commands) -> Result<()> {
         let n = self.layout.instances.len() as u32;
         let p = BuildParams {
             n_tris: n,
@@ -289,7 +306,17 @@ impl GpuLevels {
             y,
         )?;
         cmds.barrier();
-        self.top.record(cmds, self.opts, false, false)?;
+        let top = top_build(self.opts);
+        match self.top_refits {
+            Some(r) if r < self.top_refits_max => {
+                self.top.record_refit(cmds, top)?;
+                self.top_refits = Some(r + 1);
+            }
+            _ => {
+                self.top.record(cmds, top, false, false)?;
+                self.top_refits = Some(0);
+            }
+        }
         let (_, _, top_nodes) = self.top.buffers()?;
         let node = size_of::<Node>() as u64;
         cmds.copy_range(
@@ -304,7 +331,19 @@ impl GpuLevels {
         Ok(())
     }
 
-    /// Builds the top level again; returns its GPU milliseconds (boxes, build and copy).
+    /// Frames that refit the top level between two builds of it ([`TOP_REFITS`] unless set;
+    /// 0 builds it every frame).
+    pub fn set_top_refits(&mut self, refits: u32) {
+        self.top_refits_max = refits;
+    }
+
+    /// Top-level refits since its last build (`None` before the first).
+    pub fn top_refits(&self) -> Option<u32> {
+        self.top_refits
+    }
+
+    /// Brings the top level up to date as a frame does ([`Self::record_top`]: built, or
+    /// refit); returns its GPU milliseconds (boxes, build or refit, and copy).
     pub fn rebuild_top(&mut self) -> Result<f64> {
         let mut cmds = Commands::new(&self.gpu)?;
         cmds.begin()?;

@@ -20,7 +20,7 @@ pub use context::{DeviceInfo, Gpu, GpuOptions, Instance};
 pub use denoise::{denoise_ms, is_denoise, PASSES as DENOISE_PASSES};
 pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
 pub use lbvh::GpuLbvh;
-pub use levels::GpuLevels;
+pub use levels::{GpuLevels, TOP_REFITS};
 pub use render::{frame_timings, stage_ms, Denoise, GpuRenderer, GROUP_REFITS};
 pub use swapchain::Swapchain;
 

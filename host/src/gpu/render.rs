@@ -140,6 +140,8 @@ pub struct GpuRenderer {
     group_refits: u32,
     /// Refits of the group between two builds of it (`GROUP_REFITS` unless set).
     group_refits_max: u32,
+    /// Refits of the top level between two builds of it (`levels::TOP_REFITS` unless set).
+    top_refits_max: u32,
     cmds: Commands,
     bufs: Option<SceneBuffers>,
     frame: Frame,
@@ -213,6 +215,7 @@ impl GpuRenderer {
             group_tree: None,
             group_refits: 0,
             group_refits_max: GROUP_REFITS,
+            top_refits_max: super::levels::TOP_REFITS,
             cmds: Commands::new(gpu)?,
             bufs: None,
             frame: Frame::default(),
@@ -551,6 +554,15 @@ impl GpuRenderer {
         self.group_refits_max = refits;
     }
 
+    /// Frames that refit a scene's top level between two builds of it (0: built every
+    /// frame; see `gpu::levels::TOP_REFITS`).
+    pub fn set_top_refits(&mut self, refits: u32) {
+        self.top_refits_max = refits;
+        if let Some(l) = self.levels.as_mut() {
+            l.set_top_refits(refits);
+        }
+    }
+
     /// How the BVH is built every frame.
     pub fn build_options(&self) -> BuildOptions {
         self.build
@@ -640,7 +652,8 @@ impl GpuRenderer {
                 wide: false,
                 ..self.build
             };
-            let levels = GpuLevels::keeping(previous.as_ref(), gpu, &self.kernels, &i.meshes, &placements, opts)?;
+            let mut levels = GpuLevels::keeping(previous.as_ref(), gpu, &self.kernels, &i.meshes, &placements, opts)?;
+            levels.set_top_refits(self.top_refits_max);
             self.levels = Some(levels);
             self.world_tris = i.world_tris;
             if i.world_tris > 0 {
@@ -870,7 +883,7 @@ impl GpuRenderer {
             cmds.timestamp("transform");
             Ok(())
         };
-        if let Some(l) = self.levels.as_ref().filter(|_| rebuild || self.samples == 0) {
+        if let Some(l) = self.levels.as_mut().filter(|_| rebuild || self.samples == 0) {
             // The world-space group, as a flattened scene's world, then the top level.
             if self.world_tris > 0 {
                 transform(cmds, self.world_tris, self.world_tris)?;

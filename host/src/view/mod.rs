@@ -99,6 +99,7 @@ pub fn run(args: &ViewArgs, opts: &GpuOptions) -> Result<()> {
     let mut renderer = GpuRenderer::new(&gpu, &kernels)?;
     renderer.set_build(prepared.build(1));
     renderer.set_group_refits(prepared.group_refits);
+    renderer.set_top_refits(prepared.top_refits);
     // `--accel auto` decides for the scene as it opens (the T key switches later).
     let (tracer, why) = prepared.tracer(&gpu);
     renderer.set_accel(tracer, prepared.driver_build)?;
