@@ -206,14 +206,16 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
 }
 
 /// How both backends build the top level in two levels whose frames build with `opts`:
-/// restructured by treelets (one round), since the frames between two builds refit it
-/// (`GpuLevels::record_top`, `TOP_REFITS`): restructured every frame, the forest's 24,386
-/// instances took 0.63 ms to build against 0.14 plain, and traced 2.2% faster.
+/// restructured by treelets in 3 rounds, since the frames between two builds refit it
+/// (`GpuLevels::record_top`, `TOP_REFITS`). H100: one round took the forest's frame 7.94 ->
+/// 7.78 ms (NEE 10.02 -> 9.85), three 7.64 (9.69), herd's the same; a build of 10,000
+/// instances 0.51 ms, in three rounds 1.42 (its frame's p99: 8.32 -> 9.17 ms), once every
+/// 60 frames (bench/NOTES.md, session 34).
 pub fn top_build(opts: BuildOptions) -> BuildOptions {
     BuildOptions {
         wide: false,
         treelets: true,
-        rounds: 1,
+        rounds: 3,
         ..opts
     }
 }
