@@ -182,8 +182,11 @@ pub fn section(dir: &Path) -> Result<String> {
         let _ = writeln!(
             s,
             "Real-time frames: 1920x1080, 1 spp, depth 4, the BVH made again every frame (instanced: \
-             the top level over the objects built, and the world-space group of objects that \
-             deform built, then refit by the next 3 frames; sources: {}):\n",
+             the top level over the objects built, restructured by treelets, then refit by the \
+             next {} frames, and the world-space group of objects that deform built, then refit \
+             by the next {}; sources: {}):\n",
+            crate::gpu::TOP_REFITS,
+            crate::gpu::GROUP_REFITS,
             sources.join(", ")
         );
         let _ = writeln!(s, "| scene | primitives | GPU frame p50 | fps | rebuild | trace |");

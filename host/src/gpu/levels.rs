@@ -341,6 +341,11 @@ impl GpuLevels {
         self.top_refits_max = refits;
     }
 
+    /// The next update of the top level builds it (instead of refitting it).
+    pub fn build_top_next(&mut self) {
+        self.top_refits = None;
+    }
+
     /// Top-level refits since its last build (`None` before the first).
     pub fn top_refits(&self) -> Option<u32> {
         self.top_refits

@@ -1131,6 +1131,18 @@ impl GpuRenderer {
         }
     }
 
+    /// Builds the BVH afresh now, as a frame that builds does (in two levels the group and
+    /// the top level, which the frames between builds refit: `GROUP_REFITS`,
+    /// `levels::TOP_REFITS`), tracing no sample: what the CPU executor's build of the scene
+    /// as it is now equals, bit for bit.
+    pub fn rebuild_now(&mut self) -> Result<()> {
+        self.group_tree = None;
+        if let Some(l) = self.levels.as_mut() {
+            l.build_top_next();
+        }
+        self.render(0, true).map(|_| ())
+    }
+
     /// World-space primitives of the last transform stage (with two levels: the meshes'
     /// model-space primitives).
     pub fn world(&mut self) -> Result<(Vec<Triangle>, Vec<Sphere>)> {

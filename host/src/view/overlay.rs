@@ -96,6 +96,10 @@ impl App {
         for (label, t) in stage_totals(&self.last_timings) {
             println!("  {label:<10} {:8.3} ms", t * 1e3);
         }
+        if d.instancing.is_some() {
+            // The frames refit the group and the top level between builds: built afresh.
+            self.renderer.rebuild_now()?;
+        }
         let bvh = self.renderer.bvh()?;
         if let Some(i) = &d.instancing {
             // Two levels: built again by the CPU executor, validated, and compared bit for bit.
@@ -112,7 +116,7 @@ impl App {
             match checked {
                 Ok(same) => println!(
                     "two levels valid: {} instances of {distinct} distinct primitives ({instanced} instanced); \
-                     the GPU's nodes {} the CPU executor's",
+                     the GPU's nodes, built afresh, {} the CPU executor's",
                     placements.len(),
                     if same { "equal" } else { "DIFFER from" }
                 ),
