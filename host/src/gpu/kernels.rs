@@ -166,7 +166,7 @@ pub struct Kernels {
     /// Layouts of set 0 (build) and set 1 (render).
     pub set_layouts: [vk::DescriptorSetLayout; 2],
     pub layout: vk::PipelineLayout,
-    /// Every pipeline, made when first asked for (a flattened render uses 8 of the 33 compute entry points),
+    /// Every pipeline, made when first asked for (a flattened render uses 8 of the 34 compute entry points),
     /// each from its entry point's own module, with the value of
     /// specialisation constant 0 where it is set. Each is made outside the map's lock, once:
     /// a second ask waits for the first (see [`Kernels::make_soon`]).

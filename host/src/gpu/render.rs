@@ -189,8 +189,9 @@ const QUEUE_BYTES: u64 = 512 << 20;
 
 /// Frames that refit the world-space group's tree of a scene in two levels (`GpuLbvh::record_refit`:
 /// its triangles move, its topology does not) between two builds of it, unless
-/// [`GpuRenderer::set_group_refits`] says otherwise. Builds without treelets only (a
-/// restructured tree's leaf ranges are not the Karras tree's). A refit costs a third of a
+/// [`GpuRenderer::set_group_refits`] says otherwise. Frames whose builds restructure
+/// treelets (16 samples per pixel and more) build it every frame: `record_refit` could refit
+/// their trees too (`refit_restructured`), not measured there. A refit costs a third of a
 /// build (the forest's pond of 30,720 triangles: the frame's rebuild 0.205 -> 0.144 ms) but
 /// the tree drifts from the one a build would make: the pond's surface-area cost rose by
 /// 0.9% on average over 3 refits, 9% over 59, and at 59 the forest's trace lost more than the
