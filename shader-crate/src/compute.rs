@@ -73,9 +73,9 @@ macro_rules! refit_kernel {
 refit_kernel!(refit_treelets, true, true);
 refit_kernel!(refit_treelets_relaxed, false, true);
 
-/// The counter refit of a tree restructured before (`shared::refit::refit` without the
-/// block's counters, every visit counter zeroed first): specialisation constant 0 is 1 for
-/// the ordered counters (0 on lavapipe), plus 2 to restructure treelets again.
+/// The counter refit of a tree restructured before (`shared::refit::restructured`):
+/// specialisation constant 0 its variant, `ORDERED_COUNTERS` (not on lavapipe) plus
+/// `RESTRUCTURE` for a further round of treelets.
 #[spirv(compute(threads(256)))]
 #[allow(clippy::too_many_arguments)]
 pub fn refit_restructured(
@@ -91,15 +91,9 @@ pub fn refit_restructured(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
     #[spirv(workgroup)] st: &mut RefitState,
 ) {
-    let (i, g) = (lid.x, flat_group(gid.x, gid.y));
     let prims = refit::Prims { order, tris, spheres };
-    let w = node_words;
-    match variant {
-        3 => refit::refit::<true, true, false>(i, g, st, p, prims, parents, visits, w),
-        2 => refit::refit::<false, true, false>(i, g, st, p, prims, parents, visits, w),
-        1 => refit::refit::<true, false, false>(i, g, st, p, prims, parents, visits, w),
-        _ => refit::refit::<false, false, false>(i, g, st, p, prims, parents, visits, w),
-    }
+    let group = flat_group(gid.x, gid.y);
+    refit::restructured(variant, lid.x, group, st, p, prims, parents, visits, node_words);
 }
 
 /// The box fit (`shared::refit::fit`); specialisation constant 0 is 1 for its ordered

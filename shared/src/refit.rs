@@ -151,6 +151,36 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool, const BLOCKS: bool>(
     }
 }
 
+/// [`restructured`]'s variant bit: acquire-release counters (real GPUs; lavapipe runs
+/// without, see [`refit`]).
+pub const ORDERED_COUNTERS: u32 = 1;
+/// [`restructured`]'s variant bit: restructure treelets again (a further round).
+pub const RESTRUCTURE: u32 = 2;
+
+/// The counter refit of a tree restructured before: [`refit`] without the block's counters
+/// (every visit counter zeroed first), `variant` a sum of [`ORDERED_COUNTERS`] and
+/// [`RESTRUCTURE`] (the `refit_restructured` kernel's specialisation constant).
+#[allow(clippy::too_many_arguments)]
+pub fn restructured(
+    variant: u32,
+    lane: u32,
+    group: u32,
+    st: &mut RefitState,
+    p: &BuildParams,
+    prims: Prims,
+    parents: &mut [u32],
+    visits: &mut [u32],
+    words: &mut [u64],
+) {
+    const BOTH: u32 = ORDERED_COUNTERS | RESTRUCTURE;
+    match variant & BOTH {
+        BOTH => refit::<true, true, false>(lane, group, st, p, prims, parents, visits, words),
+        RESTRUCTURE => refit::<false, true, false>(lane, group, st, p, prims, parents, visits, words),
+        ORDERED_COUNTERS => refit::<true, false, false>(lane, group, st, p, prims, parents, visits, words),
+        _ => refit::<false, false, false>(lane, group, st, p, prims, parents, visits, words),
+    }
+}
+
 /// Workgroup memory of [`fit`]: a box slot per lane and a link word per internal node and
 /// leaf of the block (8 KB).
 pub struct FitState {

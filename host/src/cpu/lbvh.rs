@@ -5,6 +5,7 @@ use crate::bvh::{BuildOptions, BuildResult, MortonBits};
 use bytemuck::Pod;
 use shared::bounds::{self, BoundsState};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState, SortKey, RADIX};
+use shared::refit::{ORDERED_COUNTERS as ORDERED, RESTRUCTURE as AGAIN};
 use shared::scan::{self, BlockScan};
 use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::wide::{self, WideNode};
@@ -192,7 +193,17 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
                     visits: [0; refit::BLOCK as usize],
                 };
                 lanes(|l| {
-                    refit::refit::<true, true, false>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words)
+                    refit::restructured(
+                        ORDERED | AGAIN,
+                        l,
+                        g,
+                        &mut st,
+                        &p,
+                        prims,
+                        &mut parents,
+                        &mut visits,
+                        &mut words,
+                    )
                 });
             }
         }
@@ -272,9 +283,7 @@ pub fn refit(
             let mut st = refit::RefitState {
                 visits: [0; refit::BLOCK as usize],
             };
-            lanes(|l| {
-                refit::refit::<true, false, false>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words)
-            });
+            lanes(|l| refit::restructured(ORDERED, l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words));
         }
         return Ok(BuildResult {
             nodes: bytemuck::pod_collect_to_vec(&words),

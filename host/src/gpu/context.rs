@@ -523,9 +523,11 @@ impl Gpu {
     /// The refit of a restructured tree (`refit_restructured`) for this device, restructuring
     /// again where `treelets` asks, and the value of its specialisation constant.
     pub fn restructured_kernel(&self, treelets: bool) -> (super::Kernel, u32) {
+        use shared::refit::{ORDERED_COUNTERS, RESTRUCTURE};
+        let ordered = if self.is_lavapipe() { 0 } else { ORDERED_COUNTERS };
         (
             super::Kernel::RefitRestructured,
-            u32::from(!self.is_lavapipe()) | 2 * u32::from(treelets),
+            ordered | if treelets { RESTRUCTURE } else { 0 },
         )
     }
 
