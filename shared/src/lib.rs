@@ -36,6 +36,7 @@ pub mod sync;
 pub mod texture;
 pub mod transform;
 pub mod traverse;
+pub mod tile_sort;
 pub mod treelet;
 pub mod types;
 pub mod wide;
