@@ -9,7 +9,6 @@ use shared::instance::Instance;
 use shared::path;
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
 use shared::refit::{FitState, RefitState};
-use shared::tile_sort::{self, MergeState, TileState};
 use shared::scan;
 use shared::texture::TextureInfo;
 use shared::types::{
@@ -140,7 +139,7 @@ pub fn empty_boxes(
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
-    ($k:ty, $morton:ident, $morton_counted:ident, $scatter:ident, $tile:ident, $merge:ident, $place:ident, $build:ident) => {
+    ($k:ty, $morton:ident, $morton_counted:ident, $scatter:ident, $rank:ident, $build:ident) => {
         #[spirv(compute(threads(256)))]
         pub fn $morton(
             #[spirv(global_invocation_id)] id: UVec3,
@@ -217,78 +216,18 @@ macro_rules! key_kernels {
             sort::scatter_write_vals(lid.x, st, &at, vals_out);
         }
 
-        /// The sort of at most `tile_sort::MAX` keys, stage 1: a workgroup sorts a tile (in
-        /// place where there is one; see `shared::tile_sort`).
+        /// The sort of at most `RANK_MAX` keys, in place, by one workgroup (see
+        /// `shared::radix_sort::RANK_MAX`).
         #[spirv(compute(threads(256)))]
-        #[allow(clippy::too_many_arguments)]
-        pub fn $tile(
+        pub fn $rank(
             #[spirv(local_invocation_id)] lid: UVec3,
-            #[spirv(workgroup_id)] gid: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
             #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sorted_keys: &mut [$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] sorted_vals: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &mut [u32],
-            #[spirv(workgroup)] st: &mut TileState<$k>,
         ) {
-            let tile = gid.x;
-            tile_sort::tile_load(lid.x, tile, st, p, keys, vals);
-            // A sort of one tile writes in place what other lanes read here.
+            let ranked = sort::rank(lid.x, p, keys, vals);
             storage_barrier();
-            let size = tile_sort::network(p, tile);
-            let mut k = 2;
-            while k <= size {
-                let mut j = k / 2;
-                while j > 0 {
-                    tile_sort::tile_stage(lid.x, st, size, k, j);
-                    barrier();
-                    j /= 2;
-                }
-                k *= 2;
-            }
-            tile_sort::tile_write(lid.x, tile, st, p, keys, vals, sorted_keys, sorted_vals, ranks);
-        }
-
-        /// Tile sort, stage 2: workgroup (t, c) counts tile t's keys' predecessors in the
-        /// tiles of chunk c.
-        #[spirv(compute(threads(256)))]
-        pub fn $merge(
-            #[spirv(local_invocation_id)] lid: UVec3,
-            #[spirv(workgroup_id)] gid: UVec3,
-            #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sorted_keys: &[$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &mut [u32],
-            #[spirv(workgroup)] st: &mut MergeState<$k>,
-        ) {
-            let tile = gid.x;
-            let mut own = tile_sort::merge_own(lid.x, tile, p, sorted_keys);
-            let (first, end) = tile_sort::chunk_tiles(p, gid.y);
-            let mut u = first;
-            while u < end {
-                if u != tile {
-                    tile_sort::merge_load(lid.x, u, st, p, sorted_keys);
-                    barrier();
-                    tile_sort::merge_count(u, tile, st, p, &mut own);
-                    barrier();
-                }
-                u += 1;
-            }
-            tile_sort::merge_add(lid.x, tile, p, &own, ranks);
-        }
-
-        /// Tile sort, stage 3: every key to its rank.
-        #[spirv(compute(threads(256)))]
-        pub fn $place(
-            #[spirv(global_invocation_id)] id: UVec3,
-            #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sorted_keys: &[$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] sorted_vals: &[u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &mut [u32],
-        ) {
-            tile_sort::place(flat_index(id.x, id.y), p, sorted_keys, sorted_vals, ranks, keys, vals);
+            sort::place(lid.x, p, &ranked, keys, vals);
         }
 
         #[spirv(compute(threads(256)))]
@@ -318,9 +257,7 @@ key_kernels!(
     morton30,
     morton30_counted,
     sort_scatter_u32,
-    sort_tile_u32,
-    sort_merge_u32,
-    sort_place_u32,
+    sort_rank_u32,
     karras_build_u32
 );
 key_kernels!(
@@ -328,9 +265,7 @@ key_kernels!(
     morton63,
     morton63_counted,
     sort_scatter_u64,
-    sort_tile_u64,
-    sort_merge_u64,
-    sort_place_u64,
+    sort_rank_u64,
     karras_build_u64
 );
 
@@ -407,8 +342,8 @@ pub fn wide_write(
     wide::write(flat_index(id.x, id.y), p, nodes, ends, scratch, out);
 }
 
-/// A workgroup barrier that also orders this workgroup's storage-buffer accesses (the tile
-/// sort of one tile writes in place what other lanes read before).
+/// A workgroup barrier that also orders this workgroup's storage-buffer accesses (the rank
+/// sort writes in place what other lanes read before).
 fn storage_barrier() {
     use spirv_std::memory::{Scope, Semantics};
     const WG: u32 = Scope::Workgroup as u32;

@@ -36,7 +36,6 @@ pub mod sync;
 pub mod texture;
 pub mod transform;
 pub mod traverse;
-pub mod tile_sort;
 pub mod treelet;
 pub mod types;
 pub mod wide;

@@ -6,14 +6,12 @@ use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
 use shared::karras::range_and_split;
 use shared::radix_sort::WINDOW;
-use shared::tile_sort;
 use shared::types::{BuildParams, Node, TILE, WORKGROUP};
 
 #[test]
 fn the_sort_is_a_stable_sort_of_the_morton_codes() {
-    // Up to `tile_sort::MAX` keys the tiles sorted and merged (merge workgroups of
-    // `tile_sort::CHUNK` tiles), above the radix passes, whose look-backs read `WINDOW` tiles a
-    // step.
+    // Up to `RANK_MAX` keys the rank sort, above the radix passes, whose look-backs read
+    // `WINDOW` tiles a step.
     for bits in [MortonBits::B30, MortonBits::B63] {
         for dist in Distribution::ALL {
             // The last size takes look-backs of several steps.
@@ -27,10 +25,7 @@ fn the_sort_is_a_stable_sort_of_the_morton_codes() {
                 TILE as usize + 1,
                 4 * TILE as usize,
                 4 * TILE as usize + 1,
-                9 * TILE as usize + 3,
                 20_000,
-                tile_sort::MAX as usize,
-                tile_sort::MAX as usize + 1,
                 (3 * WINDOW * TILE + 1) as usize,
             ] {
                 let (t, s) = generate(n, dist, true, 3);

@@ -69,16 +69,6 @@ impl BuildOptions {
     }
 }
 
-/// Whether both backends sort `n` keys by tiles (`shared::tile_sort`) rather than by radix
-/// passes. TEMPORARY: `RT_TILE_SORT_MAX` sets the largest such `n` for A/B runs.
-pub fn tile_sorted(n: u32) -> bool {
-    let most = std::env::var("RT_TILE_SORT_MAX")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(shared::tile_sort::MAX);
-    n <= most.min(shared::tile_sort::MAX)
-}
-
 /// Which BVH the tracer walks (`--bvh`).
 #[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 pub enum Layout {

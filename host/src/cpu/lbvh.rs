@@ -7,8 +7,7 @@ use shared::bounds::{self, BoundsState};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState, SortKey, RADIX};
 use shared::refit::{ORDERED_COUNTERS as ORDERED, RESTRUCTURE as AGAIN};
 use shared::scan::{self, BlockScan};
-use shared::tile_sort::{self, MergeState, TileState};
-use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, TILE, WORKGROUP};
+use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::wide::{self, WideNode};
 use shared::{karras, morton, refit};
 use std::time::Instant;
@@ -74,7 +73,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     let mut keys = vec![K::default(); n as usize];
     let mut vals = vec![0u32; n as usize];
-    if !crate::bvh::tile_sorted(n) {
+    if n > sort::RANK_MAX {
         // The counting Morton kernel (for the radix passes).
         for g in 0..item_groups(n) {
             let mut st = Box::new(DigitCounts {
@@ -92,58 +91,12 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     out.morton = keys.iter().map(|&k| k.into()).collect();
     lap("morton", &mut times);
 
-    // The refit's visit counters, which hold the tile sort's ranks until its last stage.
-    let mut visits = vec![0u32; 2 * n as usize];
-    if crate::bvh::tile_sorted(n) {
-        // Each tile sorted by its workgroup (in place where there is one), then merged.
-        let mut sorted_keys = vec![K::default(); n as usize];
-        let mut sorted_vals = vec![0u32; n as usize];
-        for t in 0..tiles {
-            let mut st = Box::new(TileState {
-                keys: [K::default(); TILE as usize],
-                place: [0; TILE as usize],
-                vals: [0; TILE as usize],
-            });
-            lanes(|l| tile_sort::tile_load(l, t, &mut st, &p, &keys, &vals));
-            let size = tile_sort::network(&p, t);
-            let mut k = 2;
-            while k <= size {
-                let mut j = k / 2;
-                while j > 0 {
-                    lanes(|l| tile_sort::tile_stage(l, &mut st, size, k, j));
-                    j /= 2;
-                }
-                k *= 2;
-            }
-            lanes(|l| {
-                let (sk, sv) = (&mut sorted_keys, &mut sorted_vals);
-                tile_sort::tile_write(l, t, &st, &p, &mut keys, &mut vals, sk, sv, &mut visits)
-            });
+    if n <= sort::RANK_MAX {
+        // One workgroup ranks every key, then (after a barrier) writes them in place.
+        let ranked: Vec<_> = (0..WORKGROUP).map(|l| sort::rank(l, &p, &keys, &vals)).collect();
+        for (l, r) in (0..WORKGROUP).zip(&ranked) {
+            sort::place(l, &p, r, &mut keys, &mut vals);
         }
-        if tiles > 1 {
-            for t in 0..tiles {
-                for c in 0..tiles.div_ceil(tile_sort::CHUNK) {
-                    let mut st = Box::new(MergeState {
-                        keys: [K::default(); TILE as usize],
-                    });
-                    let mut own: Vec<_> = (0..WORKGROUP)
-                        .map(|l| tile_sort::merge_own(l, t, &p, &sorted_keys))
-                        .collect();
-                    let (first, end) = tile_sort::chunk_tiles(&p, c);
-                    for u in (first..end).filter(|&u| u != t) {
-                        lanes(|l| tile_sort::merge_load(l, u, &mut st, &p, &sorted_keys));
-                        own.iter_mut().for_each(|o| tile_sort::merge_count(u, t, &st, &p, o));
-                    }
-                    for (l, o) in (0..WORKGROUP).zip(&own) {
-                        tile_sort::merge_add(l, t, &p, o, &mut visits);
-                    }
-                }
-            }
-            for i in 0..n {
-                tile_sort::place(i, &p, &sorted_keys, &sorted_vals, &mut visits, &mut keys, &mut vals);
-            }
-        }
-        debug_assert!(visits.iter().all(|&w| w == 0));
     } else {
         let mut keys_b = keys.clone();
         let mut vals_b = vals.clone();
@@ -203,6 +156,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let total_nodes = (2 * n).saturating_sub(1) as usize;
     let mut nodes = vec![Node::default(); total_nodes];
     let mut parents = vec![0u32; total_nodes];
+    let mut visits = vec![0u32; 2 * n as usize];
     for i in 0..n {
         karras::build(i, &p, &keys, &mut nodes, &mut parents, &mut visits);
         sort::clear_tables(i, &p, &mut counts, &mut totals);

@@ -7,7 +7,6 @@ use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
 use shared::radix_sort as sort;
-use shared::tile_sort;
 use shared::types::{grid, item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::wide::{self, WideNode};
 use std::sync::Arc;
@@ -344,23 +343,19 @@ impl GpuLbvh {
         };
         let tiles = p.tiles();
         let (set_ab, set_ba) = (b.sets.sets[0], b.sets.sets[1]);
-        let (morton, morton_counted, scatter, tile, merge, place, build) = match bits {
+        let (morton, morton_counted, scatter, rank, build) = match bits {
             MortonBits::B30 => (
                 Kernel::Morton30,
                 Kernel::Morton30Counted,
                 Kernel::SortScatterU32,
-                Kernel::SortTileU32,
-                Kernel::SortMergeU32,
-                Kernel::SortPlaceU32,
+                Kernel::SortRankU32,
                 Kernel::KarrasBuildU32,
             ),
             MortonBits::B63 => (
                 Kernel::Morton63,
                 Kernel::Morton63Counted,
                 Kernel::SortScatterU64,
-                Kernel::SortTileU64,
-                Kernel::SortMergeU64,
-                Kernel::SortPlaceU64,
+                Kernel::SortRankU64,
                 Kernel::KarrasBuildU64,
             ),
         };
@@ -387,7 +382,7 @@ impl GpuLbvh {
         cmds.barrier();
         stamp(cmds, STAGES[0]);
         // The radix passes take their digit totals from the Morton stage.
-        if !crate::bvh::tile_sorted(n) {
+        if n > sort::RANK_MAX {
             cmds.dispatch(k, set_ab, morton_counted, &p, item_groups(n))?;
         } else {
             cmds.dispatch(k, set_ab, morton, &p, items)?;
@@ -402,18 +397,10 @@ impl GpuLbvh {
             cmds.barrier();
         }
         stamp(cmds, STAGES[1]);
-        if crate::bvh::tile_sorted(n) {
-            // Tiles sorted, then (more than one) merged: see `shared::tile_sort`.
-            cmds.dispatch(k, set_ab, tile, &p, tiles)?;
+        if n <= sort::RANK_MAX {
+            cmds.dispatch(k, set_ab, rank, &p, 1)?;
             cmds.barrier();
-            if tiles > 1 {
-                let chunks = tiles.div_ceil(tile_sort::CHUNK);
-                cmds.dispatch_sets(k, &[set_ab], merge, bytemuck::bytes_of(&p), tiles, chunks)?;
-                cmds.barrier();
-                cmds.dispatch(k, set_ab, place, &p, items)?;
-                cmds.barrier();
-            }
-            stamp(cmds, "sort.tiles");
+            stamp(cmds, "sort.rank");
         } else {
             for pass in 0..p.passes {
                 p.shift = pass * sort::RADIX_BITS;
