@@ -41,6 +41,8 @@ pub struct GpuLevels {
     /// the frames make between two builds.
     top_refits: Option<u32>,
     top_refits_max: u32,
+    /// The top level built as a plain LBVH instead of [`top_build`]'s (`bench levels`).
+    top_plain: bool,
 }
 
 /// Frames that refit the top level (its instances' boxes taken again, the tree kept: the
@@ -141,6 +143,7 @@ impl GpuLevels {
             kept: 0,
             top_refits: None,
             top_refits_max: TOP_REFITS,
+            top_plain: false,
         };
         l.objects.write(&l.layout.objects)?;
         l.instances.write(&l.layout.instances)?;
@@ -310,7 +313,11 @@ impl GpuLevels {
         // Every interval a frame's timings report ends at a named timestamp: the builder's
         // own first one ("start") then covers nothing (`frame_timings` leaves it out).
         cmds.timestamp("top level");
-        let top = top_build(self.opts);
+        let top = if self.top_plain {
+            BuildOptions::lbvh(self.opts.bits)
+        } else {
+            top_build(self.opts)
+        };
         match self.top_refits {
             Some(r) if r < self.top_refits_max => {
                 self.top.record_refit(cmds, top)?;
@@ -339,6 +346,14 @@ impl GpuLevels {
     /// 0 builds it every frame).
     pub fn set_top_refits(&mut self, refits: u32) {
         self.top_refits_max = refits;
+    }
+
+    /// Builds the top level as a plain LBVH (Karras's tree and the fit, no treelets) from the
+    /// next update on, or again as [`top_build`] says (what the CPU executor's levels do):
+    /// `bench levels` times both.
+    pub fn set_top_plain(&mut self, plain: bool) {
+        self.top_plain = plain;
+        self.top_refits = None;
     }
 
     /// The next update of the top level builds it (instead of refitting it).
