@@ -72,7 +72,9 @@ fn leaf_box(i: u32, p: &BuildParams, prims: Prims) -> (u32, [f32; 3], [f32; 3]) 
 /// `BLOCKS` keeps the counters of nodes whose leaves all lie in the block in workgroup memory,
 /// which needs the Karras tree's leaf ranges (`visits[n..]`). A tree restructured once no
 /// longer has them (a treelet's nodes cover other leaves after it), so a refit of it, or a
-/// further round of restructuring, runs without: every counter device-scope, zeroed before.
+/// further round of restructuring, runs without: every counter device-scope. The second
+/// arrival at a node zeroes its device counter, so a refit leaves every counter as the tree
+/// kernel does (zero) and the next refit or round needs no fill before it.
 #[allow(clippy::too_many_arguments)]
 pub fn refit<const ORDERED: bool, const TREELETS: bool, const BLOCKS: bool>(
     lane: u32,
@@ -112,6 +114,10 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool, const BLOCKS: bool>(
         };
         if earlier == 0 {
             return;
+        }
+        if !local {
+            // Left zero for the next refit of the tree, which then needs no fill before it.
+            sync::atomic_store_u32(at_mut(visits, parent), 0);
         }
         let sibling = if left == node { right } else { left };
         let (s_lo, s_hi) = if local {
@@ -158,7 +164,8 @@ pub const ORDERED_COUNTERS: u32 = 1;
 pub const RESTRUCTURE: u32 = 2;
 
 /// The counter refit of a tree restructured before: [`refit`] without the block's counters
-/// (every visit counter zeroed first), `variant` a sum of [`ORDERED_COUNTERS`] and
+/// (every visit counter device-scope, zero as the tree kernel or the refit before left it),
+/// `variant` a sum of [`ORDERED_COUNTERS`] and
 /// [`RESTRUCTURE`] (the `refit_restructured` kernel's specialisation constant).
 #[allow(clippy::too_many_arguments)]
 pub fn restructured(

@@ -185,9 +185,10 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
                 refit::refit::<true, true, true>(l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words)
             });
         }
-        // Further rounds over the restructured tree, every counter device-scope, zeroed.
+        // Further rounds over the restructured tree, every counter device-scope (each left
+        // zero by the round before, as on the GPU).
         for _ in 1..if n > 1 { opts.rounds } else { 1 } {
-            visits[..n as usize - 1].fill(0);
+            debug_assert!(visits[..n as usize - 1].iter().all(|&c| c == 0));
             for g in 0..groups {
                 let mut st = refit::RefitState {
                     visits: [0; refit::BLOCK as usize],

@@ -421,12 +421,10 @@ impl GpuLbvh {
         cmds.dispatch_pipeline(k, refit, &[set_ab], bytemuck::bytes_of(&p), x, y);
         cmds.barrier();
         if opts.restructures() && n > 1 {
-            // Further rounds: the visit counters zeroed (the refit left every one at 2).
+            // Further rounds (the refit left every visit counter zero).
             let (kernel, constant) = self.gpu.restructured_kernel(true);
             let again = k.specialised(kernel, constant)?;
             for _ in 1..opts.rounds {
-                cmds.fill_range(&b.visits, 0, (n as u64 - 1) * 4, 0);
-                cmds.barrier();
                 cmds.dispatch_pipeline(k, again, &[set_ab], bytemuck::bytes_of(&p), x, y);
                 cmds.barrier();
             }
@@ -457,8 +455,8 @@ impl GpuLbvh {
     /// primitives as they are now: the bounds, Morton codes, sort and tree stages are
     /// skipped. A Karras tree has every internal box emptied (`empty_boxes`) and the build's
     /// fit run again; a tree restructured by treelets (whose leaf ranges the fit cannot use)
-    /// the counter refit with every counter device-scope, zeroed first
-    /// (`refit_restructured`). A timestamp before and one after, labelled "refit". A wide
+    /// the counter refit with every counter device-scope (`refit_restructured`; each counter
+    /// zero as the build or the refit before left it). A timestamp before and one after, labelled "refit". A wide
     /// BVH cannot be refit (it would be collapsed again).
     pub fn record_refit(&self, cmds: &mut Commands, opts: BuildOptions) -> Result<()> {
         anyhow::ensure!(!opts.wide, "a wide BVH cannot be refit: a binary build");
@@ -475,17 +473,17 @@ impl GpuLbvh {
             let set = b.sets.sets[0];
             let items = self.n.div_ceil(WORKGROUP);
             let refit = if opts.restructures() {
-                cmds.fill_range(&b.visits, 0, (self.n as u64 - 1).max(1) * 4, 0);
+                // Every visit counter zero: the build's refit, or the refit before, left it so.
                 let (kernel, constant) = self.gpu.restructured_kernel(false);
                 k.specialised(kernel, constant)?
             } else {
                 cmds.dispatch(k, set, Kernel::EmptyBoxes, &p, items)?;
+                cmds.barrier();
                 match self.gpu.refit_kernel(false) {
                     (kernel, Some(constant)) => k.specialised(kernel, constant)?,
                     (kernel, None) => k.pipeline(kernel)?,
                 }
             };
-            cmds.barrier();
             let (x, y) = grid(items);
             cmds.dispatch_pipeline(k, refit, &[set], bytemuck::bytes_of(&p), x, y);
             cmds.barrier();
