@@ -208,9 +208,9 @@ pub fn section(dir: &Path) -> Result<String> {
         );
         let _ = writeln!(
             s,
-            "| scene | 1080p, 1 spp, depth 4: ours | driver, fast build | driver, update | 800x800, 32 spp, depth 16, trace: ours | driver, fast build |"
+            "| scene | 1080p, 1 spp, depth 4: ours | driver, fast build | fast trace | update | 800x800, 32 spp, depth 16, trace: ours | driver, fast build | fast trace | update |"
         );
-        let _ = writeln!(s, "|---|---|---|---|---|---|");
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
         let find = |scene: &Value, setting: &str, tracer: &str| {
             rows(&v)
                 .iter()
@@ -228,13 +228,16 @@ pub fn section(dir: &Path) -> Result<String> {
             };
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 scene.as_str().unwrap_or("?"),
                 cell("real time", "Ours", "frame_ms"),
                 cell("real time", "FastBuild", "frame_ms"),
+                cell("real time", "FastTrace", "frame_ms"),
                 cell("real time", "Update", "frame_ms"),
                 cell("thesis", "Ours", "trace_ms"),
                 cell("thesis", "FastBuild", "trace_ms"),
+                cell("thesis", "FastTrace", "trace_ms"),
+                cell("thesis", "Update", "trace_ms"),
             );
         }
         let builds: Vec<String> = v["builds"]
