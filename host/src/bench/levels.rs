@@ -33,7 +33,8 @@ pub struct Report {
     /// Host clock of the meshes' builds (upload, build, copy; once per scene; the pipelines
     /// made before).
     pub mesh_builds_ms: f64,
-    /// GPU microseconds of a top-level build (restructured by treelets, `bvh::top_build`):
+    /// GPU microseconds of a top-level build (restructured by treelets in one round,
+    /// `bvh::top_build`):
     /// the instances' boxes, the build, the copy.
     pub top_us: f64,
     pub top_p10_us: f64,
@@ -166,7 +167,7 @@ pub fn markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Two levels: instances of meshes\n\n- date: {}\n- device: {}\n- command: `{}`\n- {} instances of 3 meshes (Suzanne, the bunny, 37 mixed primitives): {} distinct primitives, {} instanced; every run turns every instance and builds the top level again (world boxes, build restructured by treelets, copy), as the renderer does every 60th frame, or as a plain LBVH (Karras's tree and the fit), or refits it (world boxes, refit, copy), as the frames between two builds do\n",
+        "# Two levels: instances of meshes\n\n- date: {}\n- device: {}\n- command: `{}`\n- {} instances of 3 meshes (Suzanne, the bunny, 37 mixed primitives): {} distinct primitives, {} instanced; every run turns every instance and builds the top level again (world boxes, build restructured by treelets in one round, copy), as the renderer does every 60th frame (the next two frames' refits restructure it again), or as a plain LBVH (Karras's tree and the fit), or refits it (world boxes, refit, copy), as the frames between two builds do\n",
         r.date, r.device, r.command, r.options.instances, r.distinct_primitives, r.instanced_primitives
     );
     let _ = writeln!(

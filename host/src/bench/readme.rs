@@ -183,9 +183,10 @@ pub fn section(dir: &Path) -> Result<String> {
             s,
             "Real-time frames: 1920x1080, 1 spp, depth 4, the BVH made again every frame (instanced: \
              the top level over the objects built, restructured by treelets, then refit by the \
-             next {} frames, and the world-space group of objects that deform built, then refit \
-             by the next {}; sources: {}):\n",
+             next {} frames, the first {} of them restructuring it again, and the world-space group \
+             of objects that deform built, then refit by the next {}; sources: {}):\n",
             crate::gpu::TOP_REFITS,
+            crate::bvh::TOP_ROUNDS - 1,
             crate::gpu::GROUP_REFITS,
             sources.join(", ")
         );

@@ -206,19 +206,25 @@ pub fn layout(meshes: &[MeshPrims], placements: &[Placement]) -> Result<LevelsLa
 }
 
 /// How both backends build the top level in two levels whose frames build with `opts`:
-/// restructured by treelets in 3 rounds, since the frames between two builds refit it
-/// (`GpuLevels::record_top`, `TOP_REFITS`). H100: one round took the forest's frame 7.94 ->
-/// 7.78 ms (NEE 10.02 -> 9.85), three 7.64 (9.69), herd's the same; a build of 10,000
-/// instances 0.51 ms, in three rounds 1.42 (its frame's p99: 8.32 -> 9.17 ms), once every
-/// 60 frames (bench/NOTES.md, session 34).
+/// restructured by treelets in one round; the frames after a build restructure it again
+/// while they refit it, [`TOP_ROUNDS`] rounds in all (`GpuLevels::record_top`, `TOP_REFITS`).
+/// H100: one round took the forest's frame 7.94 -> 7.78 ms (NEE 10.02 -> 9.85), three 7.64
+/// (9.69), herd's the same; a build of 10,000 instances 0.51 ms, in three rounds 1.42 (its
+/// frame's p99: 8.32 -> 9.17 ms), once every 60 frames (bench/NOTES.md, session 34): the
+/// rounds spread over three frames instead (session 35).
 pub fn top_build(opts: BuildOptions) -> BuildOptions {
     BuildOptions {
         wide: false,
         treelets: true,
-        rounds: 3,
+        rounds: 1,
         ..opts
     }
 }
+
+/// Rounds of treelet restructuring the top level gets: its build's, then one in each of the
+/// next `TOP_ROUNDS - 1` frames' refits (`GpuLbvh::record_refit` with `again`; fewer where the
+/// frames build it again sooner, `--top-refits`).
+pub const TOP_ROUNDS: u32 = 3;
 
 /// Rounds of treelet restructuring of the meshes built once (`BuildOptions::rounds`): 3
 /// against 1 lowered the surface-area cost of the bunny's tree 35.9 -> 34.8 and the forest's

@@ -5,7 +5,7 @@ mod validate;
 
 pub use levels::{
     build_levels, inverse_rows, layout, mesh_build, top_build, validate_levels, LayoutError, Levels, LevelsLayout,
-    MeshPrims, Placement,
+    MeshPrims, Placement, TOP_ROUNDS,
 };
 pub use validate::{validate, validate_wide, BvhStats, WideStats};
 

@@ -33,6 +33,9 @@ pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool
     let (tracer, _) = p.tracer(gpu);
     r.set_accel(tracer, p.driver_build)?;
     r.load(&p.data, &p.frame)?;
+    // Built in the frame, as the CPU executor builds it (the load built the top level, which
+    // the frame would refit and restructure again: `TOP_ROUNDS`).
+    r.build_next();
     let timings = r.render(p.spp, true)?;
     let g = Rendered {
         picture: r.picture()?,

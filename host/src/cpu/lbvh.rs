@@ -252,6 +252,30 @@ pub fn refit(
     spheres: &[Sphere],
     opts: BuildOptions,
 ) -> Result<BuildResult, String> {
+    refit_with(earlier, tris, spheres, opts, false)
+}
+
+/// [`refit`] of a tree restructured by treelets that restructures it again (one more round,
+/// as `GpuLbvh::record_refit` with `again`: the top level's frames after its build).
+pub fn refit_round(
+    earlier: &BuildResult,
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    opts: BuildOptions,
+) -> Result<BuildResult, String> {
+    if !opts.restructures() {
+        return Err("a refit restructures again only a tree restructured by treelets".into());
+    }
+    refit_with(earlier, tris, spheres, opts, true)
+}
+
+fn refit_with(
+    earlier: &BuildResult,
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    opts: BuildOptions,
+    again: bool,
+) -> Result<BuildResult, String> {
     let n = (tris.len() + spheres.len()) as u32;
     if earlier.sorted_prims.len() != n as usize || earlier.nodes.len() != (2 * n).saturating_sub(1) as usize {
         return Err(format!(
@@ -284,10 +308,12 @@ pub fn refit(
             let mut st = refit::RefitState {
                 visits: [0; refit::BLOCK as usize],
             };
-            lanes(|l| refit::restructured(ORDERED, l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words));
+            let variant = if again { ORDERED | AGAIN } else { ORDERED };
+            lanes(|l| refit::restructured(variant, l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words));
         }
         return Ok(BuildResult {
             nodes: bytemuck::pod_collect_to_vec(&words),
+            parents,
             wide: Vec::new(),
             ..earlier.clone()
         });

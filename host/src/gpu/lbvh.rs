@@ -456,10 +456,15 @@ impl GpuLbvh {
     /// skipped. A Karras tree has every internal box emptied (`empty_boxes`) and the build's
     /// fit run again; a tree restructured by treelets (whose leaf ranges the fit cannot use)
     /// the counter refit with every counter device-scope (`refit_restructured`; each counter
-    /// zero as the build or the refit before left it). A timestamp before and one after, labelled "refit". A wide
-    /// BVH cannot be refit (it would be collapsed again).
-    pub fn record_refit(&self, cmds: &mut Commands, opts: BuildOptions) -> Result<()> {
+    /// zero as the build or the refit before left it), which with `again` restructures the
+    /// treelets once more (a further round of the build's). A timestamp before and one after,
+    /// labelled "refit". A wide BVH cannot be refit (it would be collapsed again).
+    pub fn record_refit(&self, cmds: &mut Commands, opts: BuildOptions, again: bool) -> Result<()> {
         anyhow::ensure!(!opts.wide, "a wide BVH cannot be refit: a binary build");
+        anyhow::ensure!(
+            !again || opts.restructures(),
+            "a refit restructures again only a tree restructured by treelets"
+        );
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         let p = BuildParams {
             n_tris: self.n_tris,
@@ -474,7 +479,7 @@ impl GpuLbvh {
             let items = self.n.div_ceil(WORKGROUP);
             let refit = if opts.restructures() {
                 // Every visit counter zero: the build's refit, or the refit before, left it so.
-                let (kernel, constant) = self.gpu.restructured_kernel(false);
+                let (kernel, constant) = self.gpu.restructured_kernel(again);
                 k.specialised(kernel, constant)?
             } else {
                 cmds.dispatch(k, set, Kernel::EmptyBoxes, &p, items)?;
@@ -498,7 +503,7 @@ impl GpuLbvh {
         let mut cmds = std::mem::replace(&mut self.cmds, Commands::none(&self.gpu));
         let r = (|| {
             cmds.begin()?;
-            self.record_refit(&mut cmds, opts)?;
+            self.record_refit(&mut cmds, opts, false)?;
             cmds.submit_wait().context("running the BVH refit")?;
             cmds.timings()
         })();

@@ -5,7 +5,9 @@
 //! world boxes (the `instance_boxes` kernel), its nodes copied after the meshes'. The same
 //! [`LevelsLayout`] as the CPU executor's (`bvh::build_levels`), and the same bits.
 use super::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels, BINDINGS};
-use crate::bvh::{inverse_rows, layout, mesh_build, top_build, BuildOptions, LevelsLayout, MeshPrims, Placement};
+use crate::bvh::{
+    inverse_rows, layout, mesh_build, top_build, BuildOptions, LevelsLayout, MeshPrims, Placement, TOP_ROUNDS,
+};
 use anyhow::{anyhow, ensure, Context, Result};
 use gpu_allocator::MemoryLocation;
 use shared::instance::Instance;
@@ -52,7 +54,9 @@ pub struct GpuLevels {
 /// frame -> restructured and refit by 59: forest 7.94 -> 7.75 ms (NEE 10.02 -> 9.81; its p99
 /// 8.03 -> 8.27, the frame of the build), herd 5.08 -> 4.99 (NEE 6.44 -> 6.35); refit by 15
 /// the same medians; restructured every frame the forest's build took 0.63 ms (bench/NOTES.md,
-/// session 34).
+/// session 34). The first `bvh::TOP_ROUNDS - 1` refits restructure it again (the build's
+/// further rounds spread over frames: `bench realtime --frames 600`, p99 forest 9.17 -> 8.32
+/// ms, herd 5.71 -> 5.27, sixteen bunnies 3.40 -> 3.15, medians unchanged; session 35).
 pub const TOP_REFITS: u32 = 59;
 
 /// What identifies a mesh's primitives: their counts and a hash of their bits.
@@ -291,7 +295,8 @@ impl GpuLevels {
 
     /// Records the top level's update into `cmds` (which must be recording): the instances'
     /// world boxes, then the build over them ([`top_build`]) or, the [`TOP_REFITS`] frames
-    /// after one, a refit of its tree; its nodes copied after the meshes'.
+    /// after one, a refit of its tree (the first [`TOP_ROUNDS`]` - 1` restructuring it again);
+    /// its nodes copied after the meshes'.
     pub fn record_top(&mut self, cmds: &mut Commands) -> Result<()> {
         let n = self.layout.instances.len() as u32;
         let p = BuildParams {
@@ -320,7 +325,9 @@ impl GpuLevels {
         };
         match self.top_refits {
             Some(r) if r < self.top_refits_max => {
-                self.top.record_refit(cmds, top)?;
+                // The first `TOP_ROUNDS - 1` refits after a build restructure it again.
+                let again = top.restructures() && r + 1 < TOP_ROUNDS;
+                self.top.record_refit(cmds, top, again)?;
                 self.top_refits = Some(r + 1);
             }
             _ => {

@@ -902,7 +902,7 @@ impl GpuRenderer {
                     // and built again every `group_refits_max + 1` frames.
                     let refit = self.group_tree == Some(build);
                     if refit && self.group_refits < self.group_refits_max {
-                        self.lbvh.record_refit(cmds, build)?;
+                        self.lbvh.record_refit(cmds, build, false)?;
                         self.group_refits += 1;
                     } else {
                         self.lbvh.record(cmds, build, false, false)?;
@@ -1139,11 +1139,17 @@ impl GpuRenderer {
     /// `levels::TOP_REFITS`), tracing no sample: what the CPU executor's build of the scene
     /// as it is now equals, bit for bit.
     pub fn rebuild_now(&mut self) -> Result<()> {
+        self.build_next();
+        self.render(0, true).map(|_| ())
+    }
+
+    /// The next frame that rebuilds builds the BVH afresh (in two levels the group and the top
+    /// level too, which it would refit), as the CPU executor's render of the scene does.
+    pub fn build_next(&mut self) {
         self.group_tree = None;
         if let Some(l) = self.levels.as_mut() {
             l.build_top_next();
         }
-        self.render(0, true).map(|_| ())
     }
 
     /// World-space primitives of the last transform stage (with two levels: the meshes'
