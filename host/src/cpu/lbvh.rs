@@ -189,24 +189,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         // zero by the round before, as on the GPU).
         for _ in 1..if n > 1 { opts.rounds } else { 1 } {
             debug_assert!(visits[..n as usize - 1].iter().all(|&c| c == 0));
-            for g in 0..groups {
-                let mut st = refit::RefitState {
-                    visits: [0; refit::BLOCK as usize],
-                };
-                lanes(|l| {
-                    refit::restructured(
-                        ORDERED | AGAIN,
-                        l,
-                        g,
-                        &mut st,
-                        &p,
-                        prims,
-                        &mut parents,
-                        &mut visits,
-                        &mut words,
-                    )
-                });
-            }
+            restructured(ORDERED | AGAIN, &p, prims, &mut parents, &mut visits, &mut words);
         }
         bytemuck::pod_collect_to_vec(&words)
     } else {
@@ -238,6 +221,24 @@ fn fit(p: &BuildParams, prims: refit::Prims, parents: &[u32], visits: &[u32], no
         lanes(|l| refit::fit::<true>(l, g, &mut st, p, prims, parents, visits, &mut words));
     }
     bytemuck::pod_collect_to_vec(&words)
+}
+
+/// One dispatch of the `refit_restructured` kernel (`refit::restructured`, `variant` its
+/// specialisation constant) over a tree restructured by treelets, as the GPU runs it.
+fn restructured(
+    variant: u32,
+    p: &BuildParams,
+    prims: refit::Prims,
+    parents: &mut [u32],
+    visits: &mut [u32],
+    words: &mut [u64],
+) {
+    for g in 0..p.n.div_ceil(refit::BLOCK) {
+        let mut st = refit::RefitState {
+            visits: [0; refit::BLOCK as usize],
+        };
+        lanes(|l| refit::restructured(variant, l, g, &mut st, p, prims, parents, visits, words));
+    }
 }
 
 /// Refits `earlier` (a binary build of as many primitives) over `tris` and `spheres` as they
@@ -304,13 +305,8 @@ fn refit_with(
         let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&earlier.nodes);
         let mut parents = earlier.parents.clone();
         let mut visits = vec![0u32; 2 * n as usize];
-        for g in 0..n.div_ceil(refit::BLOCK) {
-            let mut st = refit::RefitState {
-                visits: [0; refit::BLOCK as usize],
-            };
-            let variant = if again { ORDERED | AGAIN } else { ORDERED };
-            lanes(|l| refit::restructured(variant, l, g, &mut st, &p, prims, &mut parents, &mut visits, &mut words));
-        }
+        let variant = if again { ORDERED | AGAIN } else { ORDERED };
+        restructured(variant, &p, prims, &mut parents, &mut visits, &mut words);
         return Ok(BuildResult {
             nodes: bytemuck::pod_collect_to_vec(&words),
             parents,
