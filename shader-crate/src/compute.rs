@@ -3,6 +3,7 @@
 //! Bindings follow the table in `shared::types`.
 
 use shared::bounds::{self, BoundsState};
+use shared::count_sort::{self, ChunkState};
 use shared::denoise::{self, DenoisePush};
 use shared::envmap::EnvEntry;
 use shared::instance::Instance;
@@ -139,7 +140,7 @@ pub fn empty_boxes(
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
-    ($k:ty, $morton:ident, $morton_counted:ident, $scatter:ident, $rank:ident, $build:ident) => {
+    ($k:ty, $morton:ident, $morton_counted:ident, $scatter:ident, $rank:ident, $count:ident, $place:ident, $build:ident) => {
         #[spirv(compute(threads(256)))]
         pub fn $morton(
             #[spirv(global_invocation_id)] id: UVec3,
@@ -148,8 +149,12 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &mut [u32],
         ) {
-            morton::$morton(flat_index(id.x, id.y), p, b, summaries, keys, vals);
+            let i = flat_index(id.x, id.y);
+            morton::$morton(i, p, b, summaries, keys, vals);
+            // For the count sort (the rank sort's tree kernel then zeroes them anyway).
+            count_sort::clear_rank(i, p, ranks);
         }
 
         /// Morton codes and every sort pass's digit counts (see `shared::radix_sort`).
@@ -230,6 +235,36 @@ macro_rules! key_kernels {
             sort::place(lid.x, p, &ranked, keys, vals);
         }
 
+        /// The count sort's counting stage (see `shared::count_sort`): workgroup (x, y)
+        /// ranks span x's keys against span y's.
+        #[spirv(compute(threads(256)))]
+        pub fn $count(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &mut [u32],
+            #[spirv(workgroup)] st: &mut ChunkState<$k>,
+        ) {
+            count_sort::chunk_load(lid.x, gid.y, st, p, keys);
+            barrier();
+            count_sort::chunk_count(lid.x, gid.x, gid.y, st, p, keys, ranks);
+        }
+
+        /// The count sort's placing stage: every key to its rank.
+        #[spirv(compute(threads(256)))]
+        pub fn $place(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &mut [u32],
+        ) {
+            count_sort::place(flat_index(id.x, id.y), p, keys, vals, ranks, keys_out, vals_out);
+        }
+
         #[spirv(compute(threads(256)))]
         #[allow(clippy::too_many_arguments)]
         pub fn $build(
@@ -258,6 +293,8 @@ key_kernels!(
     morton30_counted,
     sort_scatter_u32,
     sort_rank_u32,
+    sort_count_u32,
+    sort_place_u32,
     karras_build_u32
 );
 key_kernels!(
@@ -266,6 +303,8 @@ key_kernels!(
     morton63_counted,
     sort_scatter_u64,
     sort_rank_u64,
+    sort_count_u64,
+    sort_place_u64,
     karras_build_u64
 );
 

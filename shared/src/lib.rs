@@ -13,6 +13,7 @@ pub mod alpha;
 pub mod bounds;
 #[cfg(test)]
 mod chi2;
+pub mod count_sort;
 pub mod denoise;
 pub mod display;
 pub mod driver;

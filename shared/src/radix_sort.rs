@@ -56,6 +56,8 @@ const _: () = assert!(RADIX == 32 && HALF == 16 && LANES_PER_DIGIT == 8);
 /// A key the sort can take apart into digits.
 pub trait SortKey: Copy + PartialOrd + Default {
     const BITS: u32;
+    /// A key above every Morton code of this width (the count sort's padding).
+    const ABOVE: Self;
     /// 32-bit words per key.
     const WORDS: u32;
     /// Word `i` of the key (low first).
@@ -68,6 +70,7 @@ pub trait SortKey: Copy + PartialOrd + Default {
 
 impl SortKey for u32 {
     const BITS: u32 = 32;
+    const ABOVE: u32 = u32::MAX;
     const WORDS: u32 = 1;
     fn word(self, _: u32) -> u32 {
         self
@@ -89,6 +92,7 @@ impl SortKey for u32 {
 
 impl SortKey for u64 {
     const BITS: u32 = 64;
+    const ABOVE: u64 = u64::MAX;
     const WORDS: u32 = 2;
     fn word(self, i: u32) -> u32 {
         (self >> (32 * i)) as u32
@@ -144,9 +148,10 @@ fn tile_counter(p: &BuildParams) -> u32 {
 /// counters, the status tables) for the next build, invocation `i < p.n` taking every
 /// `p.n`-th word. Run by a kernel after the sort, so that no build starts with a fill:
 /// between builds every word is zero (the host zeroes the buffers once when it allocates
-/// them). A rank sort (at most `RANK_MAX` keys) uses none of them.
+/// them). A build that sorts otherwise (`p.passes` zero: the rank sort, the count sort of
+/// `crate::count_sort`) uses none of them.
 pub fn clear_tables(i: u32, p: &BuildParams, counts: &mut [u32], totals: &mut [u32]) {
-    if i >= p.n || p.n <= RANK_MAX {
+    if i >= p.n || p.passes == 0 {
         return;
     }
     let mut w = i;
@@ -641,12 +646,14 @@ pub fn scatter_write_vals(lane: u32, st: &ScatterState, at: &[u32; ITEMS as usiz
     write_val(st, lane + 7 * WORKGROUP, at[7], vals_out);
 }
 
-/// Inputs of at most `RANK_MAX` keys (one tile) skip the radix passes: one workgroup of one
-/// dispatch gives every key its stable rank, the number of keys that are smaller or equal and
-/// earlier ([`rank`]), and after a barrier writes it there ([`place`]). The same order as the
-/// radix passes (a stable sort's output is unique) for one dispatch instead of
-/// `passes(bits)`: the fixed cost that dominates small scenes' builds.
-pub const RANK_MAX: u32 = TILE;
+/// Inputs of at most `RANK_MAX` keys skip the radix passes: one workgroup of one dispatch
+/// gives every key its stable rank, the number of keys that are smaller or equal and earlier
+/// ([`rank`]), and after a barrier writes it there ([`place`]). The same order as the radix
+/// passes (a stable sort's output is unique) for one dispatch instead of `passes(bits)`: the
+/// fixed cost that dominates small scenes' builds. Its n^2 comparisons on one workgroup grow
+/// fast (H100: 37 keys 6.1 us, 100 10.6, 500 78, 2,000 1,138): above, the count sort of
+/// `crate::count_sort` spreads them over many (bench/NOTES.md, session 36).
+pub const RANK_MAX: u32 = 64;
 
 /// Rank sort, phase 1: ranks the keys lane owns against all `p.n` keys, each rank counted in
 /// a register over one sweep of the keys.

@@ -1,12 +1,14 @@
 //! The BVH build on the Vulkan device equals the CPU executor's bit for bit, stage by stage,
-//! and both trees pass the validator: sizes around workgroup and tile edges, 100,000 and the
-//! bunny; random, all-equal, far-outlier, collinear and duplicate-heavy inputs; 30- and
-//! 63-bit codes, the wide collapse, and treelet restructuring.
+//! and both trees pass the validator: sizes around workgroup and tile edges and the sorts'
+//! thresholds, 100,000 and the bunny; random, all-equal, far-outlier, collinear and
+//! duplicate-heavy inputs; 30- and 63-bit codes, the wide collapse, and treelet
+//! restructuring.
 use integration_tests::{assert_no_validation_errors, dump_mismatch, gpu};
 use raytrace::bvh::{validate, validate_wide, BuildOptions, BuildResult, MortonBits};
 use raytrace::cpu;
 use raytrace::gpu::{Gpu, GpuLbvh, Kernels};
 use raytrace::inputs::{assets_dir, generate, load_obj, Distribution};
+use shared::count_sort;
 use shared::radix_sort as sort;
 use shared::types::{Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;
@@ -128,12 +130,18 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
         1,
         2,
         3,
+        sort::RANK_MAX as usize,
+        sort::RANK_MAX as usize + 1,
         wg - 1,
         wg,
         wg + 1,
         17 * wg + 1,
         tile + 1,
         3 * tile + 1,
+        count_sort::max(30) as usize,
+        count_sort::max(30) as usize + 1,
+        count_sort::max(63) as usize,
+        count_sort::max(63) as usize + 1,
         100_000,
     ];
     for (d, dist) in Distribution::ALL.into_iter().enumerate() {

@@ -69,6 +69,37 @@ impl BuildOptions {
     }
 }
 
+/// How a build sorts its Morton keys, by their number and width (both backends alike).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum Sort {
+    /// One workgroup ranks every key (`shared::radix_sort::rank`), at most `RANK_MAX`.
+    Rank,
+    /// Many workgroups count every key's rank (`shared::count_sort`), at most its `max`.
+    Count,
+    /// The radix passes (`shared::radix_sort`).
+    Radix,
+}
+
+impl Sort {
+    pub fn of(n: u32, bits: MortonBits) -> Sort {
+        if n <= shared::radix_sort::RANK_MAX {
+            Sort::Rank
+        } else if n <= shared::count_sort::max(bits.key_bits()) {
+            Sort::Count
+        } else {
+            Sort::Radix
+        }
+    }
+
+    /// The build parameters' `passes`: the radix passes' number, else zero.
+    pub fn passes(self, bits: MortonBits) -> u32 {
+        match self {
+            Sort::Radix => shared::radix_sort::passes(bits.key_bits()),
+            _ => 0,
+        }
+    }
+}
+
 /// Which BVH the tracer walks (`--bvh`).
 #[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 pub enum Layout {

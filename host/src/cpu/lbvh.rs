@@ -1,9 +1,10 @@
 //! The CPU executor's BVH build: the very build kernels of `shared` that the GPU runs.
 //! Per-item steps run for every index in turn; workgroup kernels run each phase for every lane
 //! before the next phase (a barrier), with workgroup memory as a plain struct per group.
-use crate::bvh::{BuildOptions, BuildResult, MortonBits};
+use crate::bvh::{BuildOptions, BuildResult, MortonBits, Sort};
 use bytemuck::Pod;
 use shared::bounds::{self, BoundsState};
+use shared::count_sort::{self, ChunkState};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState, SortKey, RADIX};
 use shared::refit::{ORDERED_COUNTERS as ORDERED, RESTRUCTURE as AGAIN};
 use shared::scan::{self, BlockScan};
@@ -38,11 +39,12 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     morton_fn: MortonFn<K>,
 ) -> (BuildResult, Vec<(&'static str, f64)>) {
     let n = (tris.len() + spheres.len()) as u32;
+    let sorting = Sort::of(n, opts.bits);
     let mut p = BuildParams {
         n_tris: tris.len() as u32,
         n,
         shift: 0,
-        passes: sort::passes(opts.bits.key_bits()),
+        passes: sorting.passes(opts.bits),
     };
     let tiles = p.tiles();
     let mut times = Vec::new();
@@ -73,7 +75,9 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     let mut keys = vec![K::default(); n as usize];
     let mut vals = vec![0u32; n as usize];
-    if n > sort::RANK_MAX {
+    // The refit's visit counters, which hold the count sort's ranks until it places them.
+    let mut visits = vec![0u32; 2 * n as usize];
+    if sorting == Sort::Radix {
         // The counting Morton kernel (for the radix passes).
         for g in 0..item_groups(n) {
             let mut st = Box::new(DigitCounts {
@@ -86,17 +90,36 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     } else {
         for i in 0..n {
             morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
+            count_sort::clear_rank(i, &p, &mut visits);
         }
     }
     out.morton = keys.iter().map(|&k| k.into()).collect();
     lap("morton", &mut times);
 
-    if n <= sort::RANK_MAX {
+    if sorting == Sort::Rank {
         // One workgroup ranks every key, then (after a barrier) writes them in place.
         let ranked: Vec<_> = (0..WORKGROUP).map(|l| sort::rank(l, &p, &keys, &vals)).collect();
         for (l, r) in (0..WORKGROUP).zip(&ranked) {
             sort::place(l, &p, r, &mut keys, &mut vals);
         }
+    } else if sorting == Sort::Count {
+        // Workgroup (s, c) ranks span s against chunk c; then every key to its rank.
+        let (spans, chunks) = count_sort::grid(n);
+        for s in 0..spans {
+            for c in 0..chunks {
+                let mut st = Box::new(ChunkState {
+                    keys: [K::default(); count_sort::CHUNK as usize],
+                });
+                lanes(|l| count_sort::chunk_load(l, c, &mut st, &p, &keys));
+                lanes(|l| count_sort::chunk_count(l, s, c, &st, &p, &keys, &mut visits));
+            }
+        }
+        let (mut keys_b, mut vals_b) = (keys.clone(), vals.clone());
+        for i in 0..n {
+            count_sort::place(i, &p, &keys, &vals, &mut visits, &mut keys_b, &mut vals_b);
+        }
+        (keys, vals) = (keys_b, vals_b);
+        debug_assert!(visits.iter().all(|&w| w == 0));
     } else {
         let mut keys_b = keys.clone();
         let mut vals_b = vals.clone();
@@ -156,7 +179,6 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let total_nodes = (2 * n).saturating_sub(1) as usize;
     let mut nodes = vec![Node::default(); total_nodes];
     let mut parents = vec![0u32; total_nodes];
-    let mut visits = vec![0u32; 2 * n as usize];
     for i in 0..n {
         karras::build(i, &p, &keys, &mut nodes, &mut parents, &mut visits);
         sort::clear_tables(i, &p, &mut counts, &mut totals);

@@ -29,6 +29,10 @@ pub enum Kernel {
     SortScatterU64,
     SortRankU32,
     SortRankU64,
+    SortCountU32,
+    SortCountU64,
+    SortPlaceU32,
+    SortPlaceU64,
     KarrasBuildU32,
     KarrasBuildU64,
     Fit,
@@ -71,7 +75,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 34] = [
+    pub const ALL: [Kernel; 38] = [
         Kernel::BoundsReduce,
         Kernel::Morton30,
         Kernel::Morton63,
@@ -81,6 +85,10 @@ impl Kernel {
         Kernel::SortScatterU64,
         Kernel::SortRankU32,
         Kernel::SortRankU64,
+        Kernel::SortCountU32,
+        Kernel::SortCountU64,
+        Kernel::SortPlaceU32,
+        Kernel::SortPlaceU64,
         Kernel::KarrasBuildU32,
         Kernel::KarrasBuildU64,
         Kernel::Fit,
@@ -125,6 +133,10 @@ impl Kernel {
             Kernel::SortScatterU64 => "sort_scatter_u64",
             Kernel::SortRankU32 => "sort_rank_u32",
             Kernel::SortRankU64 => "sort_rank_u64",
+            Kernel::SortCountU32 => "sort_count_u32",
+            Kernel::SortCountU64 => "sort_count_u64",
+            Kernel::SortPlaceU32 => "sort_place_u32",
+            Kernel::SortPlaceU64 => "sort_place_u64",
             Kernel::KarrasBuildU32 => "karras_build_u32",
             Kernel::KarrasBuildU64 => "karras_build_u64",
             Kernel::Fit => "fit",

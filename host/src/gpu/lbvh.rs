@@ -2,10 +2,11 @@
 //! refit, recorded into one command buffer, with a timestamp after every stage or only around
 //! the whole build. Buffers grow to the largest input seen and are reused by every later build.
 use super::{BindingSets, Buffer, Commands, Gpu, Kernel, Kernels, BINDINGS};
-use crate::bvh::{BuildOptions, BuildResult, MortonBits, STAGES};
+use crate::bvh::{BuildOptions, BuildResult, MortonBits, Sort, STAGES};
 use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
+use shared::count_sort;
 use shared::radix_sort as sort;
 use shared::types::{grid, item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::wide::{self, WideNode};
@@ -335,20 +336,23 @@ impl GpuLbvh {
         );
         let items = n.div_ceil(WORKGROUP);
         let k = &self.kernels;
+        let sorting = Sort::of(n, bits);
         let mut p = BuildParams {
             n_tris: self.n_tris,
             n,
             shift: 0,
-            passes: sort::passes(bits.key_bits()),
+            passes: sorting.passes(bits),
         };
         let tiles = p.tiles();
         let (set_ab, set_ba) = (b.sets.sets[0], b.sets.sets[1]);
-        let (morton, morton_counted, scatter, rank, build) = match bits {
+        let (morton, morton_counted, scatter, rank, count, place, build) = match bits {
             MortonBits::B30 => (
                 Kernel::Morton30,
                 Kernel::Morton30Counted,
                 Kernel::SortScatterU32,
                 Kernel::SortRankU32,
+                Kernel::SortCountU32,
+                Kernel::SortPlaceU32,
                 Kernel::KarrasBuildU32,
             ),
             MortonBits::B63 => (
@@ -356,6 +360,8 @@ impl GpuLbvh {
                 Kernel::Morton63Counted,
                 Kernel::SortScatterU64,
                 Kernel::SortRankU64,
+                Kernel::SortCountU64,
+                Kernel::SortPlaceU64,
                 Kernel::KarrasBuildU64,
             ),
         };
@@ -381,11 +387,12 @@ impl GpuLbvh {
         cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, item_groups(n))?;
         cmds.barrier();
         stamp(cmds, STAGES[0]);
-        // The radix passes take their digit totals from the Morton stage.
-        if n > sort::RANK_MAX {
-            cmds.dispatch(k, set_ab, morton_counted, &p, item_groups(n))?;
-        } else {
-            cmds.dispatch(k, set_ab, morton, &p, items)?;
+        // The radix passes take their digit totals from the Morton stage; the count sort
+        // reads its keys from the second pair and places them in the first.
+        match sorting {
+            Sort::Radix => cmds.dispatch(k, set_ab, morton_counted, &p, item_groups(n))?,
+            Sort::Count => cmds.dispatch(k, set_ba, morton, &p, items)?,
+            Sort::Rank => cmds.dispatch(k, set_ab, morton, &p, items)?,
         }
         cmds.barrier();
         if capture {
@@ -393,14 +400,22 @@ impl GpuLbvh {
                 .capture
                 .as_ref()
                 .context("a captured build without room (run makes it)")?;
-            cmds.copy_range(&b.keys_a, 0, to, 0, n as u64 * 8);
+            let codes = if sorting == Sort::Count { &b.keys_b } else { &b.keys_a };
+            cmds.copy_range(codes, 0, to, 0, n as u64 * 8);
             cmds.barrier();
         }
         stamp(cmds, STAGES[1]);
-        if n <= sort::RANK_MAX {
+        if sorting == Sort::Rank {
             cmds.dispatch(k, set_ab, rank, &p, 1)?;
             cmds.barrier();
             stamp(cmds, "sort.rank");
+        } else if sorting == Sort::Count {
+            let (spans, chunks) = count_sort::grid(n);
+            cmds.dispatch_sets(k, &[set_ba], count, bytemuck::bytes_of(&p), spans, chunks)?;
+            cmds.barrier();
+            cmds.dispatch(k, set_ba, place, &p, items)?;
+            cmds.barrier();
+            stamp(cmds, "sort.count");
         } else {
             for pass in 0..p.passes {
                 p.shift = pass * sort::RADIX_BITS;
