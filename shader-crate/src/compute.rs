@@ -153,7 +153,7 @@ macro_rules! key_kernels {
         ) {
             let i = flat_index(id.x, id.y);
             morton::$morton(i, p, b, summaries, keys, vals);
-            // For the count sort (the rank sort's tree kernel then zeroes them anyway).
+            // The count sort's ranks start at zero (unused by the rank sort).
             count_sort::clear_rank(i, p, ranks);
         }
 
@@ -236,7 +236,7 @@ macro_rules! key_kernels {
         }
 
         /// The count sort's counting stage (see `shared::count_sort`): workgroup (x, y)
-        /// ranks span x's keys against span y's.
+        /// ranks span x's keys against chunk y's.
         #[spirv(compute(threads(256)))]
         pub fn $count(
             #[spirv(local_invocation_id)] lid: UVec3,

@@ -81,6 +81,8 @@ pub enum Sort {
 }
 
 impl Sort {
+    /// The sort of `n` keys of width `bits` (the thresholds measured on the H100: see
+    /// `shared::count_sort::max`).
     pub fn of(n: u32, bits: MortonBits) -> Sort {
         if n <= shared::radix_sort::RANK_MAX {
             Sort::Rank
