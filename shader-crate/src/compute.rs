@@ -260,7 +260,7 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &[u32],
         ) {
             count_sort::place(flat_index(id.x, id.y), p, keys, vals, ranks, keys_out, vals_out);
         }

@@ -13,8 +13,7 @@
 //!    stage zeroes first: between builds some hold a wide collapse's counts or an earlier
 //!    build's leaf ranges, see [`clear_rank`]). Integer adds commute: the ranks are the same
 //!    in any order of the workgroups, so GPU = CPU bit for bit.
-//! 2. [`place`]: key `i` and its value go to place `rank(i)` of the other buffers, and its
-//!    counter back to zero.
+//! 2. [`place`]: key `i` and its value go to place `rank(i)` of the other buffers.
 //!
 //! The keys are read from and written to the buffer pair the radix passes would end in
 //! reversed (the Morton stage writes them to the second pair): the output is in the first
@@ -155,14 +154,14 @@ pub fn chunk_count<K: SortKey>(
     });
 }
 
-/// Placing stage: key `i` and its value to their rank in `keys_out` and `vals_out`; the
-/// rank's counter back to zero.
+/// Placing stage: key `i` and its value to their rank in `keys_out` and `vals_out` (the
+/// counters are zeroed by the next build's Morton stage, or its tree kernel, not here).
 pub fn place<K: SortKey>(
     i: u32,
     p: &BuildParams,
     keys: &[K],
     vals: &[u32],
-    ranks: &mut [u32],
+    ranks: &[u32],
     keys_out: &mut [K],
     vals_out: &mut [u32],
 ) {
@@ -170,7 +169,6 @@ pub fn place<K: SortKey>(
         return;
     }
     let r = *at(ranks, i);
-    *at_mut(ranks, i) = 0;
     *at_mut(keys_out, r) = *at(keys, i);
     *at_mut(vals_out, r) = *at(vals, i);
 }

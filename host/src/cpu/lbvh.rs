@@ -75,7 +75,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     let mut keys = vec![K::default(); n as usize];
     let mut vals = vec![0u32; n as usize];
-    // The refit's visit counters, which hold the count sort's ranks until it places them.
+    // The refit's visit counters, which hold the count sort's ranks until the tree kernel.
     let mut visits = vec![0u32; 2 * n as usize];
     if sorting == Sort::Radix {
         // The counting Morton kernel (for the radix passes).
@@ -114,12 +114,11 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
                 lanes(|l| count_sort::chunk_count(l, s, c, &st, &p, &keys, &mut visits));
             }
         }
-        let (mut keys_b, mut vals_b) = (keys.clone(), vals.clone());
+        let (mut keys_b, mut vals_b) = (vec![K::default(); n as usize], vec![0u32; n as usize]);
         for i in 0..n {
-            count_sort::place(i, &p, &keys, &vals, &mut visits, &mut keys_b, &mut vals_b);
+            count_sort::place(i, &p, &keys, &vals, &visits, &mut keys_b, &mut vals_b);
         }
         (keys, vals) = (keys_b, vals_b);
-        debug_assert!(visits.iter().all(|&w| w == 0));
     } else {
         let mut keys_b = keys.clone();
         let mut vals_b = vals.clone();
