@@ -3,10 +3,10 @@
 //! Bindings follow the table in `shared::types`.
 
 use shared::bounds::{self, BoundsState};
-use shared::count_sort::{self, ChunkState};
 use shared::denoise::{self, DenoisePush};
 use shared::envmap::EnvEntry;
 use shared::instance::Instance;
+use shared::merge_sort::{self, MergeState, RunState};
 use shared::path;
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
 use shared::refit::{FitState, RefitState};
@@ -140,23 +140,7 @@ pub fn empty_boxes(
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
-    ($k:ty, $morton:ident, $morton_counted:ident, $scatter:ident, $rank:ident, $count:ident, $place:ident, $build:ident) => {
-        #[spirv(compute(threads(256)))]
-        pub fn $morton(
-            #[spirv(global_invocation_id)] id: UVec3,
-            #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] b: &OrderedBounds,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &[[f32; 4]],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &mut [u32],
-        ) {
-            let i = flat_index(id.x, id.y);
-            morton::$morton(i, p, b, summaries, keys, vals);
-            // The count sort's ranks start at zero (unused by the rank sort).
-            count_sort::clear_rank(i, p, ranks);
-        }
-
+    ($k:ty, $code:ident, $morton:ident, $morton_counted:ident, $scatter:ident, $runs:ident, $merge:ident, $build:ident) => {
         /// Morton codes and every sort pass's digit counts (see `shared::radix_sort`).
         #[spirv(compute(threads(256)))]
         #[allow(clippy::too_many_arguments)]
@@ -221,48 +205,54 @@ macro_rules! key_kernels {
             sort::scatter_write_vals(lid.x, st, &at, vals_out);
         }
 
-        /// The sort of at most `RANK_MAX` keys, in place, by one workgroup (see
-        /// `shared::radix_sort::RANK_MAX`).
+        /// The merge sort's runs kernel (see `shared::merge_sort`), the build's Morton stage:
+        /// workgroup g's codes, its run sorted into bindings 3 and 4, the codes into 5.
         #[spirv(compute(threads(256)))]
-        pub fn $rank(
-            #[spirv(local_invocation_id)] lid: UVec3,
-            #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
-        ) {
-            let ranked = sort::rank(lid.x, p, keys, vals);
-            storage_barrier();
-            sort::place(lid.x, p, &ranked, keys, vals);
-        }
-
-        /// The count sort's counting stage (see `shared::count_sort`): workgroup (x, y)
-        /// ranks span x's keys against chunk y's.
-        #[spirv(compute(threads(256)))]
-        pub fn $count(
+        #[allow(clippy::too_many_arguments)]
+        pub fn $runs(
             #[spirv(local_invocation_id)] lid: UVec3,
             #[spirv(workgroup_id)] gid: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &mut [u32],
-            #[spirv(workgroup)] st: &mut ChunkState<$k>,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] b: &OrderedBounds,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] codes: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &[[f32; 4]],
+            #[spirv(workgroup)] st: &mut RunState<$k>,
         ) {
-            count_sort::chunk_load(lid.x, gid.y, st, p, keys);
+            let group = flat_group(gid.x, gid.y);
+            let key = morton::$code(group * merge_sort::RUN + lid.x, p, b, summaries);
+            merge_sort::run_load(lid.x, group, key, st, p, codes);
             barrier();
-            count_sort::chunk_count(lid.x, gid.x, gid.y, st, p, keys, ranks);
+            merge_sort::run_rank(lid.x, group, st, p, keys, vals);
         }
 
-        /// The count sort's placing stage: every key to its rank.
+        /// The merge sort's merge kernel: workgroup g places run g's keys.
         #[spirv(compute(threads(256)))]
-        pub fn $place(
-            #[spirv(global_invocation_id)] id: UVec3,
+        #[allow(clippy::too_many_arguments)]
+        pub fn $merge(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
             #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ranks: &[u32],
+            #[spirv(workgroup)] st: &mut MergeState<$k>,
         ) {
-            count_sort::place(flat_index(id.x, id.y), p, keys, vals, ranks, keys_out, vals_out);
+            let group = flat_group(gid.x, gid.y);
+            let key = merge_sort::merge_key(lid.x, group, p, keys);
+            let mut place = lid.x;
+            let runs = p.n.div_ceil(merge_sort::RUN);
+            let mut first = 0;
+            while first < runs {
+                merge_sort::merge_load(lid.x, first, st, p, keys);
+                barrier();
+                place += merge_sort::merge_count(group, first, key, st);
+                barrier();
+                first += merge_sort::BATCH;
+            }
+            merge_sort::merge_place(lid.x, group, place, p, key, vals, keys_out, vals_out);
         }
 
         #[spirv(compute(threads(256)))]
@@ -289,22 +279,22 @@ macro_rules! key_kernels {
 
 key_kernels!(
     u32,
+    code30,
     morton30,
     morton30_counted,
     sort_scatter_u32,
-    sort_rank_u32,
-    sort_count_u32,
-    sort_place_u32,
+    sort_runs_u32,
+    sort_merge_u32,
     karras_build_u32
 );
 key_kernels!(
     u64,
+    code63,
     morton63,
     morton63_counted,
     sort_scatter_u64,
-    sort_rank_u64,
-    sort_count_u64,
-    sort_place_u64,
+    sort_runs_u64,
+    sort_merge_u64,
     karras_build_u64
 );
 
@@ -381,16 +371,6 @@ pub fn wide_write(
     wide::write(flat_index(id.x, id.y), p, nodes, ends, scratch, out);
 }
 
-/// A workgroup barrier that also orders this workgroup's storage-buffer accesses (the rank
-/// sort writes in place what other lanes read before).
-fn storage_barrier() {
-    use spirv_std::memory::{Scope, Semantics};
-    const WG: u32 = Scope::Workgroup as u32;
-    const SEMANTICS: u32 =
-        Semantics::ACQUIRE_RELEASE.bits() | Semantics::UNIFORM_MEMORY.bits() | Semantics::WORKGROUP_MEMORY.bits();
-    spirv_std::arch::control_barrier::<WG, WG, SEMANTICS>();
-}
-
 #[spirv(compute(threads(256)))]
 #[allow(clippy::too_many_arguments)]
 pub fn transform(
@@ -418,6 +398,32 @@ pub fn instance_boxes(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
 ) {
     shared::instance::instance_box(flat_index(id.x, id.y), p.n, instances, objects, boxes);
+}
+
+/// The top level's inputs and their bounds in one kernel (`shared::bounds::
+/// accumulate_instances`): each instance's world box into set 0's triangles, its summary and
+/// the bounds' reduction as `bounds_reduce`'s, for the top level's build (its refits, which
+/// keep the bounds, take `instance_boxes`).
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn instance_bounds(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] boxes: &mut [Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut OrderedBounds,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
+    #[spirv(workgroup)] st: &mut BoundsState,
+) {
+    bounds::clear(lid.x, st);
+    barrier();
+    let group = flat_group(gid.x, gid.y);
+    bounds::accumulate_instances(lid.x, group, st, p, instances, objects, boxes, spheres, summaries);
+    barrier();
+    bounds::flush(lid.x, st, out);
 }
 
 /// The compute kernels over the scene (the path tracer's, `cast_rays`): the push constants,

@@ -10,9 +10,10 @@
 //! last build's. A later kernel of the build (after the Morton stage has read them) runs
 //! [`publish`], which copies the first into the second and empties the first for the next
 //! build, so that no build starts with a fill (the host empties it once when it allocates it).
+use crate::instance::{instance_box, Instance};
 use crate::sync::{self, at, at_mut};
 use crate::types::{
-    f32_to_ordered, items_per_lane, prim_summary, BuildParams, OrderedBounds, Sphere, Triangle, WORKGROUP,
+    f32_to_ordered, items_per_lane, prim_summary, BuildParams, Object, OrderedBounds, Sphere, Triangle, WORKGROUP,
 };
 use spirv_std::glam::Vec3;
 
@@ -55,12 +56,50 @@ pub fn accumulate(
             hi = hi.max(c);
         }
     }
+    fold(st, lo, hi);
+}
+
+/// Folds a lane's bounds into the workgroup's.
+fn fold(st: &mut BoundsState, lo: Vec3, hi: Vec3) {
     sync::workgroup_min(&mut st.b.min[0], f32_to_ordered(lo.x));
     sync::workgroup_min(&mut st.b.min[1], f32_to_ordered(lo.y));
     sync::workgroup_min(&mut st.b.min[2], f32_to_ordered(lo.z));
     sync::workgroup_max(&mut st.b.max[0], f32_to_ordered(hi.x));
     sync::workgroup_max(&mut st.b.max[1], f32_to_ordered(hi.y));
     sync::workgroup_max(&mut st.b.max[2], f32_to_ordered(hi.z));
+}
+
+/// [`accumulate`] over the top level's inputs: lane's instances' world boxes
+/// ([`crate::instance::instance_box`]) written as its primitives first, in the same kernel
+/// (the `instance_bounds` kernel: one dispatch fewer in every build of the top level).
+#[allow(clippy::too_many_arguments)]
+pub fn accumulate_instances(
+    lane: u32,
+    group: u32,
+    st: &mut BoundsState,
+    p: &BuildParams,
+    instances: &[Instance],
+    objects: &[Object],
+    boxes: &mut [Triangle],
+    spheres: &[Sphere],
+    summaries: &mut [[f32; 4]],
+) {
+    let items = items_per_lane(p.n);
+    let first = group * items * WORKGROUP + lane;
+    if first >= p.n {
+        return;
+    }
+    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    for k in 0..items {
+        let i = first + k * WORKGROUP;
+        if i < p.n {
+            instance_box(i, p.n, instances, objects, boxes);
+            let c = summarise(i, p, boxes, spheres, summaries);
+            lo = lo.min(c);
+            hi = hi.max(c);
+        }
+    }
+    fold(st, lo, hi);
 }
 
 /// Stores primitive `i`'s summary; returns twice its centroid.

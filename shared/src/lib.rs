@@ -13,7 +13,6 @@ pub mod alpha;
 pub mod bounds;
 #[cfg(test)]
 mod chi2;
-pub mod count_sort;
 pub mod denoise;
 pub mod display;
 pub mod driver;
@@ -23,6 +22,7 @@ pub mod intersect;
 pub mod karras;
 pub mod material;
 pub mod math;
+pub mod merge_sort;
 pub mod morton;
 pub mod node_words;
 pub mod path;

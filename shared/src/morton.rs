@@ -89,7 +89,20 @@ pub fn large(s: [f32; 4], b: &OrderedBounds) -> bool {
 }
 
 /// 30-bit code of primitive `i` (`zyx` bit triples, the size bit below the first; see the
-/// module), which it returns (0 when `i >= n`); also resets the sort value to `i`.
+/// module); 0 when `i >= n`.
+pub fn code30(i: u32, p: &BuildParams, b: &OrderedBounds, summaries: &[[f32; 4]]) -> u32 {
+    if i >= p.n {
+        return 0;
+    }
+    let s = *at(summaries, i);
+    let q = cells(s, b, 10);
+    let m = (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
+    let low = (1u32 << (30 - OCTREE_BITS)) - 1;
+    (m & !low) | (large(s, b) as u32) << (29 - OCTREE_BITS) | (m & low) >> 1
+}
+
+/// [`code30`] of primitive `i` into `keys[i]`, which it returns; also resets the sort value
+/// to `i`.
 pub fn morton30(
     i: u32,
     p: &BuildParams,
@@ -101,18 +114,26 @@ pub fn morton30(
     if i >= p.n {
         return 0;
     }
-    let s = *at(summaries, i);
-    let q = cells(s, b, 10);
-    let m = (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
-    let low = (1u32 << (30 - OCTREE_BITS)) - 1;
-    let key = (m & !low) | (large(s, b) as u32) << (29 - OCTREE_BITS) | (m & low) >> 1;
+    let key = code30(i, p, b, summaries);
     *at_mut(keys, i) = key;
     *at_mut(vals, i) = i;
     key
 }
 
-/// 63-bit code of primitive `i`, laid out as [`morton30`], which it returns (0 when
-/// `i >= n`); also resets the sort value to `i`.
+/// 63-bit code of primitive `i`, laid out as [`code30`]'s; 0 when `i >= n`.
+pub fn code63(i: u32, p: &BuildParams, b: &OrderedBounds, summaries: &[[f32; 4]]) -> u64 {
+    if i >= p.n {
+        return 0;
+    }
+    let s = *at(summaries, i);
+    let q = cells(s, b, 21);
+    let m = (expand_bits_21(q[2] as u64) << 2) | (expand_bits_21(q[1] as u64) << 1) | expand_bits_21(q[0] as u64);
+    let low = (1u64 << (63 - OCTREE_BITS)) - 1;
+    (m & !low) | (large(s, b) as u64) << (62 - OCTREE_BITS) | (m & low) >> 1
+}
+
+/// [`code63`] of primitive `i` into `keys[i]`, which it returns; also resets the sort value
+/// to `i`.
 pub fn morton63(
     i: u32,
     p: &BuildParams,
@@ -124,11 +145,7 @@ pub fn morton63(
     if i >= p.n {
         return 0;
     }
-    let s = *at(summaries, i);
-    let q = cells(s, b, 21);
-    let m = (expand_bits_21(q[2] as u64) << 2) | (expand_bits_21(q[1] as u64) << 1) | expand_bits_21(q[0] as u64);
-    let low = (1u64 << (63 - OCTREE_BITS)) - 1;
-    let key = (m & !low) | (large(s, b) as u64) << (62 - OCTREE_BITS) | (m & low) >> 1;
+    let key = code63(i, p, b, summaries);
     *at_mut(keys, i) = key;
     *at_mut(vals, i) = i;
     key

@@ -56,7 +56,7 @@ const _: () = assert!(RADIX == 32 && HALF == 16 && LANES_PER_DIGIT == 8);
 /// A key the sort can take apart into digits.
 pub trait SortKey: Copy + PartialOrd + Default {
     const BITS: u32;
-    /// A key above every Morton code of this width (the count sort's padding).
+    /// A key above every Morton code of this width (the merge sort's padding).
     const ABOVE: Self;
     /// 32-bit words per key.
     const WORDS: u32;
@@ -148,8 +148,8 @@ fn tile_counter(p: &BuildParams) -> u32 {
 /// counters, the status tables) for the next build, invocation `i < p.n` taking every
 /// `p.n`-th word. Run by a kernel after the sort, so that no build starts with a fill:
 /// between builds every word is zero (the host zeroes the buffers once when it allocates
-/// them). A build that sorts otherwise (`p.passes` zero: the rank sort, the count sort of
-/// `crate::count_sort`) uses none of them.
+/// them). A build that sorts otherwise (`p.passes` zero: the merge sort of
+/// `crate::merge_sort`) uses none of them.
 pub fn clear_tables(i: u32, p: &BuildParams, counts: &mut [u32], totals: &mut [u32]) {
     if i >= p.n || p.passes == 0 {
         return;
@@ -529,8 +529,8 @@ pub fn lookback_sum(lane: u32, st: &mut ScatterState, p: &BuildParams, counts: &
     }
 }
 
-/// The keys a lane owns, their values and their ranks: places in the sorted order (of the
-/// scatter's tile, or of all keys in the rank sort).
+/// The keys a lane owns, their values and their ranks: places in the sorted order of the
+/// scatter's tile.
 pub struct Ranked<K> {
     pub keys: [K; ITEMS as usize],
     pub vals: [u32; ITEMS as usize],
@@ -644,56 +644,4 @@ pub fn scatter_write_vals(lane: u32, st: &ScatterState, at: &[u32; ITEMS as usiz
     write_val(st, lane + 5 * WORKGROUP, at[5], vals_out);
     write_val(st, lane + 6 * WORKGROUP, at[6], vals_out);
     write_val(st, lane + 7 * WORKGROUP, at[7], vals_out);
-}
-
-/// Inputs of at most `RANK_MAX` keys skip the radix passes: one workgroup of one dispatch
-/// gives every key its stable rank, the number of keys that are smaller or equal and earlier
-/// ([`rank`]), and after a barrier writes it there ([`place`]). The same order as the radix
-/// passes (a stable sort's output is unique) for one dispatch instead of `passes(bits)`: the
-/// fixed cost that dominates small scenes' builds. Its n^2 comparisons on one workgroup grow
-/// fast (H100: 37 keys 6.1 us, 100 10.6, 500 78, 2,000 1,138): above, the count sort of
-/// `crate::count_sort` spreads them over many (bench/NOTES.md, session 36).
-pub const RANK_MAX: u32 = 64;
-
-/// Rank sort, phase 1: ranks the keys lane owns against all `p.n` keys, each rank counted in
-/// a register over one sweep of the keys.
-pub fn rank<K: SortKey>(lane: u32, p: &BuildParams, keys: &[K], vals: &[u32]) -> Ranked<K> {
-    let mut r = Ranked {
-        keys: [K::default(); ITEMS as usize],
-        vals: [0; ITEMS as usize],
-        ranks: [0; ITEMS as usize],
-    };
-    let items = p.n.div_ceil(WORKGROUP);
-    let mut k = 0;
-    while k < items {
-        let i = lane + k * WORKGROUP;
-        if i < p.n {
-            let own = *at(keys, i);
-            let mut rank = 0;
-            let mut j = 0;
-            while j < p.n {
-                let key = *at(keys, j);
-                if key < own || key == own && j < i {
-                    rank += 1;
-                }
-                j += 1;
-            }
-            r.keys[k as usize] = own;
-            r.vals[k as usize] = *at(vals, i);
-            r.ranks[k as usize] = rank;
-        }
-        k += 1;
-    }
-    r
-}
-
-/// Rank sort, phase 2 (after every lane's phase 1): writes the lane's keys to their ranks.
-pub fn place<K: SortKey>(lane: u32, p: &BuildParams, r: &Ranked<K>, keys: &mut [K], vals: &mut [u32]) {
-    for k in 0..ITEMS {
-        if lane + k * WORKGROUP < p.n {
-            let at = r.ranks[k as usize] as usize;
-            keys[at] = r.keys[k as usize];
-            vals[at] = r.vals[k as usize];
-        }
-    }
 }

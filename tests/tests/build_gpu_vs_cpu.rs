@@ -8,7 +8,7 @@ use raytrace::bvh::{validate, validate_wide, BuildOptions, BuildResult, MortonBi
 use raytrace::cpu;
 use raytrace::gpu::{Gpu, GpuLbvh, Kernels};
 use raytrace::inputs::{assets_dir, generate, load_obj, Distribution};
-use shared::count_sort;
+use shared::merge_sort::{self, BATCH, RUN};
 use shared::radix_sort as sort;
 use shared::types::{Sphere, Triangle, TILE, WORKGROUP};
 use std::sync::Arc;
@@ -130,18 +130,18 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
         1,
         2,
         3,
-        sort::RANK_MAX as usize,
-        sort::RANK_MAX as usize + 1,
         wg - 1,
         wg,
         wg + 1,
         17 * wg + 1,
         tile + 1,
         3 * tile + 1,
-        count_sort::max(30) as usize,
-        count_sort::max(30) as usize + 1,
-        count_sort::max(63) as usize,
-        count_sort::max(63) as usize + 1,
+        (BATCH * RUN) as usize,
+        (BATCH * RUN + RUN + 1) as usize,
+        merge_sort::max(30) as usize,
+        merge_sort::max(30) as usize + 1,
+        merge_sort::max(63) as usize,
+        merge_sort::max(63) as usize + 1,
         100_000,
     ];
     for (d, dist) in Distribution::ALL.into_iter().enumerate() {

@@ -4,15 +4,15 @@
 use raytrace::bvh::{validate, BuildOptions, MortonBits};
 use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
-use shared::count_sort::{self, CHUNK, SPAN};
 use shared::karras::range_and_split;
-use shared::radix_sort::{RANK_MAX, WINDOW};
+use shared::merge_sort::{self, BATCH, RUN};
+use shared::radix_sort::WINDOW;
 use shared::types::{BuildParams, Node, TILE, WORKGROUP};
 
 #[test]
 fn the_sort_is_a_stable_sort_of_the_morton_codes() {
-    // Up to `RANK_MAX` keys the rank sort, then up to `count_sort::max` the count sort (its
-    // spans' and chunks' edges), above the radix passes, whose look-backs read `WINDOW` tiles a step.
+    // Up to `merge_sort::max` the merge sort (one run, the edges of runs and of batches of
+    // them), above the radix passes, whose look-backs read `WINDOW` tiles a step.
     for bits in [MortonBits::B30, MortonBits::B63] {
         for dist in Distribution::ALL {
             // The last size takes look-backs of several steps.
@@ -21,19 +21,18 @@ fn the_sort_is_a_stable_sort_of_the_morton_codes() {
                 1,
                 2,
                 3,
-                RANK_MAX as usize,
-                RANK_MAX as usize + 1,
-                257,
+                RUN as usize,
+                RUN as usize + 1,
                 TILE as usize,
                 TILE as usize + 1,
                 4 * TILE as usize,
                 4 * TILE as usize + 1,
-                3 * SPAN as usize,
-                3 * SPAN as usize + CHUNK as usize + 1,
-                count_sort::max(30) as usize,
-                count_sort::max(30) as usize + 1,
-                count_sort::max(63) as usize,
-                count_sort::max(63) as usize + 1,
+                (BATCH * RUN) as usize,
+                (BATCH * RUN + RUN + 1) as usize,
+                merge_sort::max(30) as usize,
+                merge_sort::max(30) as usize + 1,
+                merge_sort::max(63) as usize,
+                merge_sort::max(63) as usize + 1,
                 20_000,
                 (3 * WINDOW * TILE + 1) as usize,
             ] {

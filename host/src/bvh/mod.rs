@@ -72,22 +72,19 @@ impl BuildOptions {
 /// How a build sorts its Morton keys, by their number and width (both backends alike).
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub enum Sort {
-    /// One workgroup ranks every key (`shared::radix_sort::rank`), at most `RANK_MAX`.
-    Rank,
-    /// Many workgroups count every key's rank (`shared::count_sort`), at most its `max`.
-    Count,
+    /// Runs sorted by workgroups, then merged (`shared::merge_sort`), at most its `max`;
+    /// one run (at most `RUN` keys) needs no merge.
+    Merge,
     /// The radix passes (`shared::radix_sort`).
     Radix,
 }
 
 impl Sort {
-    /// The sort of `n` keys of width `bits` (the thresholds measured on the H100: see
-    /// `shared::count_sort::max`).
+    /// The sort of `n` keys of width `bits` (the threshold measured on the H100: see
+    /// `shared::merge_sort::max`).
     pub fn of(n: u32, bits: MortonBits) -> Sort {
-        if n <= shared::radix_sort::RANK_MAX {
-            Sort::Rank
-        } else if n <= shared::count_sort::max(bits.key_bits()) {
-            Sort::Count
+        if n <= shared::merge_sort::max(bits.key_bits()) {
+            Sort::Merge
         } else {
             Sort::Radix
         }
@@ -97,7 +94,7 @@ impl Sort {
     pub fn passes(self, bits: MortonBits) -> u32 {
         match self {
             Sort::Radix => shared::radix_sort::passes(bits.key_bits()),
-            _ => 0,
+            Sort::Merge => 0,
         }
     }
 }

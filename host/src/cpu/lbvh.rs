@@ -4,7 +4,7 @@
 use crate::bvh::{BuildOptions, BuildResult, MortonBits, Sort};
 use bytemuck::Pod;
 use shared::bounds::{self, BoundsState};
-use shared::count_sort::{self, ChunkState};
+use shared::merge_sort::{self, MergeState, RunState};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState, SortKey, RADIX};
 use shared::refit::{ORDERED_COUNTERS as ORDERED, RESTRUCTURE as AGAIN};
 use shared::scan::{self, BlockScan};
@@ -25,18 +25,20 @@ fn lanes(mut phase: impl FnMut(u32)) {
 /// Builds the BVH on the CPU; returns every stage's output and each stage's seconds.
 pub fn build(tris: &[Triangle], spheres: &[Sphere], opts: BuildOptions) -> (BuildResult, Vec<(&'static str, f64)>) {
     match opts.bits {
-        MortonBits::B30 => build_keyed::<u32>(tris, spheres, opts, morton::morton30),
-        MortonBits::B63 => build_keyed::<u64>(tris, spheres, opts, morton::morton63),
+        MortonBits::B30 => build_keyed::<u32>(tris, spheres, opts, morton::morton30, morton::code30),
+        MortonBits::B63 => build_keyed::<u64>(tris, spheres, opts, morton::morton63, morton::code63),
     }
 }
 
 type MortonFn<K> = fn(u32, &BuildParams, &OrderedBounds, &[[f32; 4]], &mut [K], &mut [u32]) -> K;
+type CodeFn<K> = fn(u32, &BuildParams, &OrderedBounds, &[[f32; 4]]) -> K;
 
 fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     tris: &[Triangle],
     spheres: &[Sphere],
     opts: BuildOptions,
     morton_fn: MortonFn<K>,
+    code_fn: CodeFn<K>,
 ) -> (BuildResult, Vec<(&'static str, f64)>) {
     let n = (tris.len() + spheres.len()) as u32;
     let sorting = Sort::of(n, opts.bits);
@@ -75,7 +77,6 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 
     let mut keys = vec![K::default(); n as usize];
     let mut vals = vec![0u32; n as usize];
-    // The refit's visit counters, which hold the count sort's ranks until the tree kernel.
     let mut visits = vec![0u32; 2 * n as usize];
     if sorting == Sort::Radix {
         // The counting Morton kernel (for the radix passes).
@@ -87,36 +88,48 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
             lanes(|l| sort::count_codes(l, g, &mut st, &p, &b, &summaries, &mut keys, &mut vals, morton_fn));
             lanes(|l| sort::digits_store(l, &st, &p, &mut totals));
         }
+        out.morton = keys.iter().map(|&k| k.into()).collect();
     } else {
-        for i in 0..n {
-            morton_fn(i, &p, &b, &summaries, &mut keys, &mut vals);
-            count_sort::clear_rank(i, &p, &mut visits);
+        // The runs kernel: each workgroup's run sorted (into `keys`, `vals`), its codes
+        // into `codes`.
+        let mut codes = vec![K::default(); n as usize];
+        for g in 0..n.div_ceil(merge_sort::RUN) {
+            let mut st = Box::new(RunState {
+                keys: [K::default(); merge_sort::RUN as usize],
+            });
+            lanes(|l| {
+                let key = code_fn(g * merge_sort::RUN + l, &p, &b, &summaries);
+                merge_sort::run_load(l, g, key, &mut st, &p, &mut codes)
+            });
+            lanes(|l| merge_sort::run_rank(l, g, &st, &p, &mut keys, &mut vals));
         }
+        out.morton = codes.iter().map(|&k| k.into()).collect();
     }
-    out.morton = keys.iter().map(|&k| k.into()).collect();
     lap("morton", &mut times);
 
-    if sorting == Sort::Rank {
-        // One workgroup ranks every key, then (after a barrier) writes them in place.
-        let ranked: Vec<_> = (0..WORKGROUP).map(|l| sort::rank(l, &p, &keys, &vals)).collect();
-        for (l, r) in (0..WORKGROUP).zip(&ranked) {
-            sort::place(l, &p, r, &mut keys, &mut vals);
-        }
-    } else if sorting == Sort::Count {
-        // Workgroup (s, c) ranks span s against chunk c; then every key to its rank.
-        let (spans, chunks) = count_sort::grid(n);
-        for s in 0..spans {
-            for c in 0..chunks {
-                let mut st = Box::new(ChunkState {
-                    keys: [K::default(); count_sort::CHUNK as usize],
-                });
-                lanes(|l| count_sort::chunk_load(l, c, &mut st, &p, &keys));
-                lanes(|l| count_sort::chunk_count(l, s, c, &st, &p, &keys, &mut visits));
-            }
-        }
+    if sorting == Sort::Merge && n <= merge_sort::RUN {
+        // One run: sorted whole by the runs kernel.
+    } else if sorting == Sort::Merge {
+        // Workgroup g places run g: the runs staged a batch at a time, each lane's count of
+        // the keys before its own summed over the batches.
         let (mut keys_b, mut vals_b) = (vec![K::default(); n as usize], vec![0u32; n as usize]);
-        for i in 0..n {
-            count_sort::place(i, &p, &keys, &vals, &visits, &mut keys_b, &mut vals_b);
+        let runs = n.div_ceil(merge_sort::RUN);
+        for g in 0..runs {
+            let mut st = Box::new(MergeState {
+                keys: [K::default(); (merge_sort::BATCH * merge_sort::RUN) as usize],
+            });
+            let own: Vec<K> = (0..WORKGROUP).map(|l| merge_sort::merge_key(l, g, &p, &keys)).collect();
+            let mut place: Vec<u32> = (0..WORKGROUP).collect();
+            let mut first = 0;
+            while first < runs {
+                lanes(|l| merge_sort::merge_load(l, first, &mut st, &p, &keys));
+                lanes(|l| place[l as usize] += merge_sort::merge_count(g, first, own[l as usize], &st));
+                first += merge_sort::BATCH;
+            }
+            lanes(|l| {
+                let (key, at) = (own[l as usize], place[l as usize]);
+                merge_sort::merge_place(l, g, at, &p, key, &vals, &mut keys_b, &mut vals_b)
+            });
         }
         (keys, vals) = (keys_b, vals_b);
     } else {

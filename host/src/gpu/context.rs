@@ -50,6 +50,9 @@ pub struct DeviceInfo {
     pub driver_id: vk::DriverId,
     /// The most bytes one storage-buffer binding may span (`maxStorageBufferRange`).
     pub max_binding: u64,
+    /// What a storage-buffer binding's offset must be a multiple of
+    /// (`minStorageBufferOffsetAlignment`).
+    pub offset_alignment: u64,
     /// Streaming multiprocessors, where the driver says (VK_NV_shader_sm_builtins).
     pub processors: Option<u32>,
 }
@@ -118,6 +121,9 @@ pub struct Gpu {
     pub kind: vk::PhysicalDeviceType,
     /// The most bytes one storage-buffer binding may span (`maxStorageBufferRange`).
     pub max_binding: u64,
+    /// What a storage-buffer binding's offset must be a multiple of
+    /// (`minStorageBufferOffsetAlignment`).
+    pub offset_alignment: u64,
     /// Pipelines capture driver statistics (see `Kernels::statistics`).
     pub kernel_stats: bool,
     /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
@@ -250,6 +256,7 @@ impl Gpu {
             driver_id,
             kind,
             max_binding,
+            offset_alignment,
             ..
         } = chosen;
         // SAFETY: the device was created with this queue family.
@@ -285,6 +292,7 @@ impl Gpu {
             driver_id,
             kind,
             max_binding,
+            offset_alignment,
             kernel_stats,
             swapchain: !opts.window_extensions.is_empty(),
             ray_tracing,
@@ -366,6 +374,7 @@ impl Gpu {
                 kind: props.device_type,
                 driver_id: drv.driver_id,
                 max_binding: props.limits.max_storage_buffer_range as u64,
+                offset_alignment: props.limits.min_storage_buffer_offset_alignment.max(1),
                 processors,
             });
         }

@@ -21,18 +21,14 @@ const _: () = assert!(size_of::<shared::denoise::DenoisePush>() <= size_of::<Ren
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
 pub enum Kernel {
     BoundsReduce,
-    Morton30,
-    Morton63,
     Morton30Counted,
     Morton63Counted,
     SortScatterU32,
     SortScatterU64,
-    SortRankU32,
-    SortRankU64,
-    SortCountU32,
-    SortCountU64,
-    SortPlaceU32,
-    SortPlaceU64,
+    SortRunsU32,
+    SortRunsU64,
+    SortMergeU32,
+    SortMergeU64,
     KarrasBuildU32,
     KarrasBuildU64,
     Fit,
@@ -46,6 +42,7 @@ pub enum Kernel {
     RefitRestructured,
     Transform,
     InstanceBoxes,
+    InstanceBounds,
     PathTrace,
     PathTracePersistent,
     PathQueue,
@@ -75,20 +72,16 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 38] = [
+    pub const ALL: [Kernel; 35] = [
         Kernel::BoundsReduce,
-        Kernel::Morton30,
-        Kernel::Morton63,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
         Kernel::SortScatterU32,
         Kernel::SortScatterU64,
-        Kernel::SortRankU32,
-        Kernel::SortRankU64,
-        Kernel::SortCountU32,
-        Kernel::SortCountU64,
-        Kernel::SortPlaceU32,
-        Kernel::SortPlaceU64,
+        Kernel::SortRunsU32,
+        Kernel::SortRunsU64,
+        Kernel::SortMergeU32,
+        Kernel::SortMergeU64,
         Kernel::KarrasBuildU32,
         Kernel::KarrasBuildU64,
         Kernel::Fit,
@@ -102,6 +95,7 @@ impl Kernel {
         Kernel::RefitRestructured,
         Kernel::Transform,
         Kernel::InstanceBoxes,
+        Kernel::InstanceBounds,
         Kernel::PathTrace,
         Kernel::PathTracePersistent,
         Kernel::PathQueue,
@@ -125,18 +119,14 @@ impl Kernel {
     pub fn entry(self) -> &'static str {
         match self {
             Kernel::BoundsReduce => "bounds_reduce",
-            Kernel::Morton30 => "morton30",
-            Kernel::Morton63 => "morton63",
             Kernel::Morton30Counted => "morton30_counted",
             Kernel::Morton63Counted => "morton63_counted",
             Kernel::SortScatterU32 => "sort_scatter_u32",
             Kernel::SortScatterU64 => "sort_scatter_u64",
-            Kernel::SortRankU32 => "sort_rank_u32",
-            Kernel::SortRankU64 => "sort_rank_u64",
-            Kernel::SortCountU32 => "sort_count_u32",
-            Kernel::SortCountU64 => "sort_count_u64",
-            Kernel::SortPlaceU32 => "sort_place_u32",
-            Kernel::SortPlaceU64 => "sort_place_u64",
+            Kernel::SortRunsU32 => "sort_runs_u32",
+            Kernel::SortRunsU64 => "sort_runs_u64",
+            Kernel::SortMergeU32 => "sort_merge_u32",
+            Kernel::SortMergeU64 => "sort_merge_u64",
             Kernel::KarrasBuildU32 => "karras_build_u32",
             Kernel::KarrasBuildU64 => "karras_build_u64",
             Kernel::Fit => "fit",
@@ -150,6 +140,7 @@ impl Kernel {
             Kernel::RefitRestructured => "refit_restructured",
             Kernel::Transform => "transform",
             Kernel::InstanceBoxes => "instance_boxes",
+            Kernel::InstanceBounds => "instance_bounds",
             Kernel::PathTrace => "path_trace",
             Kernel::PathTracePersistent => "path_trace_persistent",
             Kernel::PathQueue => "path_queue",
@@ -531,6 +522,25 @@ impl BindingSets {
             unsafe { d.update_descriptor_sets(&writes, &[]) };
         }
         Ok(out)
+    }
+}
+
+impl BindingSets {
+    /// Binding `binding` of set `set` names `buf` from byte `offset` on (a multiple of the
+    /// device's `offset_alignment`), instead of what it named. No command recorded with the
+    /// set may be pending.
+    pub fn rebind(&self, set: usize, binding: u32, buf: vk::Buffer, offset: u64) {
+        let info = [vk::DescriptorBufferInfo::default()
+            .buffer(buf)
+            .offset(offset)
+            .range(vk::WHOLE_SIZE)];
+        let write = vk::WriteDescriptorSet::default()
+            .dst_set(self.sets[set])
+            .dst_binding(binding)
+            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .buffer_info(&info);
+        // SAFETY: a live buffer and a set of this pool, not in use (the caller's word).
+        unsafe { self.gpu.device.update_descriptor_sets(&[write], &[]) };
     }
 }
 

@@ -6,11 +6,14 @@ use crate::bvh::{BuildOptions, BuildResult, MortonBits, Sort, STAGES};
 use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
-use shared::count_sort;
+use shared::merge_sort;
 use shared::radix_sort as sort;
 use shared::types::{grid, item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::wide::{self, WideNode};
 use std::sync::Arc;
+
+/// The build set's binding of the nodes (`shared::types`' table).
+const NODES: u32 = 8;
 
 /// Device buffers of the build, sized for `capacity` primitives.
 struct Buffers {
@@ -129,6 +132,9 @@ pub struct GpuLbvh {
     wide: bool,
     n_tris: u32,
     n: u32,
+    /// Where the build writes its nodes when not in its own buffer ([`GpuLbvh::place_nodes`]):
+    /// a buffer of the caller's, from a byte offset.
+    nodes_at: Option<(ash::vk::Buffer, u64)>,
 }
 
 impl GpuLbvh {
@@ -141,6 +147,7 @@ impl GpuLbvh {
             wide: false,
             n_tris: 0,
             n: 0,
+            nodes_at: None,
         })
     }
 
@@ -242,8 +249,35 @@ impl GpuLbvh {
         }
         self.cmds.barrier();
         self.cmds.submit_wait().context("clearing the build's buffers")?;
+        if let Some((raw, offset)) = self.nodes_at {
+            for set in 0..b.sets.sets.len() {
+                b.sets.rebind(set, NODES, raw, offset);
+            }
+        }
         self.bufs = Some(b);
         Ok(())
+    }
+
+    /// Makes the builds write their nodes into `nodes` from node `first` on (its buffer
+    /// holding room for `2n - 1` of them there) instead of the builder's own buffer, which
+    /// then holds nothing ([`Self::result`] and [`Self::buffers`] name it still): the top
+    /// level of two levels writes where the tracers read it, and no copy follows the build.
+    /// False (nothing changed) where the device cannot bind a buffer from that offset.
+    pub fn place_nodes(&mut self, nodes: &Buffer, first: u32) -> Result<bool> {
+        let offset = first as u64 * size_of::<Node>() as u64;
+        if !offset.is_multiple_of(self.gpu.offset_alignment) || nodes.size - offset > self.gpu.max_binding {
+            return Ok(false);
+        }
+        // The sets may name the builder's own buffer in commands still running.
+        // SAFETY: plain wait on the live device.
+        unsafe { self.gpu.device.device_wait_idle() }.context("waiting for the GPU")?;
+        self.nodes_at = Some((nodes.raw, offset));
+        if let Some(b) = &self.bufs {
+            for set in 0..b.sets.sets.len() {
+                b.sets.rebind(set, NODES, nodes.raw, offset);
+            }
+        }
+        Ok(true)
     }
 
     /// Descriptor set 0 of the build (world primitives in bindings 0 and 1, the BVH in 8).
@@ -322,6 +356,24 @@ impl GpuLbvh {
     /// the sort's kernels), else one after the last labelled "build". Each timestamp costs
     /// about a microsecond of GPU time (H100: the bunny's build 228 us without, 242 with).
     pub fn record(&self, cmds: &mut Commands, opts: BuildOptions, capture: bool, stages: bool) -> Result<()> {
+        self.record_stages(cmds, opts, capture, stages, true)
+    }
+
+    /// [`Self::record`] of a build whose bounds a kernel of the caller's reduced, and whose
+    /// primitives' summaries it stored, as the bounds stage does (`instance_bounds`: the
+    /// top level of two levels); its stages from the Morton codes on.
+    pub fn record_bounded(&self, cmds: &mut Commands, opts: BuildOptions, stages: bool) -> Result<()> {
+        self.record_stages(cmds, opts, false, stages, false)
+    }
+
+    fn record_stages(
+        &self,
+        cmds: &mut Commands,
+        opts: BuildOptions,
+        capture: bool,
+        stages: bool,
+        bounds: bool,
+    ) -> Result<()> {
         let bits = opts.bits;
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         let n = self.n;
@@ -345,23 +397,19 @@ impl GpuLbvh {
         };
         let tiles = p.tiles();
         let (set_ab, set_ba) = (b.sets.sets[0], b.sets.sets[1]);
-        let (morton, morton_counted, scatter, rank, count, place, build) = match bits {
+        let (morton_counted, scatter, runs, merge, build) = match bits {
             MortonBits::B30 => (
-                Kernel::Morton30,
                 Kernel::Morton30Counted,
                 Kernel::SortScatterU32,
-                Kernel::SortRankU32,
-                Kernel::SortCountU32,
-                Kernel::SortPlaceU32,
+                Kernel::SortRunsU32,
+                Kernel::SortMergeU32,
                 Kernel::KarrasBuildU32,
             ),
             MortonBits::B63 => (
-                Kernel::Morton63,
                 Kernel::Morton63Counted,
                 Kernel::SortScatterU64,
-                Kernel::SortRankU64,
-                Kernel::SortCountU64,
-                Kernel::SortPlaceU64,
+                Kernel::SortRunsU64,
+                Kernel::SortMergeU64,
                 Kernel::KarrasBuildU64,
             ),
         };
@@ -384,15 +432,20 @@ impl GpuLbvh {
             }
             return Ok(());
         }
-        cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, item_groups(n))?;
-        cmds.barrier();
+        if bounds {
+            cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, item_groups(n))?;
+            cmds.barrier();
+        }
         stamp(cmds, STAGES[0]);
-        // The radix passes take their digit totals from the Morton stage; the count sort
-        // reads its keys from the second pair and places them in the first.
+        // The radix passes take their digit totals from the Morton stage. The merge sort's
+        // runs kernel is its Morton stage: its runs go to the second pair, merged into the
+        // first (where the tree kernel reads), its codes to the first's keys meanwhile; a
+        // single run, sorted whole, goes to the first, its codes to the second's keys.
+        let single = n <= merge_sort::RUN;
         match sorting {
             Sort::Radix => cmds.dispatch(k, set_ab, morton_counted, &p, item_groups(n))?,
-            Sort::Count => cmds.dispatch(k, set_ba, morton, &p, items)?,
-            Sort::Rank => cmds.dispatch(k, set_ab, morton, &p, items)?,
+            Sort::Merge if single => cmds.dispatch(k, set_ab, runs, &p, items)?,
+            Sort::Merge => cmds.dispatch(k, set_ba, runs, &p, items)?,
         }
         cmds.barrier();
         if capture {
@@ -400,29 +453,30 @@ impl GpuLbvh {
                 .capture
                 .as_ref()
                 .context("a captured build without room (run makes it)")?;
-            let codes = if sorting == Sort::Count { &b.keys_b } else { &b.keys_a };
+            let codes = if sorting == Sort::Merge && single {
+                &b.keys_b
+            } else {
+                &b.keys_a
+            };
             cmds.copy_range(codes, 0, to, 0, n as u64 * 8);
             cmds.barrier();
         }
         stamp(cmds, STAGES[1]);
-        if sorting == Sort::Rank {
-            cmds.dispatch(k, set_ab, rank, &p, 1)?;
-            cmds.barrier();
-            stamp(cmds, "sort.rank");
-        } else if sorting == Sort::Count {
-            let (spans, chunks) = count_sort::grid(n);
-            cmds.dispatch_sets(k, &[set_ba], count, bytemuck::bytes_of(&p), spans, chunks)?;
-            cmds.barrier();
-            cmds.dispatch(k, set_ba, place, &p, items)?;
-            cmds.barrier();
-            stamp(cmds, "sort.count");
-        } else {
-            for pass in 0..p.passes {
-                p.shift = pass * sort::RADIX_BITS;
-                let set = if pass % 2 == 0 { set_ab } else { set_ba };
-                cmds.dispatch(k, set, scatter, &p, tiles)?;
+        match sorting {
+            Sort::Merge if single => {}
+            Sort::Merge => {
+                cmds.dispatch(k, set_ba, merge, &p, items)?;
                 cmds.barrier();
-                stamp(cmds, "sort.scatter");
+                stamp(cmds, "sort.merge");
+            }
+            Sort::Radix => {
+                for pass in 0..p.passes {
+                    p.shift = pass * sort::RADIX_BITS;
+                    let set = if pass % 2 == 0 { set_ab } else { set_ba };
+                    cmds.dispatch(k, set, scatter, &p, tiles)?;
+                    cmds.barrier();
+                    stamp(cmds, "sort.scatter");
+                }
             }
         }
         cmds.dispatch(k, set_ab, build, &p, items)?;

@@ -11,7 +11,9 @@ use crate::bvh::{
 use anyhow::{anyhow, ensure, Context, Result};
 use gpu_allocator::MemoryLocation;
 use shared::instance::Instance;
-use shared::types::{grid, BuildParams, Node, Object, Sphere, Triangle, INVALID, RENDER_BINDINGS, WORKGROUP};
+use shared::types::{
+    grid, item_groups, BuildParams, Node, Object, Sphere, Triangle, INVALID, RENDER_BINDINGS, WORKGROUP,
+};
 use std::sync::Arc;
 
 pub struct GpuLevels {
@@ -45,6 +47,9 @@ pub struct GpuLevels {
     top_refits_max: u32,
     /// The top level built as a plain LBVH instead of [`top_build`]'s (`bench levels`).
     top_plain: bool,
+    /// The top level's builder writes its nodes into `nodes` (`GpuLbvh::place_nodes`), else
+    /// they are copied there after each build or refit.
+    top_in_place: bool,
 }
 
 /// Frames that refit the top level (its instances' boxes taken again, the tree kept: the
@@ -127,6 +132,7 @@ impl GpuLevels {
         let boxes = BindingSets::new(gpu, kernels, 1, &[&set1])?;
         let mut top = GpuLbvh::new(gpu, kernels)?;
         top.reserve(layout.instances.len(), 0)?;
+        let top_in_place = top.place_nodes(&nodes, layout.top)?;
         let mut l = GpuLevels {
             gpu: gpu.clone(),
             kernels: kernels.clone(),
@@ -148,6 +154,7 @@ impl GpuLevels {
             top_refits: None,
             top_refits_max: TOP_REFITS,
             top_plain: false,
+            top_in_place,
         };
         l.objects.write(&l.layout.objects)?;
         l.instances.write(&l.layout.instances)?;
@@ -305,47 +312,50 @@ impl GpuLevels {
             ..Default::default()
         };
         let sets = [self.top.set()?, self.boxes.sets[0]];
-        let (x, y) = grid(n.div_ceil(WORKGROUP));
-        cmds.dispatch_sets(
-            &self.kernels,
-            &sets,
-            Kernel::InstanceBoxes,
-            bytemuck::bytes_of(&p),
-            x,
-            y,
-        )?;
-        cmds.barrier();
-        // Every interval a frame's timings report ends at a named timestamp: the builder's
-        // own first one ("start") then covers nothing (`frame_timings` leaves it out).
-        cmds.timestamp("top level");
         let top = if self.top_plain {
             BuildOptions::lbvh(self.opts.bits)
         } else {
             top_build(self.opts)
         };
+        let refit = matches!(self.top_refits, Some(r) if r < self.top_refits_max);
+        // A build takes the boxes' bounds in the same kernel; a refit keeps the tree (and
+        // the bounds' reduction untouched: the next build's starts empty).
+        let (kernel, groups) = if refit {
+            (Kernel::InstanceBoxes, n.div_ceil(WORKGROUP))
+        } else {
+            (Kernel::InstanceBounds, item_groups(n))
+        };
+        let (x, y) = grid(groups);
+        cmds.dispatch_sets(&self.kernels, &sets, kernel, bytemuck::bytes_of(&p), x, y)?;
+        cmds.barrier();
+        // Every interval a frame's timings report ends at a named timestamp: the builder's
+        // own first one ("start") then covers nothing (`frame_timings` leaves it out).
+        cmds.timestamp("top level");
         match self.top_refits {
-            Some(r) if r < self.top_refits_max => {
+            Some(r) if refit => {
                 // The first `TOP_ROUNDS - 1` refits after a build restructure it again.
                 let again = top.restructures() && r + 1 < TOP_ROUNDS;
                 self.top.record_refit(cmds, top, again)?;
                 self.top_refits = Some(r + 1);
             }
             _ => {
-                self.top.record(cmds, top, false, false)?;
+                self.top.record_bounded(cmds, top, false)?;
                 self.top_refits = Some(0);
             }
         }
-        let (_, _, top_nodes) = self.top.buffers()?;
-        let node = size_of::<Node>() as u64;
-        cmds.copy_range(
-            top_nodes,
-            0,
-            &self.nodes,
-            self.layout.top as u64 * node,
-            (2 * n as u64 - 1) * node,
-        );
-        cmds.barrier();
-        cmds.timestamp("top level");
+        if !self.top_in_place {
+            let (_, _, top_nodes) = self.top.buffers()?;
+            let node = size_of::<Node>() as u64;
+            cmds.copy_range(
+                top_nodes,
+                0,
+                &self.nodes,
+                self.layout.top as u64 * node,
+                (2 * n as u64 - 1) * node,
+            );
+            cmds.barrier();
+            cmds.timestamp("top level");
+        }
         Ok(())
     }
 
