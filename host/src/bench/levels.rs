@@ -35,17 +35,17 @@ pub struct Report {
     pub mesh_builds_ms: f64,
     /// GPU microseconds of a top-level build (restructured by treelets in one round,
     /// `bvh::top_build`):
-    /// the instances' boxes, the build, the copy.
+    /// the instances' boxes and their bounds, the build (its nodes written in place).
     pub top_us: f64,
     pub top_p10_us: f64,
     pub top_p90_us: f64,
     /// GPU microseconds of a plain top-level build (Karras's tree and the fit, no treelets:
-    /// the boxes, the build, the copy).
+    /// the boxes and their bounds, the build).
     pub top_plain_us: f64,
     pub top_plain_p10_us: f64,
     pub top_plain_p90_us: f64,
     /// GPU microseconds of a top-level refit (what the frames between two builds run:
-    /// `gpu::TOP_REFITS`): the instances' boxes, the refit, the copy.
+    /// `gpu::TOP_REFITS`): the instances' boxes, the refit.
     pub top_refit_us: f64,
     pub top_refit_p10_us: f64,
     pub top_refit_p90_us: f64,
@@ -167,7 +167,7 @@ pub fn markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Two levels: instances of meshes\n\n- date: {}\n- device: {}\n- command: `{}`\n- {} instances of 3 meshes (Suzanne, the bunny, 37 mixed primitives): {} distinct primitives, {} instanced; every run turns every instance and builds the top level again (world boxes, build restructured by treelets in one round, copy), as the renderer does every 60th frame (the next two frames' refits restructure it again), or as a plain LBVH (Karras's tree and the fit), or refits it (world boxes, refit, copy), as the frames between two builds do\n",
+        "# Two levels: instances of meshes\n\n- date: {}\n- device: {}\n- command: `{}`\n- {} instances of 3 meshes (Suzanne, the bunny, 37 mixed primitives): {} distinct primitives, {} instanced; every run turns every instance and builds the top level again (world boxes and their bounds, build restructured by treelets in one round, its nodes written where the tracers read them), as the renderer does every 60th frame (the next two frames' refits restructure it again), or as a plain LBVH (Karras's tree and the fit), or refits it (world boxes, refit), as the frames between two builds do\n",
         r.date, r.device, r.command, r.options.instances, r.distinct_primitives, r.instanced_primitives
     );
     let _ = writeln!(

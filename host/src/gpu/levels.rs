@@ -2,7 +2,9 @@
 //! once by the builder ([`GpuLbvh`]) and kept, with the meshes' model-space primitives, in
 //! buffers of their own (what the tracers' set 0 names: [`GpuLevels::trace_set`]); the
 //! top level built again whenever instances move, by the same builder over the instances'
-//! world boxes (the `instance_boxes` kernel), its nodes copied after the meshes'. The same
+//! world boxes (the `instance_bounds` kernel, which also reduces their bounds; a refit's
+//! `instance_boxes`), its nodes written after the meshes' (in place where the device binds
+//! the buffer from there, else copied). The same
 //! [`LevelsLayout`] as the CPU executor's (`bvh::build_levels`), and the same bits.
 use super::{BindingSets, Buffer, Commands, Gpu, GpuLbvh, Kernel, Kernels, BINDINGS};
 use crate::bvh::{
