@@ -71,7 +71,9 @@ fn fold(st: &mut BoundsState, lo: Vec3, hi: Vec3) {
 
 /// [`accumulate`] over the top level's inputs: lane's instances' world boxes
 /// ([`crate::instance::instance_box`]) written as its primitives first, in the same kernel
-/// (the `instance_bounds` kernel: one dispatch fewer in every build of the top level).
+/// (the `instance_bounds` kernel: one dispatch fewer in every build of the top level). The
+/// CPU executor runs the two apart (`instance_box` for every instance, then [`accumulate`]):
+/// the same bits, which the GPU = CPU tests of both levels compare.
 #[allow(clippy::too_many_arguments)]
 pub fn accumulate_instances(
     lane: u32,

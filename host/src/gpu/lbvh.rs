@@ -133,8 +133,8 @@ pub struct GpuLbvh {
     n_tris: u32,
     n: u32,
     /// Where the build writes its nodes when not in its own buffer ([`GpuLbvh::place_nodes`]):
-    /// a buffer of the caller's, from a byte offset.
-    nodes_at: Option<(ash::vk::Buffer, u64)>,
+    /// a buffer of the caller's, from a byte offset, with room for so many nodes.
+    nodes_at: Option<(ash::vk::Buffer, u64, u64)>,
 }
 
 impl GpuLbvh {
@@ -249,7 +249,7 @@ impl GpuLbvh {
         }
         self.cmds.barrier();
         self.cmds.submit_wait().context("clearing the build's buffers")?;
-        if let Some((raw, offset)) = self.nodes_at {
+        if let Some((raw, offset, _)) = self.nodes_at {
             for set in 0..b.sets.sets.len() {
                 b.sets.rebind(set, NODES, raw, offset);
             }
@@ -258,20 +258,24 @@ impl GpuLbvh {
         Ok(())
     }
 
-    /// Makes the builds write their nodes into `nodes` from node `first` on (its buffer
-    /// holding room for `2n - 1` of them there) instead of the builder's own buffer, which
-    /// then holds nothing ([`Self::result`] and [`Self::buffers`] name it still): the top
-    /// level of two levels writes where the tracers read it, and no copy follows the build.
-    /// False (nothing changed) where the device cannot bind a buffer from that offset.
+    /// Makes the builds write their nodes into `nodes` from node `first` on instead of the
+    /// builder's own buffer, which then holds nothing ([`Self::result`] and
+    /// [`Self::buffers`] name it still): the top level of two levels writes where the
+    /// tracers read it, and no copy follows the build. Builds of more primitives than the
+    /// room there holds trees of are refused. False (nothing changed) where the device
+    /// cannot bind a buffer from that offset.
     pub fn place_nodes(&mut self, nodes: &Buffer, first: u32) -> Result<bool> {
-        let offset = first as u64 * size_of::<Node>() as u64;
+        let node = size_of::<Node>() as u64;
+        let offset = first as u64 * node;
+        anyhow::ensure!(offset < nodes.size, "node {first} is past the end of {}", nodes.name);
+        let room = (nodes.size - offset) / node;
         if !offset.is_multiple_of(self.gpu.offset_alignment) || nodes.size - offset > self.gpu.max_binding {
             return Ok(false);
         }
         // The sets may name the builder's own buffer in commands still running.
         // SAFETY: plain wait on the live device.
         unsafe { self.gpu.device.device_wait_idle() }.context("waiting for the GPU")?;
-        self.nodes_at = Some((nodes.raw, offset));
+        self.nodes_at = Some((nodes.raw, offset, room));
         if let Some(b) = &self.bufs {
             for set in 0..b.sets.sets.len() {
                 b.sets.rebind(set, NODES, nodes.raw, offset);
@@ -377,6 +381,12 @@ impl GpuLbvh {
         let bits = opts.bits;
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         let n = self.n;
+        if let Some((_, _, room)) = self.nodes_at {
+            anyhow::ensure!(
+                (2 * n as u64).saturating_sub(1) <= room,
+                "a build of {n} primitives into room for {room} nodes (GpuLbvh::place_nodes)"
+            );
+        }
         anyhow::ensure!(
             !opts.wide || b.has_wide,
             "a wide build without room for it (GpuLbvh::reserve_wide first)"
