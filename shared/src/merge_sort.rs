@@ -1,11 +1,12 @@
-//! Stable sort of a few thousand (key, primitive) pairs in two dispatches of O(n log n)
+//! Stable sort of up to [`max`] (key, primitive) pairs in two dispatches of O(n log n)
 //! work, which also compute the Morton codes (the build's Morton stage is the first):
 //!
 //! 1. [`run_load`], [`run_rank`] (the runs kernel): workgroup `g` computes the codes of
 //!    primitives `g * RUN..` (a *run*, one a lane), ranks each against the run's others in
-//!    workgroup memory and writes the run sorted, with its primitives, to its place in the
-//!    first buffer pair; the unsorted codes go to the second pair's keys (what a captured
-//!    build copies out).
+//!    workgroup memory and writes the run sorted, with its primitives, to its place in
+//!    bindings 3 and 4; the unsorted codes go to binding 5 (what a captured build copies
+//!    out). One run is the whole sort: the host binds the pair the tree kernel reads as 3
+//!    and 4 then, else the other pair, which the merge kernel reads.
 //! 2. [`merge_load`], [`merge_count`], [`merge_place`] (the merge kernel): workgroup `g`
 //!    places run `g`'s keys: each key's place in the whole order is its place in its run
 //!    plus, for every other run, the number of that run's keys that go before it, found by
