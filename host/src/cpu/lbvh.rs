@@ -107,9 +107,8 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     }
     lap("morton", &mut times);
 
-    if sorting == Sort::Merge && n <= merge_sort::RUN {
-        // One run: sorted whole by the runs kernel.
-    } else if sorting == Sort::Merge {
+    // One run is sorted whole by the runs kernel; more are merged, as on the GPU.
+    if sorting == Sort::Merge && n > merge_sort::RUN {
         // Workgroup g places run g: the runs staged a batch at a time, each lane's count of
         // the keys before its own summed over the batches.
         let (mut keys_b, mut vals_b) = (vec![K::default(); n as usize], vec![0u32; n as usize]);
@@ -132,7 +131,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
             });
         }
         (keys, vals) = (keys_b, vals_b);
-    } else {
+    } else if sorting == Sort::Radix {
         let mut keys_b = keys.clone();
         let mut vals_b = vals.clone();
         for pass in 0..p.passes {
