@@ -8,6 +8,7 @@ use shared::envmap::EnvEntry;
 use shared::instance::Instance;
 use shared::merge_sort::{self, MergeState, RunState};
 use shared::path;
+use shared::ploc::{self, PlocState};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
 use shared::refit::{FitState, RefitState};
 use shared::scan;
@@ -21,6 +22,7 @@ use shared::wide::{self, MarkState, ScanState, WideNode};
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
 const _: () = assert!(FEATURES_ALL == 130111);
 use shared::{display, karras, morton, refit, transform as xform};
+use spirv_std::arch::all_memory_barrier_with_group_sync as all_barrier;
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
@@ -140,7 +142,7 @@ pub fn empty_boxes(
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
-    ($k:ty, $code:ident, $morton:ident, $morton_counted:ident, $scatter:ident, $runs:ident, $merge:ident, $build:ident) => {
+    ($k:ty, $code:ident, $morton:ident, $morton_counted:ident, $scatter:ident, $runs:ident, $merge:ident, $build:ident, $ploc:ident) => {
         /// Morton codes and every sort pass's digit counts (see `shared::radix_sort`).
         #[spirv(compute(threads(256)))]
         #[allow(clippy::too_many_arguments)]
@@ -274,6 +276,92 @@ macro_rules! key_kernels {
             sort::clear_tables(i, p, counts, totals);
             bounds::publish(i, bounds);
         }
+
+        /// The tree and its boxes by H-PLOC (`shared::ploc`), instead of the Karras kernel and
+        /// the fit; it resets the sort's tables and publishes the bounds as the Karras kernel
+        /// does. Specialisation constant 0 is 1 for the ordered link exchange and device-scope
+        /// barriers, 0 for relaxed ones and workgroup barriers (lavapipe).
+        #[spirv(compute(threads(32)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $ploc(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(spec_constant(id = 0, default = 1))] ordered: u32,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] bounds: &mut [OrderedBounds],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] reps: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] words: &mut [u64],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
+            #[spirv(workgroup)] st: &mut PlocState,
+        ) {
+            let group = flat_group(gid.x, gid.y);
+            let i = group * ploc::GROUP + lid.x;
+            sort::clear_tables(i, p, counts, totals);
+            bounds::publish(i, bounds);
+            let mut b = ploc::Buffers {
+                keys,
+                order,
+                tris,
+                spheres,
+                words,
+                parents,
+                visits,
+                reps,
+            };
+            ploc::start(lid.x, group, st, p, &mut b);
+            barrier();
+            let mut round = 0;
+            loop {
+                if ordered != 0 {
+                    ploc::climb::<$k, true>(lid.x, round, st, p, &mut b);
+                } else {
+                    ploc::climb::<$k, false>(lid.x, round, st, p, &mut b);
+                }
+                barrier();
+                let mut want = ploc::wanted(lid.x, round, st);
+                while want != 0 {
+                    let w = want.trailing_zeros();
+                    want &= want - 1;
+                    ploc::load(lid.x, w, st, p, &b);
+                    barrier();
+                    ploc::compact_stage(lid.x, st);
+                    barrier();
+                    ploc::compact_back(lid.x, st);
+                    barrier();
+                    while st.count > ploc::target(w, st, p) {
+                        ploc::areas(lid.x, st);
+                        barrier();
+                        ploc::nearest(lid.x, st);
+                        barrier();
+                        ploc::merge(lid.x, st, &mut b);
+                        barrier();
+                        ploc::compact_stage(lid.x, st);
+                        barrier();
+                        ploc::compact_back(lid.x, st);
+                        barrier();
+                    }
+                    ploc::finish(lid.x, w, st, p, &mut b);
+                    // Every lane's stores before the lane's release at its next link.
+                    if ordered != 0 {
+                        all_barrier();
+                    } else {
+                        barrier();
+                    }
+                }
+                if !ploc::any_live(round, st) {
+                    break;
+                }
+                round += 1;
+                barrier();
+            }
+        }
     };
 }
 
@@ -285,7 +373,8 @@ key_kernels!(
     sort_scatter_u32,
     sort_runs_u32,
     sort_merge_u32,
-    karras_build_u32
+    karras_build_u32,
+    ploc_u32
 );
 key_kernels!(
     u64,
@@ -295,7 +384,8 @@ key_kernels!(
     sort_scatter_u64,
     sort_runs_u64,
     sort_merge_u64,
-    karras_build_u64
+    karras_build_u64,
+    ploc_u64
 );
 
 /// The wide collapse's first stage: frontier sizes, bottom-up (`shared::wide`);

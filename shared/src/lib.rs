@@ -27,6 +27,7 @@ pub mod morton;
 pub mod node_words;
 pub mod path;
 pub mod pbr;
+pub mod ploc;
 pub mod radix_sort;
 pub mod refit;
 pub mod rng;

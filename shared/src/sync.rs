@@ -196,6 +196,23 @@ pub fn atomic_add_device<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
     }
 }
 
+/// Device-scope exchange on storage-buffer memory; returns the old value. With `ORDERED` it
+/// is acquire-release; without, relaxed (see `refit` for the one driver that needs that).
+pub fn atomic_exchange_device<const ORDERED: bool>(p: &mut u32, v: u32) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    unsafe {
+        if ORDERED {
+            spirv_std::arch::atomic_exchange::<u32, DEVICE, ACQ_REL>(p, v)
+        } else {
+            spirv_std::arch::atomic_exchange::<u32, DEVICE, RELAXED>(p, v)
+        }
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        core::mem::replace(p, v)
+    }
+}
+
 /// Relaxed device-scope 32-bit load: reads what another workgroup stored or merged in this
 /// dispatch, past any non-coherent cache.
 pub fn atomic_load_u32(p: &u32) -> u32 {

@@ -25,43 +25,64 @@ fn builder(test: &str) -> Option<(Arc<Gpu>, GpuLbvh)> {
 type StageBytes = fn(&BuildResult) -> Vec<u8>;
 
 /// The builds every input is checked with: both code widths, binary and collapsed into the
-/// wide BVH, and 30-bit codes with treelet restructuring, once and in three rounds.
-const BUILDS: [BuildOptions; 6] = [
+/// wide BVH, 30-bit codes with treelet restructuring, once and in three rounds, and both
+/// code widths with the tree built by H-PLOC.
+const BUILDS: [BuildOptions; 8] = [
     BuildOptions {
         bits: MortonBits::B30,
         treelets: false,
         wide: false,
         rounds: 1,
+        ploc: false,
     },
     BuildOptions {
         bits: MortonBits::B63,
         treelets: false,
         wide: false,
         rounds: 1,
+        ploc: false,
     },
     BuildOptions {
         bits: MortonBits::B30,
         treelets: true,
         wide: false,
         rounds: 1,
+        ploc: false,
     },
     BuildOptions {
         bits: MortonBits::B30,
         treelets: false,
         wide: true,
         rounds: 1,
+        ploc: false,
     },
     BuildOptions {
         bits: MortonBits::B63,
         treelets: false,
         wide: true,
         rounds: 1,
+        ploc: false,
     },
     BuildOptions {
         bits: MortonBits::B30,
         treelets: true,
         wide: false,
         rounds: 3,
+        ploc: false,
+    },
+    BuildOptions {
+        bits: MortonBits::B30,
+        treelets: false,
+        wide: false,
+        rounds: 1,
+        ploc: true,
+    },
+    BuildOptions {
+        bits: MortonBits::B63,
+        treelets: false,
+        wide: false,
+        rounds: 1,
+        ploc: true,
     },
 ];
 
@@ -75,9 +96,10 @@ fn check_uploaded(lbvh: &mut GpuLbvh, name: &str, tris: &[Triangle], spheres: &[
     lbvh.build(opts, true).unwrap();
     let g = lbvh.result(opts).unwrap();
     let (c, _) = cpu::build(tris, spheres, opts);
-    let name = match (opts.treelets, opts.wide) {
-        (true, _) => format!("{name}-treelets{}", opts.rounds),
-        (_, true) => format!("{name}-wide"),
+    let name = match (opts.treelets, opts.wide, opts.ploc) {
+        (true, _, _) => format!("{name}-treelets{}", opts.rounds),
+        (_, true, _) => format!("{name}-wide"),
+        (_, _, true) => format!("{name}-ploc"),
         _ => name.to_string(),
     };
     let bits = opts.bits;
@@ -170,7 +192,8 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
 /// fits them badly, but soundly). Both backends' refits are equal bit for bit and valid,
 /// including the adversarial inputs (equal centres, a far outlier) and the sizes past which
 /// the fit tests fewer ancestors before merging, for Karras trees (the fit) and trees
-/// restructured by treelets, once or in three rounds (the counter refit); a refit back to the
+/// restructured by treelets, once or in three rounds, and H-PLOC trees (the counter refit);
+/// a refit back to the
 /// first primitives gives the build's tree again.
 #[test]
 fn refits_equal_on_gpu_and_cpu() {
@@ -183,9 +206,9 @@ fn refits_equal_on_gpu_and_cpu() {
         inputs.extend([0, 1, 2, 3, wg + 1, 17 * wg + 1, 100_000].map(|n| (dist, n)));
     }
     inputs.push((Distribution::Random, 300_000));
-    let [b30, b63, treelets, _, _, rounds] = BUILDS;
+    let [b30, b63, treelets, _, _, rounds, ploc30, ploc63] = BUILDS;
     for (dist, n) in inputs {
-        for opts in [b30, b63, treelets, rounds] {
+        for opts in [b30, b63, treelets, rounds, ploc30, ploc63] {
             let name = format!("{dist:?}-{n} ({opts:?})");
             let (t, s) = generate(n, dist, n % 2 == 1, 500 + n as u64);
             let (t2, s2) = generate(n, Distribution::Random, n % 2 == 1, 900 + n as u64);
@@ -239,7 +262,7 @@ fn room_for_the_wide_bvh_is_made_by_the_first_wide_build() {
         return;
     };
     let (t, s) = generate(3000, Distribution::Random, true, 11);
-    let [binary, _, _, wide, _, _] = BUILDS;
+    let [binary, _, _, wide, _, _, _, _] = BUILDS;
     // The renderer's builder (its transform kernel writes the primitives, nothing is captured)
     // holds no host copy of the primitives: `upload` makes it.
     lbvh.reserve(t.len(), s.len()).unwrap();
@@ -270,6 +293,24 @@ fn room_for_the_wide_bvh_is_made_by_the_first_wide_build() {
     check_uploaded(&mut lbvh, "room", &t, &s, binary);
     check_uploaded(&mut lbvh, "room", &t, &s, wide);
     assert_eq!(lbvh.memory(), (wide_nodes, wide_rest));
+    assert_no_validation_errors(&gpu);
+}
+
+/// Builds of every kind and size one after another on the same buffers, each equal to the
+/// CPU executor's: no build reads what an earlier one left behind. (An H-PLOC build once took
+/// a smaller earlier build's leaf ranges or cluster lists, left past that build's `n - 1`
+/// in the visit buffer, for its own links: `bench build` caught it on the H100.)
+#[test]
+fn builds_of_every_kind_follow_each_other() {
+    let Some((gpu, mut lbvh)) = builder("builds_of_every_kind_follow_each_other") else {
+        return;
+    };
+    for (k, n) in [37, 3000, 20_000, 5000, 100, 7000].into_iter().enumerate() {
+        let (t, s) = generate(n, Distribution::Random, true, 40 + k as u64);
+        for opts in BUILDS.into_iter().rev() {
+            check(&mut lbvh, &format!("sequence-{n}"), &t, &s, opts);
+        }
+    }
     assert_no_validation_errors(&gpu);
 }
 

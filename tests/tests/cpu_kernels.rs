@@ -144,14 +144,16 @@ fn karras_splits_match_the_papers_figure() {
 #[test]
 fn every_input_shape_gives_a_valid_tree() {
     let wg = WORKGROUP as usize;
-    for (bits, treelets, rounds) in [
-        (MortonBits::B30, false, 1),
-        (MortonBits::B63, false, 1),
-        (MortonBits::B30, true, 1),
-        (MortonBits::B30, true, 3),
+    for (bits, treelets, rounds, ploc) in [
+        (MortonBits::B30, false, 1, false),
+        (MortonBits::B63, false, 1, false),
+        (MortonBits::B30, true, 1, false),
+        (MortonBits::B30, true, 3, false),
+        (MortonBits::B30, false, 1, true),
+        (MortonBits::B63, false, 1, true),
     ] {
         for dist in Distribution::ALL {
-            for n in [0, 1, 2, 3, 4, 7, 8, wg - 1, wg, wg + 1, 5000] {
+            for n in [0, 1, 2, 3, 4, 7, 8, 16, 17, 31, 32, 33, wg - 1, wg, wg + 1, 5000] {
                 let (t, s) = generate(n, dist, n % 2 == 0, 9);
                 let (r, _) = cpu::build(
                     &t,
@@ -161,10 +163,12 @@ fn every_input_shape_gives_a_valid_tree() {
                         treelets,
                         wide: false,
                         rounds,
+                        ploc,
                     },
                 );
-                let stats = validate(&r.nodes, &r.parents, &t, &s)
-                    .unwrap_or_else(|e| panic!("{dist:?} n={n} {bits:?} treelets {treelets} x{rounds}: {e}"));
+                let stats = validate(&r.nodes, &r.parents, &t, &s).unwrap_or_else(|e| {
+                    panic!("{dist:?} n={n} {bits:?} treelets {treelets} x{rounds} ploc {ploc}: {e}")
+                });
                 assert_eq!(stats.leaves, n);
                 if dist == Distribution::AllEqual && n % 2 == 1 && !treelets {
                     // Only identical triangles (odd n has no spheres): every code is equal, and
@@ -349,6 +353,46 @@ fn treelets_lower_the_surface_area_cost_of_every_input() {
         assert!(after <= before, "{name}: {before} -> {after}");
         if name == "bunny" || name == "Random" {
             assert!(after < 0.95 * before, "{name}: only {before} -> {after}");
+        }
+    }
+}
+
+/// H-PLOC (`shared::ploc`) clusters where the radix tree splits by code bits: on every input
+/// its tree costs no more by surface area than the Karras tree over the same codes, with the
+/// same root box, and on the bunny and collinear centroids less by more than 5% (summed
+/// internal areas: bunny -9.4%, collinear -25%, random -3.5%); where every centroid is equal
+/// its tree is as deep as a balanced one.
+#[test]
+fn ploc_lowers_the_surface_area_cost() {
+    let bunny = load_obj(&raytrace::inputs::assets_dir().join("bunny.obj")).unwrap();
+    let mut inputs = vec![("bunny".to_string(), bunny, Vec::new())];
+    for dist in Distribution::ALL {
+        let (t, s) = generate(20_000, dist, true, 11);
+        inputs.push((format!("{dist:?}"), t, s));
+    }
+    for (name, t, s) in inputs {
+        let (plain, _) = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30));
+        let opts = BuildOptions {
+            ploc: true,
+            ..BuildOptions::lbvh(MortonBits::B30)
+        };
+        let (r, _) = cpu::build(&t, &s, opts);
+        let stats = validate(&r.nodes, &r.parents, &t, &s).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(stats.leaves, t.len() + s.len());
+        assert_eq!(r.nodes[0].min, plain.nodes[0].min, "{name}: the root box changed");
+        assert_eq!(r.nodes[0].max, plain.nodes[0].max, "{name}: the root box changed");
+        let (before, after) = (internal_area(&plain.nodes), internal_area(&r.nodes));
+        assert!(after <= before, "{name}: {before} -> {after}");
+        if name == "bunny" || name == "Collinear" {
+            assert!(after < 0.95 * before, "{name}: only {before} -> {after}");
+        }
+        if name == "AllEqual" {
+            let n = (t.len() + s.len()) as f64;
+            assert!(
+                stats.depth <= 2 + n.log2().ceil() as u32,
+                "{name}: depth {}",
+                stats.depth
+            );
         }
     }
 }

@@ -34,6 +34,9 @@ pub struct BuildRow {
     pub treelets: bool,
     /// Whether the tree was collapsed into the wide BVH (its time is the `wide` column).
     pub wide: bool,
+    /// Whether H-PLOC built the tree and its boxes (its time is the `tree` column).
+    #[serde(default)]
+    pub ploc: bool,
     /// Surface-area cost of the tree traced (`accuracy::sah_cost`, `sah_cost_wide`).
     pub sah: f64,
     pub runs: usize,
@@ -209,6 +212,7 @@ pub fn bench_build(
             bits: opts.bits,
             treelets: opts.restructures(),
             wide: opts.wide,
+            ploc: opts.builds_ploc(),
             sah,
             runs,
             stage_us: COLUMNS
@@ -249,7 +253,9 @@ pub fn markdown(r: &BuildReport) -> String {
          after it; `streamed` is the median over builds run back to back in one submission, \
          as the renderer's frames run them (no idle GPU between builds); `refit`: a refit of the \
          built tree (internal boxes emptied, the fit run again; bounds, codes, sort and tree \
-         kept), timed as `total` (none for treelets or wide trees, which cannot be refit). BVH bytes count the \
+         kept; an H-PLOC tree's by the counter refit), timed as `total` (none for treelets or wide \
+         trees, which cannot be refit); an H-PLOC build's tree and boxes are one kernel, timed in \
+         `tree`. BVH bytes count the \
          nodes traced only (a wide build: the wide nodes it wrote; its buffer has room for \
          the worst case, a node per binary internal node, counted under scratch with the \
          binary tree); scratch is everything else the builder holds (inputs included). SAH: \
@@ -273,7 +279,13 @@ pub fn markdown(r: &BuildReport) -> String {
             row.primitives,
             row.bits,
             if row.treelets { " + treelets" } else { "" },
-            if row.wide { " wide" } else { "" },
+            if row.wide {
+                " wide"
+            } else if row.ploc {
+                " H-PLOC"
+            } else {
+                ""
+            },
             row.runs
         );
         for (_, us) in &row.stage_us {

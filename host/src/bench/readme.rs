@@ -77,7 +77,7 @@ pub fn section(dir: &Path) -> Result<String> {
             "| input | primitives | binary LBVH | refit | wide (collapsed) | SAH binary / wide |"
         );
         let _ = writeln!(s, "|---|---|---|---|---|---|");
-        let b30 = |r: &&Value| r["bits"] == "B30" && r["treelets"] != true;
+        let b30 = |r: &&Value| r["bits"] == "B30" && r["treelets"] != true && r["ploc"] != true;
         let mut inputs: Vec<&str> = Vec::new();
         for r in rows(&v).iter().filter(b30) {
             let input = r["input"].as_str().unwrap_or("?");

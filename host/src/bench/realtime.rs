@@ -129,6 +129,9 @@ pub struct Options {
     /// Which BVH every frame builds and traces (see `raytrace render --help`).
     #[arg(long, value_enum, default_value = "binary")]
     pub bvh: crate::bvh::Layout,
+    /// How every frame's binary tree is built (see `raytrace render --help`).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub tree: crate::cli::Tree,
     /// Skip the second run of every scene with the real-time denoiser.
     #[arg(long)]
     pub no_denoise: bool,
@@ -184,6 +187,7 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             let mut p = <SceneArgs as clap::Parser>::parse_from(args).prepare()?;
             p.treelets = o.treelets;
             p.layout = o.bvh;
+            p.tree = o.tree;
             let mut r = GpuRenderer::new(gpu, &kernels)?;
             r.set_build(p.build(o.spf));
             r.set_group_refits(o.group_refits);

@@ -50,8 +50,10 @@ pub struct Report {
     pub device: String,
     pub cpu: String,
     pub command: String,
-    /// Whether every frame's BVH build restructured treelets (`BuildOptions::treelets`).
+    /// Whether every frame's BVH build made a better tree than the radix tree: by H-PLOC
+    /// (`ploc`) or by restructuring treelets.
     pub treelets: bool,
+    pub ploc: bool,
     /// With `--accel driver`: how the driver built its bottom levels.
     pub driver_build: Option<DriverBuild>,
     pub rows: Vec<Row>,
@@ -172,6 +174,7 @@ pub fn run(
         cpu: format!("CPU executor, {} threads", rayon::current_num_threads()),
         command: std::env::args().collect::<Vec<_>>().join(" "),
         treelets,
+        ploc: prepare("cornell", 32, treelets, &[])?.build(32).builds_ploc(),
         driver_build: driver,
         rows,
         speedup,
@@ -195,14 +198,18 @@ pub fn markdown(r: &Report) -> String {
     );
     let _ = writeln!(
         s,
-        "BVH: Karras 2012 LBVH{}, rebuilt every frame.\n",
-        if r.treelets {
+        "BVH: {}, rebuilt every frame.\n",
+        if r.ploc {
+            "H-PLOC (Benthin et al. 2024: agglomerative clustering within the subtrees of the \
+             radix tree over the Morton codes)"
+                .to_string()
+        } else if r.treelets {
             format!(
-                " with {}-leaf treelets restructured for surface-area cost (Karras & Aila 2013)",
+                "Karras 2012 LBVH with {}-leaf treelets restructured for surface-area cost (Karras & Aila 2013)",
                 shared::treelet::LEAVES
             )
         } else {
-            ", no treelet restructuring".into()
+            "Karras 2012 LBVH, no treelet restructuring".into()
         }
     );
     let _ = writeln!(
@@ -311,6 +318,7 @@ mod tests {
             cpu: "test CPU".into(),
             command: "raytrace bench table2".into(),
             treelets: true,
+            ploc: false,
             driver_build: None,
             rows: vec![],
             speedup: vec![(1, 100.0, 1.0), (2, 190.0, 1.5), (4, 380.0, 2.9)],
@@ -350,12 +358,14 @@ mod tests {
             cpu: "test CPU".into(),
             command: "raytrace bench table2 --accel driver".into(),
             treelets: true,
+            ploc: true,
             driver_build: Some(DriverBuild::FastBuild),
             rows: vec![row],
             speedup: vec![],
         };
         let text = markdown(&r);
         assert!(text.contains("(`--accel driver`, FastBuild)"), "{text}");
+        assert!(text.contains("BVH: H-PLOC (Benthin"), "{text}");
         assert!(
             text.contains("| bunny | 40.00 | 80.00 | 0.50 | 60.00 | 50.00 | 1.20 | 0.125 | 0.500 |"),
             "{text}"

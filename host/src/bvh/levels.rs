@@ -217,6 +217,7 @@ pub fn top_build(opts: BuildOptions) -> BuildOptions {
         wide: false,
         treelets: true,
         rounds: 1,
+        ploc: false,
         ..opts
     }
 }
@@ -246,6 +247,7 @@ pub fn mesh_build(placements: &[Placement], mesh: usize, opts: BuildOptions) -> 
         wide: false,
         treelets: opts.treelets || !group,
         rounds: if group { opts.rounds } else { MESH_ROUNDS },
+        ploc: opts.ploc && group,
         ..opts
     }
 }

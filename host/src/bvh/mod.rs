@@ -42,6 +42,11 @@ pub struct BuildOptions {
     /// one a refit of the restructured tree that restructures it again (its counters all
     /// device-scope: `shared::refit::refit` without `BLOCKS`).
     pub rounds: u32,
+    /// The tree and its boxes built by H-PLOC (`shared::ploc`: agglomerative clustering
+    /// within the radix tree's subtrees, one dispatch) instead of the Karras kernel and the
+    /// fit. Not with `wide` (the collapse needs the Karras tree's key ranges), and never
+    /// restructured by treelets.
+    pub ploc: bool,
 }
 
 impl BuildOptions {
@@ -52,6 +57,7 @@ impl BuildOptions {
             treelets: false,
             wide: false,
             rounds: 1,
+            ploc: false,
         }
     }
 
@@ -63,9 +69,20 @@ impl BuildOptions {
         }
     }
 
-    /// Whether the refit restructures treelets (never for a wide build).
+    /// Whether the refit restructures treelets (never for a wide or an H-PLOC build).
     pub fn restructures(&self) -> bool {
-        self.treelets && !self.wide
+        self.treelets && !self.wide && !self.ploc
+    }
+
+    /// Whether H-PLOC builds the tree (never for a wide build).
+    pub fn builds_ploc(&self) -> bool {
+        self.ploc && !self.wide
+    }
+
+    /// Whether a refit of the tree is the counter refit (`refit_restructured`): the tree has
+    /// no Karras leaf ranges for the build's fit (restructured, or built by H-PLOC).
+    pub fn counter_refit(&self) -> bool {
+        self.restructures() || self.builds_ploc()
     }
 }
 

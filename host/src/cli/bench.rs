@@ -313,6 +313,11 @@ pub(super) fn run(what: Bench, opts: &GpuOptions) -> Result<()> {
                 let b = b.into();
                 rows.extend(bench_build(&gpu, &inputs, BuildOptions::lbvh(b), runs, warmup)?);
                 rows.extend(bench_build(&gpu, &inputs, BuildOptions::wide(b), runs, warmup)?);
+                let ploc = BuildOptions {
+                    ploc: true,
+                    ..BuildOptions::lbvh(b)
+                };
+                rows.extend(bench_build(&gpu, &inputs, ploc, runs, warmup)?);
                 if treelets {
                     let opts = BuildOptions {
                         treelets: true,

@@ -711,10 +711,14 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
     if args.explain {
         println!("kernel features for {}:\n{}", p.scene.name, p.features.explain());
         let b = p.build(p.spp);
-        let tree = match (b.wide, b.restructures()) {
-            (true, _) => "the wide BVH (VARIANT_WIDE_BVH), collapsed from the LBVH every frame: --bvh wide",
-            (false, true) => "the binary LBVH with treelets restructured: --bvh binary, --treelets",
-            (false, false) => "the binary LBVH: --bvh binary (the default, faster on the H100)",
+        let tree = if b.wide {
+            "the wide BVH (VARIANT_WIDE_BVH), collapsed from the LBVH every frame: --bvh wide"
+        } else if b.builds_ploc() {
+            "the binary BVH built by H-PLOC: --bvh binary --tree ploc"
+        } else if b.restructures() {
+            "the binary LBVH with treelets restructured: --bvh binary, --treelets"
+        } else {
+            "the binary LBVH: --bvh binary (the default, faster on the H100)"
         };
         let driver = format!(
             "the driver's acceleration structures, the bottom level built every frame ({:?})",

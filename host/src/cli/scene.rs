@@ -58,9 +58,18 @@ pub struct SceneArgs {
     /// the default: on the H100 the wide one traces no faster and builds slower (bench/NOTES.md).
     #[arg(long, value_enum, default_value = "binary")]
     pub bvh: Layout,
-    /// Restructure BVH treelets for surface-area cost (binary BVH only): a slower build, a
-    /// faster trace. `auto` does when a frame has at least 16 samples per pixel and traces at
-    /// least 32 samples per primitive.
+    /// How the binary BVH's tree is built: the radix tree over the Morton codes (Karras 2012)
+    /// with a bottom-up fit, or H-PLOC (agglomerative clustering within the radix tree's
+    /// subtrees: a cheaper tree to trace, a slower build; never restructured by treelets).
+    /// `auto` builds by H-PLOC where treelets would restructure (see --treelets), whose
+    /// trees it matches for a quarter of their build (H100, 800x800 at 32 spp: every
+    /// built-in frame 2-3% faster), else by Karras.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub tree: Tree,
+    /// Build a better binary tree than the radix tree (a slower build, a faster trace): by
+    /// H-PLOC (`--tree auto` or `ploc`) or by restructuring treelets for surface-area cost
+    /// (`--tree karras`). `auto` does when a frame has at least 16 samples per pixel and
+    /// traces at least 32 samples per primitive.
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: Treelets,
     /// Objects as instances of their meshes (two-level BVH: each mesh built once, the top
@@ -150,6 +159,14 @@ pub fn parse_camera(s: &str) -> Result<(Vec3, Vec3, Option<f32>), String> {
     Ok((position, look_at, vfov))
 }
 
+/// How the binary tree is built (see `BuildOptions::ploc`).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Tree {
+    Auto,
+    Karras,
+    Ploc,
+}
+
 /// Whether the BVH build restructures treelets (see `BuildOptions`).
 #[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Treelets {
@@ -220,6 +237,7 @@ pub struct Prepared {
     pub bits: MortonBits,
     pub treelets: Treelets,
     pub layout: Layout,
+    pub tree: Tree,
     /// What traces the rays on the GPU ([`Prepared::tracer`]), and how the driver builds
     /// where it does.
     pub accel: AccelChoice,
@@ -297,6 +315,7 @@ impl SceneArgs {
             bits: self.bits.into(),
             treelets: self.treelets,
             layout: self.bvh,
+            tree: self.tree,
             accel: self.accel,
             driver_build: self.driver_build,
             group_refits: self.group_refits,
@@ -343,17 +362,25 @@ impl SceneArgs {
 }
 
 impl Prepared {
-    /// How to build the BVH for frames of `spp` samples per pixel.
+    /// How to build the BVH for frames of `spp` samples per pixel: a better tree than the
+    /// radix tree where `--treelets` says it pays, by H-PLOC unless `--tree karras` asks
+    /// for treelets.
     pub fn build(&self, spp: u32) -> BuildOptions {
+        let treelets = self.treelets.resolve(
+            spp,
+            self.frame.width as u64 * self.frame.height as u64,
+            self.frame.n_prims as u64,
+        );
         BuildOptions {
             bits: self.bits,
-            treelets: self.treelets.resolve(
-                spp,
-                self.frame.width as u64 * self.frame.height as u64,
-                self.frame.n_prims as u64,
-            ),
+            treelets,
             wide: self.layout == Layout::Wide,
             rounds: 1,
+            ploc: match self.tree {
+                Tree::Auto => treelets,
+                Tree::Karras => false,
+                Tree::Ploc => true,
+            },
         }
     }
 

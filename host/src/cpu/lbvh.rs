@@ -10,7 +10,7 @@ use shared::refit::{ORDERED_COUNTERS as ORDERED, RESTRUCTURE as AGAIN};
 use shared::scan::{self, BlockScan};
 use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::wide::{self, WideNode};
-use shared::{karras, morton, refit};
+use shared::{karras, morton, ploc, refit};
 use std::time::Instant;
 
 const WG: usize = WORKGROUP as usize;
@@ -187,6 +187,19 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     out.sorted_prims = vals.clone();
     lap("sort", &mut times);
 
+    if opts.builds_ploc() {
+        // The tree and its boxes in one kernel, which also resets what the Karras kernel
+        // resets (its "refit" stage is empty).
+        (0..n).for_each(|i| sort::clear_tables(i, &p, &mut counts, &mut totals));
+        let mut pair = [b, OrderedBounds::EMPTY];
+        bounds::publish(0, &mut pair);
+        let (nodes, parents) = ploc(&p, &keys, &vals, tris, spheres);
+        lap("tree", &mut times);
+        lap("refit", &mut times);
+        out.nodes = nodes;
+        out.parents = parents;
+        return (out, times);
+    }
     let total_nodes = (2 * n).saturating_sub(1) as usize;
     let mut nodes = vec![Node::default(); total_nodes];
     let mut parents = vec![0u32; total_nodes];
@@ -277,8 +290,8 @@ fn restructured(
 /// Refits `earlier` (a binary build of as many primitives) over `tris` and `spheres` as they
 /// are now, as `GpuLbvh::record_refit` does: the tree is kept (its sorted order, links and
 /// parents). A Karras tree has every internal box emptied (`refit::empty_box`) and the
-/// build's fit run again; a tree restructured by treelets (`opts.restructures()`) the counter
-/// refit without the block's counters. The bounds and codes stay the earlier build's (those
+/// build's fit run again; a tree restructured by treelets or built by H-PLOC
+/// (`opts.counter_refit()`) the counter refit without the block's counters. The bounds and codes stay the earlier build's (those
 /// the tree was built from). Errors name a mismatch in the primitives' count.
 pub fn refit(
     earlier: &BuildResult,
@@ -334,7 +347,7 @@ fn refit_with(
         tris,
         spheres,
     };
-    if opts.restructures() {
+    if opts.counter_refit() {
         let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&earlier.nodes);
         let mut parents = earlier.parents.clone();
         let mut visits = vec![0u32; 2 * n as usize];
@@ -410,4 +423,66 @@ fn collapse(p: &BuildParams, nodes: &[Node], parents: &[u32], visits: &mut [u32]
     }
     out.truncate(count);
     out
+}
+
+/// The H-PLOC tree and its boxes (`shared::ploc`) over the sorted `keys` and primitives
+/// `order`, as the GPU builds them: returns the nodes and their parents.
+pub fn ploc<K: SortKey>(
+    p: &BuildParams,
+    keys: &[K],
+    order: &[u32],
+    tris: &[Triangle],
+    spheres: &[Sphere],
+) -> (Vec<Node>, Vec<u32>) {
+    let n = p.n;
+    let total = (2 * n).saturating_sub(1) as usize;
+    let mut words = vec![0u64; total * shared::node_words::WORDS as usize];
+    let mut parents = vec![shared::types::INVALID; total];
+    let mut visits = vec![0u32; 2 * n as usize];
+    let mut reps = vec![0u32; n as usize];
+    let mut b = ploc::Buffers {
+        keys,
+        order,
+        tris,
+        spheres,
+        words: &mut words,
+        parents: &mut parents,
+        visits: &mut visits,
+        reps: &mut reps,
+    };
+    let group = |phase: &mut dyn FnMut(u32)| (0..ploc::GROUP).for_each(phase);
+    // Workgroups in turn: a lane that arrives first at a node stops, so any order builds
+    // the same tree.
+    for g in 0..n.div_ceil(ploc::GROUP) {
+        let mut st = Box::new(<ploc::PlocState as bytemuck::Zeroable>::zeroed());
+        group(&mut |l| ploc::start(l, g, &mut st, p, &mut b));
+        let mut round = 0;
+        loop {
+            group(&mut |l| ploc::climb::<K, true>(l, round, &mut st, p, &mut b));
+            let mut want = 0;
+            group(&mut |l| want = ploc::wanted(l, round, &mut st));
+            while want != 0 {
+                let w = want.trailing_zeros();
+                want &= want - 1;
+                group(&mut |l| ploc::load(l, w, &mut st, p, &b));
+                group(&mut |l| ploc::compact_stage(l, &mut st));
+                group(&mut |l| ploc::compact_back(l, &mut st));
+                while st.count > ploc::target(w, &st, p) {
+                    group(&mut |l| ploc::areas(l, &mut st));
+                    group(&mut |l| ploc::nearest(l, &mut st));
+                    group(&mut |l| ploc::merge(l, &mut st, &mut b));
+                    group(&mut |l| ploc::compact_stage(l, &mut st));
+                    group(&mut |l| ploc::compact_back(l, &mut st));
+                }
+                group(&mut |l| ploc::finish(l, w, &mut st, p, &mut b));
+            }
+            if !ploc::any_live(round, &st) {
+                break;
+            }
+            round += 1;
+        }
+    }
+    // Every link emptied again, as the refits expect their counters.
+    debug_assert!(visits[..n.saturating_sub(1) as usize].iter().all(|&w| w == 0));
+    (bytemuck::pod_collect_to_vec(&words), parents)
 }

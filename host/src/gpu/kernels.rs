@@ -31,6 +31,8 @@ pub enum Kernel {
     SortMergeU64,
     KarrasBuildU32,
     KarrasBuildU64,
+    PlocU32,
+    PlocU64,
     Fit,
     EmptyBoxes,
     WideClimb,
@@ -72,7 +74,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 35] = [
+    pub const ALL: [Kernel; 37] = [
         Kernel::BoundsReduce,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
@@ -84,6 +86,8 @@ impl Kernel {
         Kernel::SortMergeU64,
         Kernel::KarrasBuildU32,
         Kernel::KarrasBuildU64,
+        Kernel::PlocU32,
+        Kernel::PlocU64,
         Kernel::Fit,
         Kernel::EmptyBoxes,
         Kernel::WideClimb,
@@ -129,6 +133,8 @@ impl Kernel {
             Kernel::SortMergeU64 => "sort_merge_u64",
             Kernel::KarrasBuildU32 => "karras_build_u32",
             Kernel::KarrasBuildU64 => "karras_build_u64",
+            Kernel::PlocU32 => "ploc_u32",
+            Kernel::PlocU64 => "ploc_u64",
             Kernel::Fit => "fit",
             Kernel::EmptyBoxes => "empty_boxes",
             Kernel::WideClimb => "wide_climb",

@@ -7,6 +7,7 @@ use anyhow::{Context, Result};
 use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
 use shared::merge_sort;
+use shared::ploc;
 use shared::radix_sort as sort;
 use shared::types::{grid, item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::wide::{self, WideNode};
@@ -442,6 +443,12 @@ impl GpuLbvh {
             }
             return Ok(());
         }
+        if opts.builds_ploc() {
+            // H-PLOC's links start empty: a Karras build leaves leaf ranges past `n - 1` of
+            // its own `n` (read by its refits), an H-PLOC build cluster lists there. Nothing
+            // before the tree stage touches the visits, and the stages' barriers order the fill.
+            cmds.fill_range(&b.visits, 0, (n as u64 - 1) * 4, 0);
+        }
         if bounds {
             cmds.dispatch(k, set_ab, Kernel::BoundsReduce, &p, item_groups(n))?;
             cmds.barrier();
@@ -488,6 +495,20 @@ impl GpuLbvh {
                     stamp(cmds, "sort.scatter");
                 }
             }
+        }
+        if opts.builds_ploc() {
+            // The tree and its boxes in one dispatch (its "refit" stage is empty).
+            let kernel = match bits {
+                MortonBits::B30 => Kernel::PlocU32,
+                MortonBits::B63 => Kernel::PlocU64,
+            };
+            let tree = k.specialised(kernel, u32::from(!self.gpu.is_lavapipe()))?;
+            let (x, y) = grid(n.div_ceil(ploc::GROUP));
+            cmds.dispatch_pipeline(k, tree, &[set_ab], bytemuck::bytes_of(&p), x, y);
+            cmds.barrier();
+            stamp(cmds, STAGES[3]);
+            cmds.timestamp(if stages { STAGES[4] } else { "build" });
+            return Ok(());
         }
         cmds.dispatch(k, set_ab, build, &p, items)?;
         cmds.barrier();
@@ -556,8 +577,9 @@ impl GpuLbvh {
             let k = &self.kernels;
             let set = b.sets.sets[0];
             let items = self.n.div_ceil(WORKGROUP);
-            let refit = if opts.restructures() {
-                // Every visit counter zero: the build's refit, or the refit before, left it so.
+            let refit = if opts.counter_refit() {
+                // Every visit counter zero: the build's refit or H-PLOC links, or the refit
+                // before, left it so.
                 let (kernel, constant) = self.gpu.restructured_kernel(again);
                 k.specialised(kernel, constant)?
             } else {
