@@ -22,8 +22,9 @@
 //! cluster's, `rep`, into internal slot `rep - 1`. Leaf 0 is never retired, so the `n - 1`
 //! merges fill the slots `0..n - 1` once each; the root is then swapped into slot 0. The
 //! layout is the Karras tree's ([`crate::karras`]): internal nodes `0..n-1`, root 0, leaves
-//! `n-1..2n-1` in sorted order, `parents` of every node, so everything after the tree
-//! (treelets, the wide collapse, refits, traversal) takes it unchanged.
+//! `n-1..2n-1` in sorted order, `parents` of every node, so the traversal, picking and the
+//! counter refit (`refit::refit` without the Karras ranges its block counters need) take it
+//! unchanged; the wide collapse, which needs those ranges, does not.
 //!
 //! The nodes are read and written as 64-bit words through [`crate::node_words`], the links
 //! and cluster lists through atomics: another workgroup wrote them in this dispatch.

@@ -330,20 +330,19 @@ fn treelets_give_the_optimal_tree_of_few_primitives() {
     }
 }
 
-#[test]
-fn treelets_lower_the_surface_area_cost_of_every_input() {
+/// Checks that `opts` builds a valid tree over the bunny and 20,000 primitives of every
+/// distribution, with the radix tree's root box and no more summed internal area; returns
+/// each input's name, internal areas of the radix tree and of `opts`' tree, depth and size.
+fn better_trees(opts: BuildOptions) -> Vec<(String, f64, f64, u32, usize)> {
     let bunny = load_obj(&raytrace::inputs::assets_dir().join("bunny.obj")).unwrap();
     let mut inputs = vec![("bunny".to_string(), bunny, Vec::new())];
     for dist in Distribution::ALL {
         let (t, s) = generate(20_000, dist, true, 11);
         inputs.push((format!("{dist:?}"), t, s));
     }
+    let mut out = Vec::new();
     for (name, t, s) in inputs {
         let (plain, _) = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30));
-        let opts = BuildOptions {
-            treelets: true,
-            ..BuildOptions::lbvh(MortonBits::B30)
-        };
         let (r, _) = cpu::build(&t, &s, opts);
         let stats = validate(&r.nodes, &r.parents, &t, &s).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(stats.leaves, t.len() + s.len());
@@ -351,6 +350,18 @@ fn treelets_lower_the_surface_area_cost_of_every_input() {
         assert_eq!(r.nodes[0].max, plain.nodes[0].max, "{name}: the root box changed");
         let (before, after) = (internal_area(&plain.nodes), internal_area(&r.nodes));
         assert!(after <= before, "{name}: {before} -> {after}");
+        out.push((name, before, after, stats.depth, t.len() + s.len()));
+    }
+    out
+}
+
+#[test]
+fn treelets_lower_the_surface_area_cost_of_every_input() {
+    let opts = BuildOptions {
+        treelets: true,
+        ..BuildOptions::lbvh(MortonBits::B30)
+    };
+    for (name, before, after, _, _) in better_trees(opts) {
         if name == "bunny" || name == "Random" {
             assert!(after < 0.95 * before, "{name}: only {before} -> {after}");
         }
@@ -364,35 +375,16 @@ fn treelets_lower_the_surface_area_cost_of_every_input() {
 /// its tree is as deep as a balanced one.
 #[test]
 fn ploc_lowers_the_surface_area_cost() {
-    let bunny = load_obj(&raytrace::inputs::assets_dir().join("bunny.obj")).unwrap();
-    let mut inputs = vec![("bunny".to_string(), bunny, Vec::new())];
-    for dist in Distribution::ALL {
-        let (t, s) = generate(20_000, dist, true, 11);
-        inputs.push((format!("{dist:?}"), t, s));
-    }
-    for (name, t, s) in inputs {
-        let (plain, _) = cpu::build(&t, &s, BuildOptions::lbvh(MortonBits::B30));
-        let opts = BuildOptions {
-            ploc: true,
-            ..BuildOptions::lbvh(MortonBits::B30)
-        };
-        let (r, _) = cpu::build(&t, &s, opts);
-        let stats = validate(&r.nodes, &r.parents, &t, &s).unwrap_or_else(|e| panic!("{name}: {e}"));
-        assert_eq!(stats.leaves, t.len() + s.len());
-        assert_eq!(r.nodes[0].min, plain.nodes[0].min, "{name}: the root box changed");
-        assert_eq!(r.nodes[0].max, plain.nodes[0].max, "{name}: the root box changed");
-        let (before, after) = (internal_area(&plain.nodes), internal_area(&r.nodes));
-        assert!(after <= before, "{name}: {before} -> {after}");
+    let opts = BuildOptions {
+        ploc: true,
+        ..BuildOptions::lbvh(MortonBits::B30)
+    };
+    for (name, before, after, depth, n) in better_trees(opts) {
         if name == "bunny" || name == "Collinear" {
             assert!(after < 0.95 * before, "{name}: only {before} -> {after}");
         }
         if name == "AllEqual" {
-            let n = (t.len() + s.len()) as f64;
-            assert!(
-                stats.depth <= 2 + n.log2().ceil() as u32,
-                "{name}: depth {}",
-                stats.depth
-            );
+            assert!(depth <= 2 + (n as f64).log2().ceil() as u32, "{name}: depth {depth}");
         }
     }
 }
