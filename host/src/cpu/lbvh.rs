@@ -427,7 +427,7 @@ fn collapse(p: &BuildParams, nodes: &[Node], parents: &[u32], visits: &mut [u32]
 
 /// The H-PLOC tree and its boxes (`shared::ploc`) over the sorted `keys` and primitives
 /// `order`, as the GPU builds them: returns the nodes and their parents.
-pub fn ploc<K: SortKey>(
+fn ploc<K: SortKey>(
     p: &BuildParams,
     keys: &[K],
     order: &[u32],
