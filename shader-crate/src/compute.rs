@@ -331,20 +331,19 @@ macro_rules! key_kernels {
                     want &= want - 1;
                     ploc::load(lid.x, w, st, p, &b);
                     barrier();
-                    ploc::compact_stage(lid.x, st);
-                    barrier();
-                    ploc::compact_back(lid.x, st);
-                    barrier();
-                    while st.count > ploc::target(w, st, p) {
+                    loop {
+                        ploc::compact_stage(lid.x, st);
+                        barrier();
+                        ploc::compact_back(lid.x, st);
+                        barrier();
+                        if st.count <= ploc::target(w, st, p) {
+                            break;
+                        }
                         ploc::areas(lid.x, st);
                         barrier();
                         ploc::nearest(lid.x, st);
                         barrier();
                         ploc::merge(lid.x, st, &mut b);
-                        barrier();
-                        ploc::compact_stage(lid.x, st);
-                        barrier();
-                        ploc::compact_back(lid.x, st);
                         barrier();
                     }
                     ploc::finish(lid.x, w, st, p, &mut b);

@@ -116,7 +116,10 @@ pub fn start<K: SortKey>(lane: u32, group: u32, st: &mut PlocState, p: &BuildPar
         let prim = *at(b.order, i);
         let (lo, hi) = prim_box(prim, p.n_tris, b.tris, b.spheres);
         store(b.words, n - 1 + i, lo.to_array(), hi.to_array(), prim, INVALID);
-        *at_mut(b.parents, n - 1 + i) = INVALID;
+    }
+    if i == 0 && n == 1 {
+        // The leaf is the root; every other leaf's parent is written by its merge.
+        *at_mut(b.parents, 0) = INVALID;
     }
     *elem_mut(&mut st.first, lane) = i;
     *elem_mut(&mut st.last, lane) = i;

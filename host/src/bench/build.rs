@@ -35,7 +35,6 @@ pub struct BuildRow {
     /// Whether the tree was collapsed into the wide BVH (its time is the `wide` column).
     pub wide: bool,
     /// Whether H-PLOC built the tree and its boxes (its time is the `tree` column).
-    #[serde(default)]
     pub ploc: bool,
     /// Surface-area cost of the tree traced (`accuracy::sah_cost`, `sah_cost_wide`).
     pub sah: f64,

@@ -465,14 +465,15 @@ fn ploc<K: SortKey>(
                 let w = want.trailing_zeros();
                 want &= want - 1;
                 group(&mut |l| ploc::load(l, w, &mut st, p, &b));
-                group(&mut |l| ploc::compact_stage(l, &mut st));
-                group(&mut |l| ploc::compact_back(l, &mut st));
-                while st.count > ploc::target(w, &st, p) {
+                loop {
+                    group(&mut |l| ploc::compact_stage(l, &mut st));
+                    group(&mut |l| ploc::compact_back(l, &mut st));
+                    if st.count <= ploc::target(w, &st, p) {
+                        break;
+                    }
                     group(&mut |l| ploc::areas(l, &mut st));
                     group(&mut |l| ploc::nearest(l, &mut st));
                     group(&mut |l| ploc::merge(l, &mut st, &mut b));
-                    group(&mut |l| ploc::compact_stage(l, &mut st));
-                    group(&mut |l| ploc::compact_back(l, &mut st));
                 }
                 group(&mut |l| ploc::finish(l, w, &mut st, p, &mut b));
             }
