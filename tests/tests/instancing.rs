@@ -570,6 +570,46 @@ fn gpu_builds_both_levels_as_the_cpu_executor_does() {
     integration_tests::assert_no_validation_errors(&gpu);
 }
 
+/// A plain top level (the radix tree and its fit, as `bench levels` times it) equals the CPU
+/// executor's build over the same boxes, at sizes of one merge-sort run, of a run's edge and
+/// of several runs and fit blocks, twice in a row.
+#[test]
+fn a_plain_top_level_is_built_as_the_cpu_builds_it() {
+    let Some(gpu) = integration_tests::gpu("a_plain_top_level_is_built_as_the_cpu_builds_it") else {
+        return;
+    };
+    let kernels = std::sync::Arc::new(raytrace::gpu::Kernels::new(&gpu).expect("kernels"));
+    for count in [1, 2, 255, 256, 257, 1000, 4099] {
+        let (meshes, placements, _) = instanced(Vec3::new(0.0, 1e3, 0.0), count, 7 + count as u32);
+        let mut g = raytrace::gpu::GpuLevels::new(&gpu, &kernels, &meshes, &placements, opts()).expect("GPU levels");
+        g.set_top_plain(true);
+        g.set_top_refits(0);
+        for turn in 0..2 {
+            let moved: Vec<[[f32; 4]; 3]> = placements
+                .iter()
+                .enumerate()
+                .map(|(k, p)| {
+                    let mut r = p.rows;
+                    r[1][3] += (turn * (k % 7)) as f32;
+                    r
+                })
+                .collect();
+            g.set_transforms(&moved).expect("new transforms");
+            g.rebuild_top().expect("top level");
+            let boxes = g.boxes().expect("boxes");
+            let top = raytrace::cpu::build(&boxes, &[], opts()).0;
+            let nodes = g.nodes().expect("nodes");
+            let first = g.layout().top as usize;
+            assert_eq!(
+                &nodes[first..],
+                &top.nodes[..],
+                "{count} instances, build {turn}: the plain top level"
+            );
+        }
+    }
+    integration_tests::assert_no_validation_errors(&gpu);
+}
+
 #[test]
 fn bench_levels_measures_the_top_level_and_checks_it_against_the_cpu() {
     let Some(gpu) = integration_tests::gpu("bench_levels_measures_the_top_level_and_checks_it_against_the_cpu") else {

@@ -121,6 +121,11 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
     let refits = timed(&mut g, u32::MAX)?;
     g.set_top_plain(true);
     let plain = timed(&mut g, 0)?;
+    // The plain build's top level against the CPU executor's over the same boxes.
+    let top = crate::cpu::build(&g.boxes()?, &[], BuildOptions::lbvh(opts.bits)).0;
+    if g.nodes()?[g.layout().top as usize..] != top.nodes[..] {
+        bail!("the GPU's plain top level differs from the CPU executor's");
+    }
     g.set_top_plain(false);
     let times = timed(&mut g, 0)?;
     // The last frame's levels against the CPU executor's.
