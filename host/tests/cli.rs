@@ -275,6 +275,36 @@ fn accel_auto_takes_the_drivers_structures_only_for_two_levels_on_a_device_with_
     }
 }
 
+/// `--explain` says which tree `--tree auto` builds for the frame and why: the radix tree
+/// for one sample per pixel, H-PLOC from four (the Cornell box at 16x16: 28 samples per
+/// primitive).
+#[test]
+fn explain_says_which_tree_auto_builds() {
+    let out = picture("explain-tree");
+    for (spp, ploc) in [("1", false), ("4", true)] {
+        let (o, stdout, stderr) = run(&[
+            "render",
+            "cornell",
+            "--backend",
+            "cpu",
+            "--size",
+            "16x16",
+            "--spp",
+            spp,
+            "--explain",
+            "--out",
+            &out,
+        ]);
+        assert!(o.status.success(), "--spp {spp}:\n{stderr}");
+        let line = stdout
+            .lines()
+            .find(|l| l.starts_with("BVH traced"))
+            .unwrap_or_else(|| panic!("no BVH line in:\n{stdout}"));
+        assert_eq!(line.contains("built by H-PLOC"), ploc, "--spp {spp}: {line}");
+        assert!(line.contains(&format!("--tree auto: {spp} spp a frame")), "{line}");
+    }
+}
+
 /// `bench accuracy --devices` names a device that is not there before rendering anything.
 #[test]
 fn a_benchmarks_reference_devices_are_checked() {

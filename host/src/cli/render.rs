@@ -1,6 +1,6 @@
 //! `raytrace render`: rendering a prepared scene on either backend with progress, the
 //! backend `auto` picks, the summary line.
-use super::scene::{Prepared, SceneArgs};
+use super::scene::{Prepared, SceneArgs, Tree, Treelets};
 use crate::cpu::{render_cpu_samples, CpuDenoiser, CpuRender};
 use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Instance, Kernels};
 use crate::picture::Picture;
@@ -711,14 +711,25 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
     if args.explain {
         println!("kernel features for {}:\n{}", p.scene.name, p.features.explain());
         let b = p.build(p.spp);
-        let tree = if b.wide {
-            "the wide BVH (VARIANT_WIDE_BVH), collapsed from the LBVH every frame: --bvh wide"
-        } else if b.builds_ploc() {
-            "the binary BVH built by H-PLOC: --bvh binary --tree ploc"
-        } else if b.restructures() {
-            "the binary LBVH with treelets restructured: --bvh binary, --treelets"
+        let per_prim = p.frame.width as u64 * p.frame.height as u64 * p.spp as u64 / (p.frame.n_prims as u64).max(1);
+        let why = if p.tree == Tree::Auto && p.treelets == Treelets::Auto && !b.wide {
+            format!(
+                " (--tree auto: {} spp a frame, {per_prim} samples per primitive; H-PLOC from {} and {})",
+                p.spp,
+                Tree::AUTO_FROM_SPP,
+                Tree::AUTO_SAMPLES_PER_PRIM
+            )
         } else {
-            "the binary LBVH: --bvh binary (the default, faster on the H100)"
+            String::new()
+        };
+        let tree = if b.wide {
+            "the wide BVH (VARIANT_WIDE_BVH), collapsed from the LBVH every frame: --bvh wide".to_string()
+        } else if b.builds_ploc() {
+            format!("the binary BVH built by H-PLOC: --bvh binary --tree ploc{why}")
+        } else if b.restructures() {
+            "the binary LBVH with treelets restructured: --bvh binary, --treelets".to_string()
+        } else {
+            format!("the binary LBVH: --bvh binary (the default, faster on the H100){why}")
         };
         let driver = format!(
             "the driver's acceleration structures, the bottom level built every frame ({:?})",

@@ -61,15 +61,16 @@ pub struct SceneArgs {
     /// How the binary BVH's tree is built: the radix tree over the Morton codes (Karras 2012)
     /// with a bottom-up fit, or H-PLOC (agglomerative clustering within the radix tree's
     /// subtrees: a cheaper tree to trace, a slower build; never restructured by treelets).
-    /// `auto` builds by H-PLOC where treelets would restructure (see --treelets), whose
-    /// trees it matches for a quarter of their build (H100, 800x800 at 32 spp: every
-    /// built-in frame 2-3% faster), else by Karras.
+    /// `auto` builds by H-PLOC from 4 samples per pixel a frame where the frame traces at
+    /// least 8 samples per primitive (with --treelets auto; always with on, never with off),
+    /// else by Karras: H-PLOC's trees match the treelets' for a quarter of their build (H100,
+    /// 800x800 at 32 spp: every built-in frame 2-3% faster).
     #[arg(long, value_enum, default_value = "auto")]
     pub tree: Tree,
     /// Build a better binary tree than the radix tree (a slower build, a faster trace): by
-    /// H-PLOC (`--tree auto` or `ploc`) or by restructuring treelets for surface-area cost
-    /// (`--tree karras`). `auto` does when a frame has at least 16 samples per pixel and
-    /// traces at least 32 samples per primitive.
+    /// H-PLOC (`--tree auto` or `ploc`: see --tree for when `auto` does) or by restructuring
+    /// treelets for surface-area cost (`--tree karras`: `auto` does when a frame has at
+    /// least 16 samples per pixel and traces at least 32 samples per primitive).
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: Treelets,
     /// Objects as instances of their meshes (two-level BVH: each mesh built once, the top
@@ -165,6 +166,36 @@ pub enum Tree {
     Auto,
     Karras,
     Ploc,
+}
+
+impl Tree {
+    /// Samples per pixel in one frame from which `auto` builds by H-PLOC (with `--treelets
+    /// auto`), where the frame also traces at least [`Self::AUTO_SAMPLES_PER_PRIM`] samples
+    /// per primitive. H-PLOC's build costs 1 to 3.4 ns a primitive more than the radix tree's
+    /// and saves 1 to 9% of every sample's trace, by scene: H200, 1920x1080, depth 4, frames
+    /// by H-PLOC against the radix tree (`bench realtime --spf`), the bunny even at 2 spp,
+    /// 3.7% faster at 4, 5.8% at 8; the Cornell box 5%, 7%, 7.5%; Suzanne 5.7%, 2.5%, 0.9%
+    /// slower (its radix tree traces almost as fast); the sixteen bunnies flattened (1.1M
+    /// primitives) 1.3% slower at 4 spp (7.4 samples per primitive), 3.1% faster at 16
+    /// (bench/NOTES.md, session 40).
+    pub const AUTO_FROM_SPP: u32 = 4;
+
+    /// See [`Self::AUTO_FROM_SPP`].
+    pub const AUTO_SAMPLES_PER_PRIM: u64 = 8;
+
+    /// Whether frames of `spp` samples per pixel over `pixels` pixels of a scene of `prims`
+    /// primitives build by H-PLOC: `auto` where [`Self::AUTO_FROM_SPP`] says with `--treelets
+    /// auto`, always with `--treelets on`, never with `off`.
+    pub fn builds_ploc(self, treelets: Treelets, spp: u32, pixels: u64, prims: u64) -> bool {
+        match (self, treelets) {
+            (Tree::Ploc, _) => true,
+            (Tree::Karras, _) => false,
+            (Tree::Auto, Treelets::Auto) => {
+                spp >= Self::AUTO_FROM_SPP && pixels * spp as u64 >= Self::AUTO_SAMPLES_PER_PRIM * prims
+            }
+            (Tree::Auto, treelets) => treelets == Treelets::On,
+        }
+    }
 }
 
 /// Whether the BVH build restructures treelets (see `BuildOptions`).
@@ -362,25 +393,18 @@ impl SceneArgs {
 }
 
 impl Prepared {
-    /// How to build the BVH for frames of `spp` samples per pixel: a better tree than the
-    /// radix tree where `--treelets` says it pays, by H-PLOC unless `--tree karras` asks
-    /// for treelets.
+    /// How to build the BVH for frames of `spp` samples per pixel: by H-PLOC where `--tree`
+    /// says ([`Tree::builds_ploc`]), else the radix tree, restructured by treelets where
+    /// `--treelets` says it pays.
     pub fn build(&self, spp: u32) -> BuildOptions {
-        let treelets = self.treelets.resolve(
-            spp,
-            self.frame.width as u64 * self.frame.height as u64,
-            self.frame.n_prims as u64,
-        );
+        let pixels = self.frame.width as u64 * self.frame.height as u64;
+        let prims = self.frame.n_prims as u64;
         BuildOptions {
             bits: self.bits,
-            treelets,
+            treelets: self.treelets.resolve(spp, pixels, prims),
             wide: self.layout == Layout::Wide,
             rounds: 1,
-            ploc: match self.tree {
-                Tree::Auto => treelets,
-                Tree::Karras => false,
-                Tree::Ploc => true,
-            },
+            ploc: self.tree.builds_ploc(self.treelets, spp, pixels, prims),
         }
     }
 
@@ -407,6 +431,22 @@ mod tests {
         assert!(!Treelets::Auto.resolve(32, px, 10_031_907));
         assert!(!Treelets::Auto.resolve(8, px, 36));
         assert!(Treelets::On.resolve(1, 1, u64::MAX / 64) && !Treelets::Off.resolve(64, px, 1));
+    }
+
+    #[test]
+    fn auto_trees_by_h_ploc_from_a_few_samples_and_enough_of_them_per_primitive() {
+        let hd = 1920 * 1080;
+        let auto = |spp, prims| Tree::Auto.builds_ploc(Treelets::Auto, spp, hd, prims);
+        // The bunny from 4 spp, the sixteen bunnies flattened from 16 (at 4: 7.4 samples a
+        // primitive), the herd not at 16; real-time frames of one sample never.
+        assert!(auto(4, 69_678) && !auto(2, 69_678) && !auto(1, 36));
+        assert!(auto(16, 1_114_659) && !auto(4, 1_114_659));
+        assert!(!auto(16, 10_031_907));
+        // --treelets on and off decide for `auto`; karras and ploc decide alone.
+        assert!(Tree::Auto.builds_ploc(Treelets::On, 1, 1, u64::MAX / 64));
+        assert!(!Tree::Auto.builds_ploc(Treelets::Off, 64, hd, 1));
+        assert!(Tree::Ploc.builds_ploc(Treelets::Off, 1, 1, 1));
+        assert!(!Tree::Karras.builds_ploc(Treelets::On, 64, hd, 1));
     }
 
     #[test]
