@@ -8,7 +8,7 @@ use crate::render::{self, Accel, AccelChoice};
 use crate::scene::{Environment, InstancingMode, Scene, SceneGpu};
 use anyhow::{bail, Result};
 use glam::Vec3;
-use shared::types::{Frame, FLAG_DENOISE};
+use shared::types::{Frame, FLAG_DENOISE, FLAG_NEE};
 use std::path::PathBuf;
 
 /// Scene and settings of a render; unset options keep the scene's own settings.
@@ -62,9 +62,10 @@ pub struct SceneArgs {
     /// with a bottom-up fit, or H-PLOC (agglomerative clustering within the radix tree's
     /// subtrees: a cheaper tree to trace, a slower build; never restructured by treelets).
     /// `auto` builds by H-PLOC from 4 samples per pixel a frame where the frame traces at
-    /// least 8 samples per primitive (with --treelets auto; always with on, never with off),
-    /// else by Karras: H-PLOC's trees match the treelets' for a quarter of their build (H100,
-    /// 800x800 at 32 spp: every built-in frame 2-3% faster).
+    /// least 32 path segments per primitive (pixels x spp x depth, twice with NEE; with
+    /// --treelets auto; always with on, never with off), else by Karras: H-PLOC's trees
+    /// match the treelets' for a quarter of their build (H100, 800x800 at 32 spp: every
+    /// built-in frame 2-3% faster).
     #[arg(long, value_enum, default_value = "auto")]
     pub tree: Tree,
     /// Build a better binary tree than the radix tree (a slower build, a faster trace): by
@@ -170,32 +171,43 @@ pub enum Tree {
 
 impl Tree {
     /// Samples per pixel in one frame from which `auto` builds by H-PLOC (with `--treelets
-    /// auto`), where the frame also traces at least [`Self::AUTO_SAMPLES_PER_PRIM`] samples
-    /// per primitive. H-PLOC's build costs 1 to 3.4 ns a primitive more than the radix tree's
-    /// and saves 1 to 9% of every sample's trace, by scene: H200, 1920x1080, depth 4, frames
-    /// by H-PLOC against the radix tree (`bench realtime --spf`), the bunny even at 2 spp,
-    /// 3.7% faster at 4, 5.8% at 8; the Cornell box 5%, 7%, 7.5%; Suzanne 5.7%, 2.5%, 0.9%
-    /// slower (its radix tree traces almost as fast); the sixteen bunnies flattened (1.1M
-    /// primitives) 1.3% slower at 4 spp (7.4 samples per primitive), 3.1% faster at 16
-    /// (bench/NOTES.md, session 40).
+    /// auto`), where the frame also traces at least [`Self::AUTO_SEGMENTS_PER_PRIM`] path
+    /// segments per primitive ([`segments`]). H-PLOC's build costs ~0.2 ms more than the
+    /// radix tree's at any size (its climb's chain at the top) plus ~0.5-0.7 ns a primitive,
+    /// and saves 1 to 10% of every segment's trace, by scene. H200, 1920x1080, depth 4, no
+    /// NEE (`bench realtime --spf`), frames by H-PLOC against the radix tree: the bunny even
+    /// at 2 spp, 3.7% faster at 4, 5.8% at 8; the Cornell box 5%, 7%, 7.5%; Suzanne 5.7%,
+    /// 2.5%, 0.9% slower (its radix tree traces almost as fast); the sixteen bunnies
+    /// flattened (1.1M primitives) 1.3% slower at 4 spp (30 segments a primitive), 3.1%
+    /// faster at 16. 800x800, 32 spp, depth 16, NEE (`render`): the sixteen bunnies 4.6%
+    /// faster (590 segments a primitive), the herd (10M) 6.7% (65) (bench/NOTES.md, session
+    /// 40).
     pub const AUTO_FROM_SPP: u32 = 4;
 
     /// See [`Self::AUTO_FROM_SPP`].
-    pub const AUTO_SAMPLES_PER_PRIM: u64 = 8;
+    pub const AUTO_SEGMENTS_PER_PRIM: u64 = 32;
 
-    /// Whether frames of `spp` samples per pixel over `pixels` pixels of a scene of `prims`
-    /// primitives build by H-PLOC: `auto` where [`Self::AUTO_FROM_SPP`] says with `--treelets
-    /// auto`, always with `--treelets on`, never with `off`.
-    pub fn builds_ploc(self, treelets: Treelets, spp: u32, pixels: u64, prims: u64) -> bool {
+    /// Whether frames of `spp` samples per pixel tracing `segments` path segments (at most:
+    /// [`segments`]) in a scene of `prims` primitives build by H-PLOC: `auto` where
+    /// [`Self::AUTO_FROM_SPP`] says with `--treelets auto`, always with `--treelets on`, never
+    /// with `off`.
+    pub fn builds_ploc(self, treelets: Treelets, spp: u32, segments: u64, prims: u64) -> bool {
         match (self, treelets) {
             (Tree::Ploc, _) => true,
             (Tree::Karras, _) => false,
             (Tree::Auto, Treelets::Auto) => {
-                spp >= Self::AUTO_FROM_SPP && pixels * spp as u64 >= Self::AUTO_SAMPLES_PER_PRIM * prims
+                spp >= Self::AUTO_FROM_SPP && segments >= Self::AUTO_SEGMENTS_PER_PRIM * prims
             }
             (Tree::Auto, treelets) => treelets == Treelets::On,
         }
     }
+}
+
+/// The most path segments a frame of `spp` samples per pixel over `pixels` pixels traces
+/// with `frame`'s depth: one a bounce, two with next-event estimation (its shadow ray).
+pub fn segments(frame: &Frame, pixels: u64, spp: u32) -> u64 {
+    let nee = if frame.flags & FLAG_NEE != 0 { 2 } else { 1 };
+    pixels * spp as u64 * frame.max_depth.max(1) as u64 * nee
 }
 
 /// Whether the BVH build restructures treelets (see `BuildOptions`).
@@ -399,12 +411,13 @@ impl Prepared {
     pub fn build(&self, spp: u32) -> BuildOptions {
         let pixels = self.frame.width as u64 * self.frame.height as u64;
         let prims = self.frame.n_prims as u64;
+        let segments = segments(&self.frame, pixels, spp);
         BuildOptions {
             bits: self.bits,
             treelets: self.treelets.resolve(spp, pixels, prims),
             wide: self.layout == Layout::Wide,
             rounds: 1,
-            ploc: self.tree.builds_ploc(self.treelets, spp, pixels, prims),
+            ploc: self.tree.builds_ploc(self.treelets, spp, segments, prims),
         }
     }
 
@@ -434,19 +447,26 @@ mod tests {
     }
 
     #[test]
-    fn auto_trees_by_h_ploc_from_a_few_samples_and_enough_of_them_per_primitive() {
-        let hd = 1920 * 1080;
-        let auto = |spp, prims| Tree::Auto.builds_ploc(Treelets::Auto, spp, hd, prims);
-        // The bunny from 4 spp, the sixteen bunnies flattened from 16 (at 4: 7.4 samples a
-        // primitive), the herd not at 16; real-time frames of one sample never.
-        assert!(auto(4, 69_678) && !auto(2, 69_678) && !auto(1, 36));
-        assert!(auto(16, 1_114_659) && !auto(4, 1_114_659));
-        assert!(!auto(16, 10_031_907));
+    fn auto_trees_by_h_ploc_from_a_few_samples_and_enough_segments_per_primitive() {
+        let frame = |depth, flags| Frame {
+            max_depth: depth,
+            flags,
+            ..Default::default()
+        };
+        let hd = |spp| segments(&frame(4, 0), 1920 * 1080, spp);
+        let table2 = segments(&frame(16, FLAG_NEE), 800 * 800, 32);
+        assert_eq!(table2, 800 * 800 * 32 * 16 * 2);
+        let auto = |spp, segments, prims| Tree::Auto.builds_ploc(Treelets::Auto, spp, segments, prims);
+        // Real-time frames of one sample never; the bunny from 4 spp, the sixteen bunnies
+        // flattened from 8 (at 4: 30 segments a primitive); the herd at table 2's frame.
+        assert!(!auto(1, hd(1), 36) && !auto(2, hd(2), 69_678) && auto(4, hd(4), 69_678));
+        assert!(!auto(4, hd(4), 1_114_659) && auto(8, hd(8), 1_114_659));
+        assert!(auto(32, table2, 10_031_907) && !auto(4, hd(4), 10_031_907));
         // --treelets on and off decide for `auto`; karras and ploc decide alone.
         assert!(Tree::Auto.builds_ploc(Treelets::On, 1, 1, u64::MAX / 64));
-        assert!(!Tree::Auto.builds_ploc(Treelets::Off, 64, hd, 1));
+        assert!(!Tree::Auto.builds_ploc(Treelets::Off, 64, u64::MAX, 1));
         assert!(Tree::Ploc.builds_ploc(Treelets::Off, 1, 1, 1));
-        assert!(!Tree::Karras.builds_ploc(Treelets::On, 64, hd, 1));
+        assert!(!Tree::Karras.builds_ploc(Treelets::On, 64, u64::MAX, 1));
     }
 
     #[test]
