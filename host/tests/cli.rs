@@ -305,6 +305,21 @@ fn explain_says_which_tree_auto_builds() {
     }
 }
 
+/// `raytrace compare` checks the GPU's BVH against the CPU executor's build over the GPU's
+/// own world-space primitives: at 8 spp `--tree auto` builds by H-PLOC, whose merges follow
+/// the boxes' bits, which the backends' transforms may round differently.
+#[test]
+fn compare_passes_with_an_h_ploc_tree() {
+    if raytrace::gpu::Gpu::list().map_or(true, |d| d.is_empty()) {
+        eprintln!("SKIPPED compare_passes_with_an_h_ploc_tree: no Vulkan device");
+        return;
+    }
+    let out = picture("compare-ploc");
+    let (o, stdout, stderr) = run(&["compare", "cornell", "--size", "48x48", "--spp", "8", "--out", &out]);
+    assert!(o.status.success(), "{stdout}\n{stderr}");
+    assert!(stdout.contains("world-space primitives, bit for bit: true"), "{stdout}");
+}
+
 /// `bench accuracy --devices` names a device that is not there before rendering anything.
 #[test]
 fn a_benchmarks_reference_devices_are_checked() {

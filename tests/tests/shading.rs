@@ -364,6 +364,7 @@ fn the_damaged_helmet_opens_textured_and_cpu_and_gpu_agree() {
     };
     let kernels = Arc::new(raytrace::gpu::Kernels::new(&gpu).expect("kernels"));
     let c = raytrace::cli::compare(&p, &gpu, &kernels, true).expect("compare");
+    assert_eq!(c.same_build, Some(true));
     assert_eq!(c.topology_identical, Some(true));
     assert!(c.stats.relative_rmse < 0.03, "relative RMSE {}", c.stats.relative_rmse);
     assert_no_validation_errors(&gpu);

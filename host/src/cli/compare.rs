@@ -14,8 +14,14 @@ use std::sync::Arc;
 pub struct Comparison {
     pub stats: picture::DiffStats,
     /// Same tree: child links, parents and primitive order (`None`: the GPU traced with the
-    /// driver's structures, `--accel driver`, and built no BVH of the project's).
+    /// driver's structures, `--accel driver`, and built no BVH of the project's). The radix
+    /// tree's follows the Morton codes; an H-PLOC tree's follows the boxes' bits, so it can
+    /// differ where the backends' transforms round a coordinate differently (`fma`).
     pub topology_identical: Option<bool>,
+    /// The GPU's BVH is the CPU executor's build over the GPU's own world-space primitives,
+    /// bit for bit (nodes, parents, primitive order, wide nodes): the builder's guarantee,
+    /// whatever the transforms rounded (`None`: no BVH of the project's, or two levels).
+    pub same_build: Option<bool>,
     /// Same tree and bit-identical boxes.
     pub bvh_identical: bool,
     /// Largest difference between the backends' world-space coordinates, relative to the
@@ -55,7 +61,15 @@ pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool
             && g.parents == cpu_out.bvh.parents
             && g.sorted_prims == cpu_out.bvh.sorted_prims
     });
-    let bvh_identical = topology_identical == Some(true) && gpu_bvh.is_some_and(|g| g.nodes == cpu_out.bvh.nodes);
+    let bvh_identical =
+        topology_identical == Some(true) && gpu_bvh.as_ref().is_some_and(|g| g.nodes == cpu_out.bvh.nodes);
+    let same_build = match &gpu_bvh {
+        Some(g) if p.data.instancing.is_none() => {
+            let (b, _) = crate::cpu::build(&gpu_tris, &gpu_spheres, p.build(p.spp));
+            Some(g.nodes == b.nodes && g.parents == b.parents && g.sorted_prims == b.sorted_prims && g.wide == b.wide)
+        }
+        _ => None,
+    };
     let floats = |t: &[shared::types::Triangle], s: &[shared::types::Sphere]| -> Vec<f32> {
         let mut v: Vec<f32> = bytemuck::cast_slice(t).to_vec();
         v.extend_from_slice(bytemuck::cast_slice(s));
@@ -72,6 +86,7 @@ pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool
     Ok(Comparison {
         stats,
         topology_identical,
+        same_build,
         bvh_identical,
         world_max_error,
         cpu: c,
@@ -103,10 +118,19 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
     for s in stages {
         println!("| {s} | {} | {} |", find(&c.cpu, s), find(&c.gpu, s));
     }
+    if let Some(same) = c.same_build {
+        println!("GPU BVH = the CPU executor's build over the GPU's world-space primitives, bit for bit: {same}");
+    }
     match c.topology_identical {
         Some(same) => println!(
-            "world-space primitives: largest relative difference {:.2e}; BVH topology identical: {same}; BVH boxes bit-identical: {}",
-            c.world_max_error, c.bvh_identical
+            "world-space primitives: largest relative difference {:.2e}; the two renders' BVH topology identical: {same}{}; boxes bit-identical: {}",
+            c.world_max_error,
+            if !same && p.build(p.spp).builds_ploc() && c.same_build == Some(true) {
+                " (an H-PLOC tree follows the boxes' bits, which the transforms rounded differently)"
+            } else {
+                ""
+            },
+            c.bvh_identical
         ),
         None => println!(
             "world-space primitives: largest relative difference {:.2e}; the GPU traced the driver's acceleration structures (--accel), the CPU the project's BVH",
@@ -123,7 +147,12 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
         "wrote {} (CPU | GPU | |difference|, full scale = half the mean luminance)",
         out.display()
     );
-    if c.topology_identical == Some(false) {
+    if c.same_build == Some(false) {
+        bail!("the GPU's BVH differs from the CPU executor's build over the same world-space primitives");
+    }
+    // A radix tree follows the Morton codes, which the transforms' last bits leave alone;
+    // an H-PLOC tree may differ with them.
+    if c.topology_identical == Some(false) && !p.build(p.spp).builds_ploc() {
         bail!("the CPU and GPU built BVHs of different topology");
     }
     if c.stats.relative_rmse > tolerance {
