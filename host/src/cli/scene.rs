@@ -196,7 +196,7 @@ impl Tree {
             (Tree::Ploc, _) => true,
             (Tree::Karras, _) => false,
             (Tree::Auto, Treelets::Auto) => {
-                spp >= Self::AUTO_FROM_SPP && segments >= Self::AUTO_SEGMENTS_PER_PRIM * prims
+                spp >= Self::AUTO_FROM_SPP && segments >= Self::AUTO_SEGMENTS_PER_PRIM.saturating_mul(prims)
             }
             (Tree::Auto, treelets) => treelets == Treelets::On,
         }
@@ -207,7 +207,9 @@ impl Tree {
 /// with `frame`'s depth: one a bounce, two with next-event estimation (its shadow ray).
 pub fn segments(frame: &Frame, pixels: u64, spp: u32) -> u64 {
     let nee = if frame.flags & FLAG_NEE != 0 { 2 } else { 1 };
-    pixels * spp as u64 * frame.max_depth.max(1) as u64 * nee
+    pixels
+        .saturating_mul(spp as u64)
+        .saturating_mul(frame.max_depth.max(1) as u64 * nee)
 }
 
 /// Whether the BVH build restructures treelets (see `BuildOptions`).
@@ -456,6 +458,7 @@ mod tests {
         let hd = |spp| segments(&frame(4, 0), 1920 * 1080, spp);
         let table2 = segments(&frame(16, FLAG_NEE), 800 * 800, 32);
         assert_eq!(table2, 800 * 800 * 32 * 16 * 2);
+        assert_eq!(segments(&frame(64, FLAG_NEE), 16384 * 16384, u32::MAX), u64::MAX);
         let auto = |spp, segments, prims| Tree::Auto.builds_ploc(Treelets::Auto, spp, segments, prims);
         // Real-time frames of one sample never; the bunny from 4 spp, the sixteen bunnies
         // flattened from 8 (at 4: 30 segments a primitive); the herd at table 2's frame.
