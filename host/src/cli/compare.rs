@@ -34,8 +34,9 @@ pub struct Comparison {
 /// Renders on both backends with the same random streams and compares them.
 pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool) -> Result<Comparison> {
     let mut r = GpuRenderer::new(gpu, kernels)?;
+    let build = p.build(p.spp);
     // One submission: every sample sees the BVH built in it.
-    r.set_build(p.build(p.spp));
+    r.set_build(build);
     let (tracer, _) = p.tracer(gpu);
     r.set_accel(tracer, p.driver_build)?;
     r.load(&p.data, &p.frame)?;
@@ -65,7 +66,20 @@ pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool
         topology_identical == Some(true) && gpu_bvh.as_ref().is_some_and(|g| g.nodes == cpu_out.bvh.nodes);
     let same_build = match &gpu_bvh {
         Some(g) if p.data.instancing.is_none() => {
-            let (b, _) = crate::cpu::build(&gpu_tris, &gpu_spheres, p.build(p.spp));
+            // The CPU render's own tree where the primitives are the same bits, else a build
+            // over the GPU's.
+            let same = |a: &[u8], b: &[u8]| a == b;
+            let rebuilt;
+            let b = if same(bytemuck::cast_slice(&gpu_tris), bytemuck::cast_slice(&cpu_out.tris))
+                && same(
+                    bytemuck::cast_slice(&gpu_spheres),
+                    bytemuck::cast_slice(&cpu_out.spheres),
+                ) {
+                &cpu_out.bvh
+            } else {
+                rebuilt = crate::cpu::build(&gpu_tris, &gpu_spheres, build).0;
+                &rebuilt
+            };
             Some(g.nodes == b.nodes && g.parents == b.parents && g.sorted_prims == b.sorted_prims && g.wide == b.wide)
         }
         _ => None,
@@ -100,6 +114,7 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
     let p = args.prepare()?;
     let (gpu, kernels) = open_gpu(opts).context("compare needs a Vulkan device")?;
     let c = compare(&p, &gpu, &kernels, false)?;
+    let ploc = p.build(p.spp).builds_ploc();
     let mean = c.cpu.picture.mean_luminance().max(1e-6) as f32;
     picture::write_comparison(&c.cpu.picture, &c.gpu.picture, 0.5 * mean, out)?;
     println!(
@@ -125,7 +140,7 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
         Some(same) => println!(
             "world-space primitives: largest relative difference {:.2e}; the two renders' BVH topology identical: {same}{}; boxes bit-identical: {}",
             c.world_max_error,
-            if !same && p.build(p.spp).builds_ploc() && c.same_build == Some(true) {
+            if !same && ploc && c.same_build == Some(true) {
                 " (an H-PLOC tree follows the boxes' bits, which the transforms rounded differently)"
             } else {
                 ""
@@ -152,7 +167,7 @@ pub fn compare_command(args: &SceneArgs, out: &Path, tolerance: f64, opts: &GpuO
     }
     // A radix tree follows the Morton codes, which the transforms' last bits leave alone;
     // an H-PLOC tree may differ with them.
-    if c.topology_identical == Some(false) && !p.build(p.spp).builds_ploc() {
+    if c.topology_identical == Some(false) && !ploc {
         bail!("the CPU and GPU built BVHs of different topology");
     }
     if c.stats.relative_rmse > tolerance {

@@ -1,6 +1,6 @@
 //! `raytrace render`: rendering a prepared scene on either backend with progress, the
 //! backend `auto` picks, the summary line.
-use super::scene::{segments, Prepared, SceneArgs, Tree, Treelets};
+use super::scene::{Prepared, SceneArgs, Tree, Treelets};
 use crate::cpu::{render_cpu_samples, CpuDenoiser, CpuRender};
 use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Instance, Kernels};
 use crate::picture::Picture;
@@ -711,8 +711,7 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
     if args.explain {
         println!("kernel features for {}:\n{}", p.scene.name, p.features.explain());
         let b = p.build(p.spp);
-        let pixels = p.frame.width as u64 * p.frame.height as u64;
-        let per_prim = segments(&p.frame, pixels, p.spp) / (p.frame.n_prims as u64).max(1);
+        let per_prim = p.segments(p.spp) / (p.frame.n_prims as u64).max(1);
         let why = if p.tree == Tree::Auto && p.treelets == Treelets::Auto && !b.wide {
             format!(
                 " (--tree auto: {} spp a frame, {per_prim} path segments per primitive; H-PLOC from {} and {})",

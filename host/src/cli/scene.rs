@@ -411,16 +411,24 @@ impl Prepared {
     /// says ([`Tree::builds_ploc`]), else the radix tree, restructured by treelets where
     /// `--treelets` says it pays.
     pub fn build(&self, spp: u32) -> BuildOptions {
-        let pixels = self.frame.width as u64 * self.frame.height as u64;
         let prims = self.frame.n_prims as u64;
-        let segments = segments(&self.frame, pixels, spp);
         BuildOptions {
             bits: self.bits,
-            treelets: self.treelets.resolve(spp, pixels, prims),
+            treelets: self.treelets.resolve(spp, self.pixels(), prims),
             wide: self.layout == Layout::Wide,
             rounds: 1,
-            ploc: self.tree.builds_ploc(self.treelets, spp, segments, prims),
+            ploc: self.tree.builds_ploc(self.treelets, spp, self.segments(spp), prims),
         }
+    }
+
+    /// The frame's pixels.
+    pub fn pixels(&self) -> u64 {
+        self.frame.width as u64 * self.frame.height as u64
+    }
+
+    /// The most path segments a frame of `spp` samples per pixel traces ([`segments`]).
+    pub fn segments(&self, spp: u32) -> u64 {
+        segments(&self.frame, self.pixels(), spp)
     }
 
     /// What traces this frame's rays on `gpu`, and why ([`AccelChoice::resolve`]).
