@@ -551,6 +551,17 @@ impl Path {
         }
     }
 
+    /// After a segment has added what its hit emits: the first segment's radiance is the
+    /// path's emitted part, and with `capture` its hit goes to `first`.
+    fn first_segment_ends(&mut self, capture: bool, found: Found, first: &mut Found) {
+        if self.depth == 0 {
+            self.emitted = self.l;
+            if capture {
+                *first = found;
+            }
+        }
+    }
+
     /// The path's radiance: `l`, and in a scene in two levels with next-event estimation
     /// what the shadow rays brought, added last as [`resolve_pixel`] adds it.
     fn radiance(&self, w: &World) -> Vec3 {
@@ -629,10 +640,18 @@ fn segment<T: Trace>(
         }
         return false;
     }
+    let material = w.material(found.at);
+    // The last segment sees only what its surface emits, and a material without emission
+    // (whose texture can only scale it) emits nothing: its surface is not shaded.
+    let last = q.depth + 1 >= f.max_depth;
+    if last && xyz(material.emission) == Vec3::ZERO {
+        q.first_segment_ends(capture, found, first);
+        return false;
+    }
     let mut sp = shading::surface_point(&w.scene, w.objects, w.attrs, found.at, o, d, &hit);
     let cone_width = q.cone_width + q.cone_spread * hit.t;
     let m = shading::textured(
-        &w.material(found.at),
+        &material,
         &mut sp,
         d,
         cone_width,
@@ -654,16 +673,17 @@ fn segment<T: Trace>(
         };
         q.l += q.beta * le * weight;
     }
-    if q.depth == 0 {
-        q.emitted = q.l;
-        if capture {
-            *first = found;
-        }
+    q.first_segment_ends(capture, found, first);
+    // The last segment scatters nowhere: its bounce, light sample and roulette would end
+    // with the path, and nothing reads its random stream after it (each sample seeds its
+    // own), so they are not drawn: the same image.
+    if last {
+        return false;
     }
     let s = material::scatter(&m, d, ng, sp.ns, w.scene.features, rng);
     // Next-event estimation lights every non-delta surface, whether or not the direction
     // the BSDF sampled goes on (a GGX sample below the surface ends the path, not the light).
-    if s.diffuse && mode.nee && q.depth + 1 < f.max_depth {
+    if s.diffuse && mode.nee {
         let (side, shading_side) = facing(d, ng, sp.ns);
         let l = light_sample(w, &m, d, p, side, shading_side, scale, mode.mis, rng);
         if w.scene.features & FEATURE_INSTANCES != 0 {
@@ -704,7 +724,7 @@ fn segment<T: Trace>(
         }
         q.beta /= survive;
     }
-    q.depth < f.max_depth
+    true
 }
 
 /// Persistent path tracing (the host's `Kernel::PathTracePersistent`, workgroups of 1,024):
