@@ -460,6 +460,17 @@ pub fn wide_write(
     wide::write(flat_index(id.x, id.y), p, nodes, ends, scratch, out);
 }
 
+/// After the tree's boxes are final: each internal node's pair, its children as the walk
+/// reads them (`shared::traverse::write_pairs`).
+#[spirv(compute(threads(256)))]
+pub fn pairs_write(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &mut [Node],
+) {
+    shared::traverse::write_pairs(flat_index(id.x, id.y), p.n, nodes);
+}
+
 #[spirv(compute(threads(256)))]
 #[allow(clippy::too_many_arguments)]
 pub fn transform(

@@ -1,5 +1,6 @@
 //! Ray queries against the scene's primitives: closest hit and any hit, through the BVH with
-//! a fixed-size stack (nearest child first, far child pushed), or by testing every primitive
+//! a fixed-size stack (nearest child first, far child pushed; each node's children read as
+//! one pair, [`write_pairs`]), or by testing every primitive
 //! (the thesis's brute force, kept for comparison), or through the 4-wide BVH collapsed from
 //! it (`crate::wide`, [`VARIANT_WIDE_BVH`]): one node read gives four children's boxes, leaves
 //! hold up to two primitives, hit children are visited nearest first. Rays with a
@@ -8,7 +9,7 @@ use crate::alpha::{self, Coverage};
 use crate::instance::{Instance, MeshRef, Placed};
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
-use crate::sync::{at, elem, elem_mut};
+use crate::sync::{at, at_mut, elem, elem_mut};
 use crate::transform;
 use crate::types::{
     xyz, Hit, Node, Object, Sphere, Triangle, FEATURE_ALPHA, FEATURE_INSTANCES, FEATURE_SPHERES, FEATURE_TRIANGLES,
@@ -26,7 +27,8 @@ use spirv_std::glam::Vec3;
 /// primary-ray throughput (bench/NOTES.md, session 19).
 pub const STACK: usize = 96;
 
-/// The primitives of a scene and its BVH (`nodes` empty for brute force).
+/// The primitives of a scene and its BVH (`nodes` empty for brute force). A flattened
+/// scene's binary walk reads `nodes` as [`traced_nodes`] of them: the tree, then its pairs.
 #[derive(Copy, Clone)]
 pub struct Scene<'a> {
     pub tris: &'a [Triangle],
@@ -299,8 +301,55 @@ fn leaf(s: &Scene, r: &TriRay, word: u32, limit: &mut f32, best: &mut Hit) {
     }
 }
 
-/// Stack traversal. Leaves are the nodes `n - 1..2n - 1`; their primitive is tested as soon
-/// as their box is hit, internal children are visited nearest first.
+/// Where a flattened scene's node buffer holds the children's pairs: after the Karras
+/// tree's `2n - 1` nodes and a node of padding, so that every pair (64 bytes) starts on a
+/// 64-byte boundary.
+pub fn pairs_at(n: u32) -> u32 {
+    2 * n
+}
+
+/// Nodes a flattened scene's binary walk reads for `n` primitives: the tree's and, from two
+/// primitives on, the padding and a pair per internal node ([`write_pairs`]).
+pub fn traced_nodes(n: u32) -> u32 {
+    if n < 2 {
+        n
+    } else {
+        4 * n - 2
+    }
+}
+
+/// Writes internal node `i`'s pair (`i < n - 1`, of the `n`-primitive tree in `nodes`): its
+/// two children, each as a node holding the child's box, in `a` the child's index and in `b`
+/// a leaf child's primitive ([`INVALID`] for an internal child), at nodes
+/// `pairs_at(n) + 2 i` and `+ 1`. The walk then reads one pair a step (one 64-byte load)
+/// where the tree alone needs the node's links and then each child's box (H200, bunny
+/// diffuse bounces 2.71 -> 2.80 Grays/s, the thesis frame's trace 53.4 -> 51.3 ms:
+/// bench/NOTES.md, session 41). A copy made after the boxes are final (the GPU's
+/// `pairs_write` after the fit, a refit or H-PLOC; the CPU executor's `bvh::pairs`), so the
+/// backends' pairs are equal whenever their trees are.
+pub fn write_pairs(i: u32, n: u32, nodes: &mut [Node]) {
+    if n < 2 || i >= n - 1 {
+        return;
+    }
+    let inner = *at(nodes, i);
+    let first_leaf = n - 1;
+    let entry = |nodes: &[Node], c: u32| {
+        let child = *at(nodes, c);
+        Node {
+            min: child.min,
+            a: c,
+            max: child.max,
+            b: if c >= first_leaf { child.a } else { INVALID },
+        }
+    };
+    let (ea, eb) = (entry(nodes, inner.a), entry(nodes, inner.b));
+    *at_mut(nodes, pairs_at(n) + 2 * i) = ea;
+    *at_mut(nodes, pairs_at(n) + 2 * i + 1) = eb;
+}
+
+/// Stack traversal of the binary tree through its pairs ([`write_pairs`]): a step reads the
+/// node's pair and tests both children's boxes; a hit leaf's primitive is tested at once,
+/// hit internal children are visited nearest first (the far one pushed).
 fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
     let mut best = Hit::MISS;
     let n = s.n_prims;
@@ -321,16 +370,18 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
         return best;
     }
     let first_leaf = n - 1;
+    let pairs = pairs_at(n);
     let mut stack = [MaybeUninit::<u32>::uninit(); STACK];
     let mut sp = 0usize;
     let mut node = 0u32;
     loop {
-        let inner = *at(s.nodes, node);
-        let (a, ta) = visit(s, &r, inner.a, first_leaf, &mut limit, &mut best);
+        let ea = *at(s.nodes, pairs + 2 * node);
+        let eb = *at(s.nodes, pairs + 2 * node + 1);
+        let (a, ta) = visit(s, &r, &ea, first_leaf, &mut limit, &mut best);
         if ANY && best.prim != INVALID {
             return best;
         }
-        let (b, tb) = visit(s, &r, inner.b, first_leaf, &mut limit, &mut best);
+        let (b, tb) = visit(s, &r, &eb, first_leaf, &mut limit, &mut best);
         if ANY && best.prim != INVALID {
             return best;
         }
@@ -349,6 +400,26 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
             return best;
         }
     }
+}
+
+/// Tests a pair's entry `e` (a child, see [`write_pairs`]): a hit leaf's primitive is
+/// intersected at once (updating `limit` and `best`), a hit internal node is returned with
+/// its entry distance for the caller to descend into. Returns `(INVALID, INFINITY)`
+/// otherwise.
+fn visit(s: &Scene, r: &TriRay, e: &Node, first_leaf: u32, limit: &mut f32, best: &mut Hit) -> (u32, f32) {
+    let t_box = slab(s, r, e, *limit);
+    if t_box == f32::INFINITY {
+        return (INVALID, f32::INFINITY);
+    }
+    if e.a < first_leaf {
+        return (e.a, t_box);
+    }
+    let (t, u, v) = primitive(s, r, e.b, *limit);
+    if t < *limit {
+        *limit = t;
+        *best = Hit { t, prim: e.b, u, v };
+    }
+    (INVALID, f32::INFINITY)
 }
 
 /// Closest hit in `(0, t_max)` of an instanced scene ([`FEATURE_INSTANCES`]) and the
@@ -592,26 +663,6 @@ fn box_entry(s: &Scene, r: &TriRay, lo: Vec3, hi: Vec3, limit: f32) -> f32 {
     } else {
         intersect::slab(r.origin, r.inv_dir, lo, hi, limit)
     }
-}
-
-/// Tests child `child`'s box; a hit leaf's primitive is intersected at once (updating
-/// `limit` and `best`), a hit internal node is returned with its entry distance for the
-/// caller to descend into. Returns `(INVALID, INFINITY)` otherwise.
-fn visit(s: &Scene, r: &TriRay, child: u32, first_leaf: u32, limit: &mut f32, best: &mut Hit) -> (u32, f32) {
-    let c = *at(s.nodes, child);
-    let t_box = slab(s, r, &c, *limit);
-    if t_box == f32::INFINITY {
-        return (INVALID, f32::INFINITY);
-    }
-    if child < first_leaf {
-        return (child, t_box);
-    }
-    let (t, u, v) = primitive(s, r, c.a, *limit);
-    if t < *limit {
-        *limit = t;
-        *best = Hit { t, prim: c.a, u, v };
-    }
-    (INVALID, f32::INFINITY)
 }
 
 /// The hit point of the hit `(t, b1, b2)` of `origin + t dir` on primitive `prim` of a

@@ -115,7 +115,7 @@ fn cpu_queries(data: &SceneGpu, frame: &Frame, rays: &[Ray]) -> (Vec<bool>, Vec<
     let s = traverse::Scene {
         tris: &tris,
         spheres: &spheres,
-        nodes: &bvh.nodes,
+        nodes: &bvh.traced_nodes(),
         wide: &bvh.wide,
         order: &bvh.sorted_prims,
         n_tris: frame.n_tris,

@@ -119,7 +119,7 @@ fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<H
         scene: Prims {
             tris: &cpu.tris,
             spheres: &cpu.spheres,
-            nodes: &cpu.bvh.nodes,
+            nodes: &cpu.bvh.traced_nodes(),
             wide: &cpu.bvh.wide,
             order: &cpu.bvh.sorted_prims,
             n_tris: p.frame.n_tris,

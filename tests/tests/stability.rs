@@ -1609,7 +1609,7 @@ fn lbvh_edge_cases_trace_like_brute_force() {
             continue;
         }
         let treelet_scene = traverse::Scene {
-            nodes: &restructured.nodes,
+            nodes: &restructured.traced_nodes(),
             features: scene.features & !shared::types::VARIANT_WIDE_BVH,
             ..scene
         };

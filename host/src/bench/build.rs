@@ -75,9 +75,10 @@ fn column_ns(t: &[(&str, f64)], name: &str) -> f64 {
         .sum()
 }
 
-/// Bytes of the nodes of a BVH over `n` primitives: 2n - 1 nodes of 32 bytes.
+/// Bytes of the nodes a binary BVH over `n` primitives is traced with: its `2n - 1` nodes of
+/// 32 bytes, a node of padding and its pairs (`shared::traverse::traced_nodes`).
 fn bvh_bytes_for(n: usize) -> usize {
-    (2 * n).saturating_sub(1) * size_of::<shared::types::Node>()
+    shared::traverse::traced_nodes(n as u32) as usize * size_of::<shared::types::Node>()
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -254,8 +255,10 @@ pub fn markdown(r: &BuildReport) -> String {
          built tree (internal boxes emptied, the fit run again; bounds, codes, sort and tree \
          kept; an H-PLOC tree's by the counter refit), timed as `total` (none for treelets or wide \
          trees, which cannot be refit); an H-PLOC build's tree and boxes are one kernel, timed in \
-         `tree`. BVH bytes count the \
-         nodes traced only (a wide build: the wide nodes it wrote; its buffer has room for \
+         `tree`; a binary build's `refit` stage includes its pairs pass (each internal node's \
+         children copied into one 64-byte pair, as the binary walk reads them). BVH bytes count \
+         the nodes traced (a binary build: the tree and its pairs; a wide build: the wide \
+         nodes it wrote; its buffer has room for \
          the worst case, a node per binary internal node, counted under scratch with the \
          binary tree); scratch is everything else the builder holds (inputs included). SAH: \
          surface-area cost of the tree traced (node areas, and leaf areas once per primitive, \

@@ -9,6 +9,7 @@ pub use levels::{
 };
 pub use validate::{validate, validate_wide, BvhStats, WideStats};
 
+use shared::traverse;
 use shared::types::{Node, OrderedBounds};
 use shared::wide::WideNode;
 
@@ -141,6 +142,36 @@ pub struct BuildResult {
     pub parents: Vec<u32>,
     /// The wide BVH (wide builds only), root first.
     pub wide: Vec<WideNode>,
+    /// Binary builds of two or more primitives: each internal node's pair, its two children
+    /// as the binary walk reads them (`shared::traverse::write_pairs`), node `i`'s at
+    /// `2 i` and `2 i + 1`.
+    pub pairs: Vec<Node>,
+}
+
+impl BuildResult {
+    /// The nodes a flattened scene's binary walk reads (`shared::traverse::traced_nodes`):
+    /// the tree's, a node of padding and the pairs, as the GPU's node buffer holds them.
+    pub fn traced_nodes(&self) -> Vec<Node> {
+        let mut nodes = self.nodes.clone();
+        if !self.pairs.is_empty() {
+            nodes.push(Node::default());
+            nodes.extend_from_slice(&self.pairs);
+        }
+        nodes
+    }
+}
+
+/// The pairs of the binary tree `nodes` of `n` primitives (see [`BuildResult::pairs`]),
+/// written by the kernel the GPU's `pairs_write` pass runs; none under two primitives.
+pub fn pairs(nodes: &[Node]) -> Vec<Node> {
+    let n = (nodes.len() as u32).div_ceil(2);
+    if n < 2 {
+        return Vec::new();
+    }
+    let mut all = nodes.to_vec();
+    all.resize(traverse::traced_nodes(n) as usize, Node::default());
+    (0..n - 1).for_each(|i| traverse::write_pairs(i, n, &mut all));
+    all.split_off(traverse::pairs_at(n) as usize)
 }
 
 /// Stage names in build order, as reported by both backends.

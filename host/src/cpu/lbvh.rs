@@ -195,6 +195,8 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         bounds::publish(0, &mut pair);
         let (nodes, parents) = ploc(&p, &keys, &vals, tris, spheres);
         lap("tree", &mut times);
+        // Its "refit" stage: the pairs.
+        out.pairs = crate::bvh::pairs(&nodes);
         lap("refit", &mut times);
         out.nodes = nodes;
         out.parents = parents;
@@ -241,6 +243,9 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     } else {
         fit(&p, prims, &parents, &visits, &nodes)
     };
+    if !opts.wide {
+        out.pairs = crate::bvh::pairs(&nodes);
+    }
     lap("refit", &mut times);
     if opts.wide && n > 0 {
         out.wide = collapse(&p, &nodes, &parents, &mut visits);
@@ -353,8 +358,10 @@ fn refit_with(
         let mut visits = vec![0u32; 2 * n as usize];
         let variant = if again { ORDERED | AGAIN } else { ORDERED };
         restructured(variant, &p, prims, &mut parents, &mut visits, &mut words);
+        let nodes: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
         return Ok(BuildResult {
-            nodes: bytemuck::pod_collect_to_vec(&words),
+            pairs: crate::bvh::pairs(&nodes),
+            nodes,
             parents,
             wide: Vec::new(),
             ..earlier.clone()
@@ -385,8 +392,10 @@ fn refit_with(
     let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(&earlier.nodes);
     (0..n).for_each(|i| refit::empty_box(i, &p, &mut words));
     let emptied: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
+    let nodes = fit(&p, prims, &earlier.parents, &visits, &emptied);
     Ok(BuildResult {
-        nodes: fit(&p, prims, &earlier.parents, &visits, &emptied),
+        pairs: crate::bvh::pairs(&nodes),
+        nodes,
         wide: Vec::new(),
         ..earlier.clone()
     })

@@ -189,6 +189,7 @@ pub fn render_cpu_samples(
         None => crate::cpu::build(&tris, &spheres, build),
     };
     timings.extend(build_times);
+    let nodes = bvh.traced_nodes();
     // Two levels: every mesh's BVH and the top level over the objects where they are now.
     let t = Instant::now();
     let levels = scene
@@ -211,7 +212,7 @@ pub fn render_cpu_samples(
         None => Scene {
             tris: &tris,
             spheres: &spheres,
-            nodes: &bvh.nodes,
+            nodes: &nodes,
             wide: &bvh.wide,
             order: &bvh.sorted_prims,
             n_tris: frame.n_tris,

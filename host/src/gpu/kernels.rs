@@ -39,6 +39,7 @@ pub enum Kernel {
     WideMark,
     WideScan,
     WideWrite,
+    PairsWrite,
     RefitTreelets,
     RefitTreeletsRelaxed,
     RefitRestructured,
@@ -74,7 +75,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 37] = [
+    pub const ALL: [Kernel; 38] = [
         Kernel::BoundsReduce,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
@@ -94,6 +95,7 @@ impl Kernel {
         Kernel::WideMark,
         Kernel::WideScan,
         Kernel::WideWrite,
+        Kernel::PairsWrite,
         Kernel::RefitTreelets,
         Kernel::RefitTreeletsRelaxed,
         Kernel::RefitRestructured,
@@ -141,6 +143,7 @@ impl Kernel {
             Kernel::WideMark => "wide_mark",
             Kernel::WideScan => "wide_scan",
             Kernel::WideWrite => "wide_write",
+            Kernel::PairsWrite => "pairs_write",
             Kernel::RefitTreelets => "refit_treelets",
             Kernel::RefitTreeletsRelaxed => "refit_treelets_relaxed",
             Kernel::RefitRestructured => "refit_restructured",

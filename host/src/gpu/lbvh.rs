@@ -9,6 +9,7 @@ use gpu_allocator::MemoryLocation;
 use shared::merge_sort;
 use shared::ploc;
 use shared::radix_sort as sort;
+use shared::traverse;
 use shared::types::{grid, item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
 use shared::wide::{self, WideNode};
 use std::sync::Arc;
@@ -64,7 +65,11 @@ impl Buffers {
         let vals_b = dev("values B", n * 4)?;
         let table = dev("sort status tables", sort::table_words(n as u32) as u64 * 4)?;
         let totals = dev("sort digit totals", sort::TOTALS_WORDS as u64 * 4)?;
-        let nodes = dev("nodes", (2 * n - 1) * size_of::<Node>() as u64)?;
+        // The tree's nodes, then the pairs the binary walk reads (`traverse::write_pairs`).
+        let nodes = dev(
+            "nodes",
+            traverse::traced_nodes(n as u32).max(1) as u64 * size_of::<Node>() as u64,
+        )?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
         let scratch = wide::Scratch::new(n as u32);
@@ -497,7 +502,7 @@ impl GpuLbvh {
             }
         }
         if opts.builds_ploc() {
-            // The tree and its boxes in one dispatch (its "refit" stage is empty).
+            // The tree and its boxes in one dispatch.
             let kernel = match bits {
                 MortonBits::B30 => Kernel::PlocU32,
                 MortonBits::B63 => Kernel::PlocU64,
@@ -507,6 +512,8 @@ impl GpuLbvh {
             cmds.dispatch_pipeline(k, tree, &[set_ab], bytemuck::bytes_of(&p), x, y);
             cmds.barrier();
             stamp(cmds, STAGES[3]);
+            // Its "refit" stage: the pairs.
+            self.record_pairs(cmds, &p)?;
             cmds.timestamp(if stages { STAGES[4] } else { "build" });
             return Ok(());
         }
@@ -544,8 +551,30 @@ impl GpuLbvh {
             cmds.barrier();
             cmds.timestamp(if stages { "wide" } else { "build" });
         } else {
+            // The pairs' pass is timed in the refit stage.
+            self.record_pairs(cmds, &p)?;
             cmds.timestamp(if stages { STAGES[4] } else { "build" });
         }
+        Ok(())
+    }
+
+    /// Records the pairs' pass after the tree's boxes are final (`pairs_write`: each internal
+    /// node's children copied as a flattened scene's binary walk reads them,
+    /// `traverse::write_pairs`). Not for nodes placed in another buffer (the levels of a
+    /// scene in two levels, whose walk reads the tree itself).
+    fn record_pairs(&self, cmds: &mut Commands, p: &BuildParams) -> Result<()> {
+        if self.nodes_at.is_some() || self.n < 2 {
+            return Ok(());
+        }
+        let b = self.bufs.as_ref().context("no primitives uploaded")?;
+        cmds.dispatch(
+            &self.kernels,
+            b.sets.sets[0],
+            Kernel::PairsWrite,
+            p,
+            (self.n - 1).div_ceil(WORKGROUP),
+        )?;
+        cmds.barrier();
         Ok(())
     }
 
@@ -593,6 +622,7 @@ impl GpuLbvh {
             let (x, y) = grid(items);
             cmds.dispatch_pipeline(k, refit, &[set], bytemuck::bytes_of(&p), x, y);
             cmds.barrier();
+            self.record_pairs(cmds, &p)?;
         }
         cmds.timestamp("refit");
         Ok(())
@@ -717,6 +747,13 @@ impl GpuLbvh {
             sorted_keys: keys(self, |b| &b.keys_a)?,
             sorted_prims: self.download(|b| &b.vals_a, n)?,
             nodes: self.download(|b| &b.nodes, total)?,
+            pairs: if opts.wide || n < 2 || self.nodes_at.is_some() {
+                Vec::new()
+            } else {
+                let at = traverse::pairs_at(n as u32) as usize;
+                let all: Vec<Node> = self.download(|b| &b.nodes, traverse::traced_nodes(n as u32) as usize)?;
+                all[at..].to_vec()
+            },
             parents: self.download(|b| &b.parents, total)?,
             wide: if opts.wide && n > 0 {
                 let s = wide::Scratch::new(n as u32);

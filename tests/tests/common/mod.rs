@@ -44,7 +44,7 @@ impl World {
         World {
             tris,
             spheres,
-            nodes: r.nodes,
+            nodes: r.traced_nodes(),
             wide: r.wide,
             order: r.sorted_prims,
         }
