@@ -466,9 +466,9 @@ pub fn wide_write(
 pub fn pairs_write(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &mut [Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] words: &mut [spirv_std::glam::UVec4],
 ) {
-    shared::traverse::write_pairs(flat_index(id.x, id.y), p.n, nodes);
+    shared::traverse::write_pairs(flat_index(id.x, id.y), p.n, words);
 }
 
 #[spirv(compute(threads(256)))]

@@ -18,7 +18,7 @@ use crate::types::{
 use crate::wide::{self, WideNode, LEAF};
 use core::mem::MaybeUninit;
 use seq_macro::seq;
-use spirv_std::glam::Vec3;
+use spirv_std::glam::{UVec4, Vec3};
 
 /// Entries of the traversal stack. A Karras tree over `n` primitives with 30- or 63-bit
 /// codes is at most `bits + ceil(log2 n)` deep; deeper subtrees are skipped (never reached
@@ -318,7 +318,8 @@ pub fn traced_nodes(n: u32) -> u32 {
     }
 }
 
-/// Writes internal node `i`'s pair (`i < n - 1`, of the `n`-primitive tree in `nodes`): its
+/// Writes internal node `i`'s pair (`i < n - 1`, of the `n`-primitive tree in the node
+/// buffer `words`): its
 /// two children, each as a node holding the child's box, in `a` the child's index and in `b`
 /// a leaf child's primitive ([`INVALID`] for an internal child), at nodes
 /// `pairs_at(n) + 2 i` and `+ 1`. The walk then reads one pair a step (one 64-byte load)
@@ -327,24 +328,25 @@ pub fn traced_nodes(n: u32) -> u32 {
 /// bench/NOTES.md, session 41). A copy made after the boxes are final (the GPU's
 /// `pairs_write` after the fit, a refit or H-PLOC; the CPU executor's `bvh::pairs`), so the
 /// backends' pairs are equal whenever their trees are.
-pub fn write_pairs(i: u32, n: u32, nodes: &mut [Node]) {
+pub fn write_pairs(i: u32, n: u32, words: &mut [UVec4]) {
     if n < 2 || i >= n - 1 {
         return;
     }
-    let inner = *at(nodes, i);
+    // The node buffer as 16-byte words, so that a node moves in two vector loads or stores:
+    // node `k` is words `2 k` (`min`, `a`) and `2 k + 1` (`max`, `b`).
+    let (a, b) = (at(words, 2 * i).w, at(words, 2 * i + 1).w);
     let first_leaf = n - 1;
-    let entry = |nodes: &[Node], c: u32| {
-        let child = *at(nodes, c);
-        Node {
-            min: child.min,
-            a: c,
-            max: child.max,
-            b: if c >= first_leaf { child.a } else { INVALID },
-        }
+    let entry = |words: &[UVec4], c: u32| {
+        let (lo, hi) = (*at(words, 2 * c), *at(words, 2 * c + 1));
+        let prim = if c >= first_leaf { lo.w } else { INVALID };
+        (UVec4::new(lo.x, lo.y, lo.z, c), UVec4::new(hi.x, hi.y, hi.z, prim))
     };
-    let (ea, eb) = (entry(nodes, inner.a), entry(nodes, inner.b));
-    *at_mut(nodes, pairs_at(n) + 2 * i) = ea;
-    *at_mut(nodes, pairs_at(n) + 2 * i + 1) = eb;
+    let ((a0, a1), (b0, b1)) = (entry(words, a), entry(words, b));
+    let at_pair = 2 * (pairs_at(n) + 2 * i);
+    *at_mut(words, at_pair) = a0;
+    *at_mut(words, at_pair + 1) = a1;
+    *at_mut(words, at_pair + 2) = b0;
+    *at_mut(words, at_pair + 3) = b1;
 }
 
 /// Stack traversal of the binary tree through its pairs ([`write_pairs`]): a step reads the

@@ -170,7 +170,8 @@ pub fn pairs(nodes: &[Node]) -> Vec<Node> {
     }
     let mut all = nodes.to_vec();
     all.resize(traverse::traced_nodes(n) as usize, Node::default());
-    (0..n - 1).for_each(|i| traverse::write_pairs(i, n, &mut all));
+    let words: &mut [glam::UVec4] = bytemuck::cast_slice_mut(&mut all);
+    (0..n - 1).for_each(|i| traverse::write_pairs(i, n, words));
     all.split_off(traverse::pairs_at(n) as usize)
 }
 
