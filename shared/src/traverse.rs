@@ -13,7 +13,7 @@ use crate::sync::{at, at_mut, elem, elem_mut};
 use crate::transform;
 use crate::types::{
     xyz, Hit, Node, Object, Sphere, Triangle, FEATURE_ALPHA, FEATURE_INSTANCES, FEATURE_SPHERES, FEATURE_TRIANGLES,
-    INVALID, VARIANT_MOLLER_TRUMBORE, VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
+    INVALID, VARIANT_MOLLER_TRUMBORE, VARIANT_NO_PAIRS, VARIANT_PLAIN_SLAB, VARIANT_SPLIT_PRODUCTS, VARIANT_WIDE_BVH,
 };
 use crate::wide::{self, WideNode, LEAF};
 use core::mem::MaybeUninit;
@@ -349,8 +349,9 @@ pub fn write_pairs(i: u32, n: u32, words: &mut [UVec4]) {
     *at_mut(words, at_pair + 3) = b1;
 }
 
-/// Stack traversal of the binary tree through its pairs ([`write_pairs`]): a step reads the
-/// node's pair and tests both children's boxes; a hit leaf's primitive is tested at once,
+/// Stack traversal of the binary tree through its pairs ([`write_pairs`]; with
+/// [`VARIANT_NO_PAIRS`] each node's links, then its children): a step reads the node's pair
+/// and tests both children's boxes; a hit leaf's primitive is tested at once,
 /// hit internal children are visited nearest first (the far one pushed).
 fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
     let mut best = Hit::MISS;
@@ -373,12 +374,20 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
     }
     let first_leaf = n - 1;
     let pairs = pairs_at(n);
+    let tree_only = s.features & VARIANT_NO_PAIRS != 0;
     let mut stack = [MaybeUninit::<u32>::uninit(); STACK];
     let mut sp = 0usize;
     let mut node = 0u32;
     loop {
-        let ea = *at(s.nodes, pairs + 2 * node);
-        let eb = *at(s.nodes, pairs + 2 * node + 1);
+        let (ea, eb) = if tree_only {
+            let inner = *at(s.nodes, node);
+            (
+                child_entry(s.nodes, inner.a, first_leaf),
+                child_entry(s.nodes, inner.b, first_leaf),
+            )
+        } else {
+            (*at(s.nodes, pairs + 2 * node), *at(s.nodes, pairs + 2 * node + 1))
+        };
         let (a, ta) = visit(s, &r, &ea, first_leaf, &mut limit, &mut best);
         if ANY && best.prim != INVALID {
             return best;
@@ -401,6 +410,17 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
         } else {
             return best;
         }
+    }
+}
+
+/// Child `c`'s entry as its parent's pair holds it ([`write_pairs`]), read from the tree
+/// itself (with [`VARIANT_NO_PAIRS`]).
+fn child_entry(nodes: &[Node], c: u32, first_leaf: u32) -> Node {
+    let child = *at(nodes, c);
+    Node {
+        a: c,
+        b: if c >= first_leaf { child.a } else { INVALID },
+        ..child
     }
 }
 

@@ -1627,6 +1627,27 @@ fn lbvh_edge_cases_trace_like_brute_force() {
                     .collect::<Vec<_>>(),
             ),
         ];
+        // The walk of the tree alone (a device whose binding cannot hold the pairs) visits
+        // the same nodes in the same order: the same hits, any-hit answers included.
+        if world.spheres.len() + world.tris.len() > 1 && scene.features & shared::types::VARIANT_WIDE_BVH == 0 {
+            let tree_only = traverse::Scene {
+                nodes: &bvh.nodes,
+                features: scene.features | shared::types::VARIANT_NO_PAIRS,
+                ..scene
+            };
+            for (i, &(o, d, t)) in rays.iter().enumerate() {
+                let (a, b) = (
+                    traverse::closest(&scene, o, d, t),
+                    traverse::closest(&tree_only, o, d, t),
+                );
+                let (any_a, any_b) = (traverse::any(&scene, o, d, t), traverse::any(&tree_only, o, d, t));
+                if a != b || any_a != any_b {
+                    wrong.push(format!(
+                        "{name}: ray {i}: pairs {a:?} {any_a}, tree alone {b:?} {any_b}"
+                    ));
+                }
+            }
+        }
         let mut brutes = vec![brute.clone(), brute];
         if let Some(g) = g.as_mut() {
             // Against the GPU's own brute force: its division rounds differently, so rays

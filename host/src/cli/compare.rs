@@ -80,7 +80,15 @@ pub fn compare(p: &Prepared, gpu: &Arc<Gpu>, kernels: &Arc<Kernels>, quiet: bool
                 rebuilt = crate::cpu::build(&gpu_tris, &gpu_spheres, build).0;
                 &rebuilt
             };
-            Some(g.nodes == b.nodes && g.parents == b.parents && g.sorted_prims == b.sorted_prims && g.wide == b.wide)
+            // The pairs where the GPU wrote them (`GpuLbvh::has_pairs`).
+            let pairs = g.pairs.is_empty() || g.pairs == b.pairs;
+            Some(
+                g.nodes == b.nodes
+                    && g.parents == b.parents
+                    && g.sorted_prims == b.sorted_prims
+                    && g.wide == b.wide
+                    && pairs,
+            )
         }
         _ => None,
     };

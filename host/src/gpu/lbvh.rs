@@ -39,6 +39,10 @@ struct Buffers {
     wide: Buffer,
     wide_scratch: Buffer,
     has_wide: bool,
+    /// Whether `nodes` has room for the pairs after the tree (`traverse::traced_nodes`):
+    /// unless the device's storage-buffer binding cannot hold them (then the tracers walk
+    /// the tree alone, `VARIANT_NO_PAIRS`).
+    has_pairs: bool,
     /// Unsorted Morton codes, copied out when a build is captured for comparison; and the
     /// host-visible copy of primitives `upload` writes. Made on first use: the renderer's
     /// builds need neither (56 bytes a primitive).
@@ -65,11 +69,12 @@ impl Buffers {
         let vals_b = dev("values B", n * 4)?;
         let table = dev("sort status tables", sort::table_words(n as u32) as u64 * 4)?;
         let totals = dev("sort digit totals", sort::TOTALS_WORDS as u64 * 4)?;
-        // The tree's nodes, then the pairs the binary walk reads (`traverse::write_pairs`).
-        let nodes = dev(
-            "nodes",
-            traverse::traced_nodes(n as u32).max(1) as u64 * size_of::<Node>() as u64,
-        )?;
+        // The tree's nodes, then the pairs the binary walk reads (`traverse::write_pairs`)
+        // where one binding can hold them.
+        let node = size_of::<Node>() as u64;
+        let traced = traverse::traced_nodes(n as u32).max(1) as u64 * node;
+        let has_pairs = traced <= gpu.max_binding;
+        let nodes = dev("nodes", if has_pairs { traced } else { (2 * n - 1) * node })?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
         let scratch = wide::Scratch::new(n as u32);
@@ -118,6 +123,7 @@ impl Buffers {
             wide,
             wide_scratch,
             has_wide,
+            has_pairs,
             capture: None,
             staging: None,
             sets,
@@ -558,12 +564,19 @@ impl GpuLbvh {
         Ok(())
     }
 
+    /// Whether the builds write the pairs after the tree (their own node buffer, with room
+    /// for them within one binding): else the tracers walk the tree alone
+    /// (`VARIANT_NO_PAIRS`).
+    pub fn has_pairs(&self) -> bool {
+        self.nodes_at.is_none() && self.bufs.as_ref().is_some_and(|b| b.has_pairs)
+    }
+
     /// Records the pairs' pass after the tree's boxes are final (`pairs_write`: each internal
     /// node's children copied as a flattened scene's binary walk reads them,
     /// `traverse::write_pairs`). Not for nodes placed in another buffer (the levels of a
     /// scene in two levels, whose walk reads the tree itself).
     fn record_pairs(&self, cmds: &mut Commands, p: &BuildParams) -> Result<()> {
-        if self.nodes_at.is_some() || self.n < 2 {
+        if !self.has_pairs() || self.n < 2 {
             return Ok(());
         }
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
@@ -747,7 +760,7 @@ impl GpuLbvh {
             sorted_keys: keys(self, |b| &b.keys_a)?,
             sorted_prims: self.download(|b| &b.vals_a, n)?,
             nodes: self.download(|b| &b.nodes, total)?,
-            pairs: if opts.wide || n < 2 || self.nodes_at.is_some() {
+            pairs: if opts.wide || n < 2 || !self.has_pairs() {
                 Vec::new()
             } else {
                 let at = traverse::pairs_at(n as u32) as usize;

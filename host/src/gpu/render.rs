@@ -16,7 +16,7 @@ use shared::envmap::EnvEntry;
 use shared::types::{
     grid, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_OBJECT,
     CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FLAG_BVH, INVALID,
-    TILE_SIDE, WORKGROUP,
+    TILE_SIDE, VARIANT_NO_PAIRS, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -572,9 +572,13 @@ impl GpuRenderer {
     }
 
     /// Specialisation constant 0 of the tracing kernels: the frame's `FEATURE_*` and
-    /// `VARIANT_*` bits, and the wide traversal where the build collapses the tree.
+    /// `VARIANT_*` bits, the wide traversal where the build collapses the tree, and a
+    /// flattened scene's binary walk without pairs where the device could not hold them
+    /// (`GpuLbvh::has_pairs`).
     fn tracer_constant(&self) -> u32 {
-        crate::render::tracer_features(self.frame.features, self.build) & !FEATURE_GUIDES
+        let features = crate::render::tracer_features(self.frame.features, self.build) & !FEATURE_GUIDES;
+        let tree_only = self.levels.is_none() && !self.build.wide && !self.lbvh.has_pairs();
+        features | if tree_only { VARIANT_NO_PAIRS } else { 0 }
     }
 
     /// [`Self::tracer_constant`] of the path tracer: with the guides while denoising (and
