@@ -319,10 +319,9 @@ pub fn traced_nodes(n: u32) -> u32 {
 }
 
 /// Writes internal node `i`'s pair (`i < n - 1`, of the `n`-primitive tree in the node
-/// buffer `words`): its
-/// two children, each as a node holding the child's box, in `a` the child's index and in `b`
-/// a leaf child's primitive ([`INVALID`] for an internal child), at nodes
-/// `pairs_at(n) + 2 i` and `+ 1`. The walk then reads one pair a step (one 64-byte load)
+/// buffer `words`): its two children, each as a node holding the child's box, in `a` the
+/// child's index and in `b` a leaf child's primitive ([`INVALID`] for an internal child), at
+/// nodes `pairs_at(n) + 2 i` and `+ 1`. The walk then reads one pair a step (one 64-byte load)
 /// where the tree alone needs the node's links and then each child's box (H200, bunny
 /// diffuse bounces 2.71 -> 2.80 Grays/s, the thesis frame's trace 53.4 -> 51.3 ms:
 /// bench/NOTES.md, session 41). A copy made after the boxes are final (the GPU's

@@ -161,7 +161,7 @@ impl BuildResult {
     }
 }
 
-/// The pairs of the binary tree `nodes` of `n` primitives (see [`BuildResult::pairs`]),
+/// The pairs of the binary tree `nodes` (`2n - 1` nodes; see [`BuildResult::pairs`]),
 /// written by the kernel the GPU's `pairs_write` pass runs; none under two primitives.
 pub fn pairs(nodes: &[Node]) -> Vec<Node> {
     let n = (nodes.len() as u32).div_ceil(2);
