@@ -731,6 +731,13 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         } else {
             format!("the binary LBVH: --bvh binary (the default, faster on the H100){why}")
         };
+        // Flattened binary trees are walked through their pairs, unless the device's binding
+        // cannot hold them (`GpuLbvh::has_pairs`).
+        let tree = if b.wide || p.data.instancing.is_some() {
+            tree
+        } else {
+            format!("{tree}; each node's children read as one 64-byte pair (the tree alone, VARIANT_NO_PAIRS, where a device's storage-buffer binding cannot hold both)")
+        };
         let driver = format!(
             "the driver's acceleration structures, the bottom level built every frame ({:?})",
             p.driver_build

@@ -746,6 +746,15 @@ impl GpuLbvh {
             }
         };
         let total = (2 * n).saturating_sub(1);
+        // The tree's nodes and, where the build wrote them, its pairs: one read.
+        let (nodes, pairs) = if opts.wide || n < 2 || !self.has_pairs() {
+            (self.download(|b| &b.nodes, total)?, Vec::new())
+        } else {
+            let mut nodes: Vec<Node> = self.download(|b| &b.nodes, traverse::traced_nodes(n as u32) as usize)?;
+            let pairs = nodes.split_off(traverse::pairs_at(n as u32) as usize);
+            nodes.truncate(total);
+            (nodes, pairs)
+        };
         Ok(BuildResult {
             bounds: self
                 .download::<OrderedBounds>(|b| &b.bounds, 2)?
@@ -759,14 +768,8 @@ impl GpuLbvh {
             },
             sorted_keys: keys(self, |b| &b.keys_a)?,
             sorted_prims: self.download(|b| &b.vals_a, n)?,
-            nodes: self.download(|b| &b.nodes, total)?,
-            pairs: if opts.wide || n < 2 || !self.has_pairs() {
-                Vec::new()
-            } else {
-                let at = traverse::pairs_at(n as u32) as usize;
-                let all: Vec<Node> = self.download(|b| &b.nodes, traverse::traced_nodes(n as u32) as usize)?;
-                all[at..].to_vec()
-            },
+            nodes,
+            pairs,
             parents: self.download(|b| &b.parents, total)?,
             wide: if opts.wide && n > 0 {
                 let s = wide::Scratch::new(n as u32);
