@@ -4,7 +4,7 @@
 //! executor. Both produce a [`Picture`] and per-stage times.
 use crate::bvh::BuildOptions;
 use crate::picture::Picture;
-use shared::types::{Frame, FLAG_BVH, VARIANT_WIDE_BVH};
+use shared::types::{Frame, FLAG_BVH, VARIANT_NO_PAIRS, VARIANT_WIDE_BVH};
 
 /// Where kernels run.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -115,12 +115,16 @@ pub fn with_bvh(mut frame: Frame, bvh: bool) -> Frame {
 }
 
 /// A frame's `features` with [`VARIANT_WIDE_BVH`] set where `build` collapses the tree into
-/// the wide BVH (the tracer then walks it).
+/// the wide BVH (the tracer then walks it), and [`VARIANT_NO_PAIRS`] where it writes a binary
+/// tree without its pairs (`BuildOptions::pairs`: the binary walk then reads the tree alone).
 pub fn tracer_features(features: u32, build: BuildOptions) -> u32 {
+    let features = features & !(VARIANT_WIDE_BVH | VARIANT_NO_PAIRS);
     if build.wide {
         features | VARIANT_WIDE_BVH
+    } else if !build.pairs {
+        features | VARIANT_NO_PAIRS
     } else {
-        features & !VARIANT_WIDE_BVH
+        features
     }
 }
 

@@ -34,6 +34,7 @@ const BUILDS: [BuildOptions; 8] = [
         wide: false,
         rounds: 1,
         ploc: false,
+        pairs: true,
     },
     BuildOptions {
         bits: MortonBits::B63,
@@ -41,6 +42,7 @@ const BUILDS: [BuildOptions; 8] = [
         wide: false,
         rounds: 1,
         ploc: false,
+        pairs: true,
     },
     BuildOptions {
         bits: MortonBits::B30,
@@ -48,6 +50,7 @@ const BUILDS: [BuildOptions; 8] = [
         wide: false,
         rounds: 1,
         ploc: false,
+        pairs: true,
     },
     BuildOptions {
         bits: MortonBits::B30,
@@ -55,6 +58,7 @@ const BUILDS: [BuildOptions; 8] = [
         wide: true,
         rounds: 1,
         ploc: false,
+        pairs: true,
     },
     BuildOptions {
         bits: MortonBits::B63,
@@ -62,6 +66,7 @@ const BUILDS: [BuildOptions; 8] = [
         wide: true,
         rounds: 1,
         ploc: false,
+        pairs: true,
     },
     BuildOptions {
         bits: MortonBits::B30,
@@ -69,6 +74,7 @@ const BUILDS: [BuildOptions; 8] = [
         wide: false,
         rounds: 3,
         ploc: false,
+        pairs: true,
     },
     BuildOptions {
         bits: MortonBits::B30,
@@ -76,6 +82,7 @@ const BUILDS: [BuildOptions; 8] = [
         wide: false,
         rounds: 1,
         ploc: true,
+        pairs: true,
     },
     BuildOptions {
         bits: MortonBits::B63,
@@ -83,6 +90,7 @@ const BUILDS: [BuildOptions; 8] = [
         wide: false,
         rounds: 1,
         ploc: true,
+        pairs: true,
     },
 ];
 
@@ -259,8 +267,8 @@ fn bunny_builds_identically_on_gpu_and_cpu() {
 }
 
 #[test]
-fn room_for_the_wide_bvh_is_made_by_the_first_wide_build() {
-    let Some((gpu, mut lbvh)) = builder("room_for_the_wide_bvh_is_made_by_the_first_wide_build") else {
+fn room_for_the_pairs_and_the_wide_bvh_is_made_by_the_first_build_asking() {
+    let Some((gpu, mut lbvh)) = builder("room_for_the_pairs_and_the_wide_bvh_is_made_by_the_first_build_asking") else {
         return;
     };
     let (t, s) = generate(3000, Distribution::Random, true, 11);
@@ -275,13 +283,20 @@ fn room_for_the_wide_bvh_is_made_by_the_first_wide_build() {
         uploaded >= reserved + 48 * t.len() as u64,
         "{reserved} -> {uploaded} bytes: the upload made no staging copy"
     );
+    let n = (t.len() + s.len()) as u64;
+    // Builds without pairs hold the tree alone (64 bytes a primitive; both backends write
+    // no pairs), the first with pairs makes room for them (64 more) and keeps the
+    // primitives; neither holds a wide BVH (whose worst case is 128 bytes a primitive).
+    check_uploaded(&mut lbvh, "room", &t, &s, BuildOptions { pairs: false, ..binary });
+    let (tree_nodes, _) = lbvh.memory();
+    assert!(
+        tree_nodes < 2 * n * 32 * 5 / 4 + 64,
+        "{tree_nodes} bytes of nodes for {n} primitives without pairs"
+    );
     check_uploaded(&mut lbvh, "room", &t, &s, binary);
     let (nodes, rest) = lbvh.memory();
-    let n = (t.len() + s.len()) as u64;
-    // Binary builds hold the tree and its pairs (64 bytes a primitive each) and no wide BVH
-    // (whose worst case is 128 bytes a primitive).
     assert!(
-        nodes < 4 * n * 32 * 5 / 4 + 64,
+        nodes >= (4 * n - 2) * 32 && nodes < 4 * n * 32 * 5 / 4 + 64,
         "{nodes} bytes of nodes for {n} primitives"
     );
     // The first wide build makes the buffers again and keeps the primitives uploaded.

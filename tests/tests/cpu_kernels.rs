@@ -164,6 +164,7 @@ fn every_input_shape_gives_a_valid_tree() {
                         wide: false,
                         rounds,
                         ploc,
+                        pairs: true,
                     },
                 );
                 let stats = validate(&r.nodes, &r.parents, &t, &s).unwrap_or_else(|e| {

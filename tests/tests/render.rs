@@ -66,6 +66,21 @@ fn closest_hit_through_the_bvh_equals_brute_force() {
     r.load(&p.data, &bvh_frame).expect("load");
     r.render(0, true).expect("build");
     check_gpu_hits("bunny, GPU BVH", &r.cast(&rays).expect("cast"), &brute);
+    // Built without the pairs (`--pairs off`, what `auto` does for large scenes), the walk
+    // reads the tree alone: the same hits on both backends.
+    let np = prepared("bunny", 4, 1, &["--treelets", "on", "--pairs", "off"]);
+    assert!(p.build(1).pairs && !np.build(1).pairs, "--pairs auto/off");
+    let cpu = render_cpu(&np.data, &np.frame, 1, np.build(1), &|_| {});
+    assert!(cpu.bvh.pairs.is_empty(), "a build without pairs wrote them");
+    assert_eq!(
+        cpu_hits(&np, &cpu, &bvh_frame, &rays),
+        brute,
+        "CPU: the tree alone and brute force disagree"
+    );
+    r.set_build(np.build(1));
+    r.load(&np.data, &bvh_frame).expect("load");
+    r.render(0, true).expect("build");
+    check_gpu_hits("bunny, GPU BVH without pairs", &r.cast(&rays).expect("cast"), &brute);
     // Brute force on the GPU over a smaller mesh: llvmpipe ends loops after 65535 iterations.
     let q = prepared("suzanne", 4, 1, &["--no-bvh"]);
     let cpu = render_cpu(&q.data, &q.frame, 1, q.build(1), &|_| {});

@@ -132,6 +132,9 @@ pub struct Options {
     /// How every frame's binary tree is built (see `raytrace render --help`).
     #[arg(long, value_enum, default_value = "auto")]
     pub tree: crate::cli::Tree,
+    /// Whether every build writes the binary walk's pairs (see `raytrace render --help`).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub pairs: crate::cli::Pairs,
     /// Skip the second run of every scene with the real-time denoiser.
     #[arg(long)]
     pub no_denoise: bool,
@@ -188,6 +191,7 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
             p.treelets = o.treelets;
             p.layout = o.bvh;
             p.tree = o.tree;
+            p.pairs = o.pairs;
             let mut r = GpuRenderer::new(gpu, &kernels)?;
             r.set_build(p.build(o.spf));
             r.set_group_refits(o.group_refits);

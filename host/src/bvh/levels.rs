@@ -218,6 +218,7 @@ pub fn top_build(opts: BuildOptions) -> BuildOptions {
         treelets: true,
         rounds: 1,
         ploc: false,
+        pairs: false,
         ..opts
     }
 }
@@ -248,6 +249,7 @@ pub fn mesh_build(placements: &[Placement], mesh: usize, opts: BuildOptions) -> 
         treelets: opts.treelets || !group,
         rounds: if group { opts.rounds } else { MESH_ROUNDS },
         ploc: opts.ploc && group,
+        pairs: false,
         ..opts
     }
 }

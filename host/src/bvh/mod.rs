@@ -48,6 +48,12 @@ pub struct BuildOptions {
     /// fit. Not with `wide` (the collapse needs the Karras tree's key ranges), and never
     /// restructured by treelets.
     pub ploc: bool,
+    /// Each internal node's children copied as one 64-byte pair after the tree, which the
+    /// binary walk then reads a step instead of the node's links and each child
+    /// (`shared::traverse::write_pairs`); without them the walk reads the tree alone
+    /// (`VARIANT_NO_PAIRS`). A pass over the tree at every build, and the node bytes doubled
+    /// (see `cli::Pairs` for when they pay).
+    pub pairs: bool,
 }
 
 impl BuildOptions {
@@ -59,6 +65,7 @@ impl BuildOptions {
             wide: false,
             rounds: 1,
             ploc: false,
+            pairs: true,
         }
     }
 
@@ -158,6 +165,16 @@ impl BuildResult {
             nodes.extend_from_slice(&self.pairs);
         }
         nodes
+    }
+}
+
+/// The pairs a build with `opts` writes after its binary tree `nodes` ([`pairs`]; none for a
+/// wide build or without [`BuildOptions::pairs`]).
+pub fn pairs_if(opts: BuildOptions, nodes: &[Node]) -> Vec<Node> {
+    if opts.pairs && !opts.wide {
+        pairs(nodes)
+    } else {
+        Vec::new()
     }
 }
 

@@ -16,7 +16,7 @@ pub use render::{
     frame_path, open_devices_on, parse_devices, render_devices, render_devices_each, DevicesTimes, FrameRange,
     OpenDevices, RenderJob, Rendered, Work,
 };
-pub use scene::{parse_size, Bits, Prepared, SceneArgs, Tree, Treelets};
+pub use scene::{parse_size, Bits, Pairs, Prepared, SceneArgs, Tree, Treelets};
 
 use crate::gpu::GpuOptions;
 use crate::render::{AccelChoice, Backend};

@@ -1,6 +1,6 @@
 //! `raytrace render`: rendering a prepared scene on either backend with progress, the
 //! backend `auto` picks, the summary line.
-use super::scene::{Prepared, SceneArgs, Tree, Treelets};
+use super::scene::{Pairs, Prepared, SceneArgs, Tree, Treelets};
 use crate::cpu::{render_cpu_samples, CpuDenoiser, CpuRender};
 use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Instance, Kernels};
 use crate::picture::Picture;
@@ -736,7 +736,20 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         let tree = if b.wide || p.data.instancing.is_some() {
             tree
         } else {
-            format!("{tree}; each node's children read as one 64-byte pair (the tree alone, VARIANT_NO_PAIRS, where a device's storage-buffer binding cannot hold both)")
+            let auto = if p.pairs == Pairs::Auto {
+                format!(
+                    " (--pairs auto: {} primitives, pairs up to {})",
+                    p.frame.n_prims,
+                    Pairs::AUTO_MAX_PRIMS
+                )
+            } else {
+                String::new()
+            };
+            if b.pairs {
+                format!("{tree}; each node's children read as one 64-byte pair{auto} (the tree alone, VARIANT_NO_PAIRS, where a device's storage-buffer binding cannot hold both)")
+            } else {
+                format!("{tree}; each node read, then its children (VARIANT_NO_PAIRS: no pairs written){auto}")
+            }
         };
         let driver = format!(
             "the driver's acceleration structures, the bottom level built every frame ({:?})",

@@ -74,6 +74,13 @@ pub struct SceneArgs {
     /// least 16 samples per pixel and traces at least 32 samples per primitive).
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: Treelets,
+    /// Whether every build copies each node's children as one 64-byte pair after the tree,
+    /// which the binary walk reads a step instead of the node and then each child: a pass
+    /// over the tree and twice its bytes. `auto` writes them for scenes of up to 262,144
+    /// primitives, where they make the walk faster (H200: the bunny's real-time frame 5%);
+    /// above, the walk is no faster with them (the sixteen bunnies, the herd).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub pairs: Pairs,
     /// Objects as instances of their meshes (two-level BVH: each mesh built once, the top
     /// level over the objects every frame; objects that wave or are marked instance = false
     /// form a world-space group refit or built every frame) or flattened into one BVH: auto takes two
@@ -212,6 +219,35 @@ pub fn segments(frame: &Frame, pixels: u64, spp: u32) -> u64 {
         .saturating_mul(frame.max_depth.max(1) as u64 * nee)
 }
 
+/// Whether the binary BVH's builds write its pairs (`BuildOptions::pairs`).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Pairs {
+    Auto,
+    On,
+    Off,
+}
+
+impl Pairs {
+    /// Primitives up to which `auto` writes the pairs: there the binary walk's steps are
+    /// faster by them, above they are not, and their pass and bytes are paid for nothing.
+    /// H200, `bench realtime --instancing off` (1920x1080, depth 4), GPU frame p50 with and
+    /// without: the Cornell box 0.768 against 0.789 ms, the bunny (69,678) 1.61 against 1.70;
+    /// the sixteen bunnies (1,114,659) 3.41 against 3.28 (trace 2.78 against 2.71), at 4 spp
+    /// 12.02 against 11.98; the herd (10,031,907) 9.73 against 9.17, at 4 spp 28.0 against
+    /// 27.5 (bench/NOTES.md, session 42). The tree and its pairs take 128 bytes a primitive:
+    /// 32 MB at this count, within the H100's and the H200's 50 MB L2 cache.
+    pub const AUTO_MAX_PRIMS: u64 = 1 << 18;
+
+    /// Whether builds over `prims` primitives write the pairs.
+    pub fn resolve(self, prims: u64) -> bool {
+        match self {
+            Pairs::Auto => prims <= Self::AUTO_MAX_PRIMS,
+            Pairs::On => true,
+            Pairs::Off => false,
+        }
+    }
+}
+
 /// Whether the BVH build restructures treelets (see `BuildOptions`).
 #[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Treelets {
@@ -283,6 +319,7 @@ pub struct Prepared {
     pub treelets: Treelets,
     pub layout: Layout,
     pub tree: Tree,
+    pub pairs: Pairs,
     /// What traces the rays on the GPU ([`Prepared::tracer`]), and how the driver builds
     /// where it does.
     pub accel: AccelChoice,
@@ -361,6 +398,7 @@ impl SceneArgs {
             treelets: self.treelets,
             layout: self.bvh,
             tree: self.tree,
+            pairs: self.pairs,
             accel: self.accel,
             driver_build: self.driver_build,
             group_refits: self.group_refits,
@@ -418,6 +456,7 @@ impl Prepared {
             wide: self.layout == Layout::Wide,
             rounds: 1,
             ploc: self.tree.builds_ploc(self.treelets, spp, self.segments(spp), prims),
+            pairs: self.pairs.resolve(prims),
         }
     }
 
@@ -442,6 +481,21 @@ impl Prepared {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn auto_pairs_for_scenes_whose_tree_and_pairs_fit_the_cache() {
+        // The bunny and the Cornell box write them; the sixteen bunnies and the herd do not.
+        for (prims, pairs) in [
+            (36, true),
+            (69_678, true),
+            (1 << 18, true),
+            ((1 << 18) + 1, false),
+            (1_114_659, false),
+        ] {
+            assert_eq!(Pairs::Auto.resolve(prims), pairs, "{prims} primitives");
+        }
+        assert!(Pairs::On.resolve(u64::MAX) && !Pairs::Off.resolve(2));
+    }
 
     #[test]
     fn auto_treelets_need_many_samples_and_enough_of_them_per_primitive() {

@@ -196,7 +196,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         let (nodes, parents) = ploc(&p, &keys, &vals, tris, spheres);
         lap("tree", &mut times);
         // Its "refit" stage: the pairs.
-        out.pairs = crate::bvh::pairs(&nodes);
+        out.pairs = crate::bvh::pairs_if(opts, &nodes);
         lap("refit", &mut times);
         out.nodes = nodes;
         out.parents = parents;
@@ -243,9 +243,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     } else {
         fit(&p, prims, &parents, &visits, &nodes)
     };
-    if !opts.wide {
-        out.pairs = crate::bvh::pairs(&nodes);
-    }
+    out.pairs = crate::bvh::pairs_if(opts, &nodes);
     lap("refit", &mut times);
     if opts.wide && n > 0 {
         out.wide = collapse(&p, &nodes, &parents, &mut visits);
@@ -360,7 +358,7 @@ fn refit_with(
         restructured(variant, &p, prims, &mut parents, &mut visits, &mut words);
         let nodes: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
         return Ok(BuildResult {
-            pairs: crate::bvh::pairs(&nodes),
+            pairs: crate::bvh::pairs_if(opts, &nodes),
             nodes,
             parents,
             wide: Vec::new(),
@@ -394,7 +392,7 @@ fn refit_with(
     let emptied: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
     let nodes = fit(&p, prims, &earlier.parents, &visits, &emptied);
     Ok(BuildResult {
-        pairs: crate::bvh::pairs(&nodes),
+        pairs: crate::bvh::pairs_if(opts, &nodes),
         nodes,
         wide: Vec::new(),
         ..earlier.clone()

@@ -39,9 +39,11 @@ struct Buffers {
     wide: Buffer,
     wide_scratch: Buffer,
     has_wide: bool,
-    /// Whether `nodes` has room for the pairs after the tree (`traverse::traced_nodes`):
+    /// Whether `nodes` was made with room for the pairs after the tree
+    /// (`traverse::traced_nodes`) where builds with pairs were asked for (`pairs_asked`):
     /// unless the device's storage-buffer binding cannot hold them (then the tracers walk
     /// the tree alone, `VARIANT_NO_PAIRS`).
+    pairs_asked: bool,
     has_pairs: bool,
     /// Unsorted Morton codes, copied out when a build is captured for comparison; and the
     /// host-visible copy of primitives `upload` writes. Made on first use: the renderer's
@@ -56,7 +58,14 @@ struct Buffers {
 }
 
 impl Buffers {
-    fn new(gpu: &Arc<Gpu>, kernels: &Kernels, n_tris: usize, n_spheres: usize, has_wide: bool) -> Result<Buffers> {
+    fn new(
+        gpu: &Arc<Gpu>,
+        kernels: &Kernels,
+        n_tris: usize,
+        n_spheres: usize,
+        has_wide: bool,
+        pairs_asked: bool,
+    ) -> Result<Buffers> {
         let n = (n_tris + n_spheres).max(1) as u64;
         let dev = |name: &str, bytes: u64| Buffer::new(gpu, name, bytes, MemoryLocation::GpuOnly);
         let tris = dev("triangles", (n_tris * size_of::<Triangle>()) as u64)?;
@@ -70,10 +79,10 @@ impl Buffers {
         let table = dev("sort status tables", sort::table_words(n as u32) as u64 * 4)?;
         let totals = dev("sort digit totals", sort::TOTALS_WORDS as u64 * 4)?;
         // The tree's nodes, then the pairs the binary walk reads (`traverse::write_pairs`)
-        // where one binding can hold them.
+        // where asked for and one binding can hold them.
         let node = size_of::<Node>() as u64;
         let traced = traverse::traced_nodes(n as u32).max(1) as u64 * node;
-        let has_pairs = traced <= gpu.max_binding;
+        let has_pairs = pairs_asked && traced <= gpu.max_binding;
         let nodes = dev("nodes", if has_pairs { traced } else { (2 * n - 1) * node })?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
@@ -123,6 +132,7 @@ impl Buffers {
             wide,
             wide_scratch,
             has_wide,
+            pairs_asked,
             has_pairs,
             capture: None,
             staging: None,
@@ -142,6 +152,8 @@ pub struct GpuLbvh {
     bufs: Option<Buffers>,
     /// A wide build was asked for: the buffers keep room for wide BVHs from then on.
     wide: bool,
+    /// Builds with pairs were asked for: the buffers keep room for them from then on.
+    pairs: bool,
     n_tris: u32,
     n: u32,
     /// Where the build writes its nodes when not in its own buffer ([`GpuLbvh::place_nodes`]):
@@ -157,6 +169,7 @@ impl GpuLbvh {
             cmds: Commands::new(gpu)?,
             bufs: None,
             wide: false,
+            pairs: false,
             n_tris: 0,
             n: 0,
             nodes_at: None,
@@ -216,14 +229,17 @@ impl GpuLbvh {
         Ok(())
     }
 
-    /// Makes room for wide BVHs where `wide` asks for it (once: the room is kept).
-    /// The buffers are made again at the same capacity, the primitives already there copied
-    /// over; anything recorded before that names the old buffers must have finished.
-    /// Whether the buffers were made again.
-    pub fn reserve_wide(&mut self, wide: bool) -> Result<bool> {
-        self.wide |= wide;
+    /// Makes room for what builds with `opts` write besides the tree: wide BVHs, or the
+    /// pairs (once: the room is kept; none for pairs where the nodes are placed elsewhere,
+    /// [`Self::place_nodes`]). Buffers not made yet are made with it; existing ones are
+    /// made again at the same capacity, the primitives already there copied over (anything
+    /// recorded before that names the old buffers must have finished). Whether the buffers
+    /// were made again.
+    pub fn reserve_room(&mut self, opts: BuildOptions) -> Result<bool> {
+        self.wide |= opts.wide;
+        self.pairs |= opts.pairs && !opts.wide && self.nodes_at.is_none();
         match &self.bufs {
-            Some(b) if self.wide && !b.has_wide => {
+            Some(b) if (self.wide && !b.has_wide) || (self.pairs && !b.pairs_asked) => {
                 let (t, s) = (b.tri_capacity, b.sphere_capacity);
                 self.allocate(t, s, true)?;
                 Ok(true)
@@ -242,7 +258,7 @@ impl GpuLbvh {
             // Freed before the new ones are made: a scene near the memory's size fits once.
             self.bufs = None;
         }
-        let mut b = Buffers::new(&self.gpu, &self.kernels, n_tris, n_spheres, self.wide)?;
+        let mut b = Buffers::new(&self.gpu, &self.kernels, n_tris, n_spheres, self.wide, self.pairs)?;
         // What every build expects to find and leaves behind (see `record`).
         self.cmds.begin()?;
         Self::empty_bounds(&self.cmds, &b, 0);
@@ -519,7 +535,7 @@ impl GpuLbvh {
             cmds.barrier();
             stamp(cmds, STAGES[3]);
             // Its "refit" stage: the pairs.
-            self.record_pairs(cmds, &p)?;
+            self.record_pairs(cmds, &p, opts)?;
             cmds.timestamp(if stages { STAGES[4] } else { "build" });
             return Ok(());
         }
@@ -558,15 +574,15 @@ impl GpuLbvh {
             cmds.timestamp(if stages { "wide" } else { "build" });
         } else {
             // The pairs' pass is timed in the refit stage.
-            self.record_pairs(cmds, &p)?;
+            self.record_pairs(cmds, &p, opts)?;
             cmds.timestamp(if stages { STAGES[4] } else { "build" });
         }
         Ok(())
     }
 
-    /// Whether the builds write the pairs after the tree (their own node buffer, with room
-    /// for them within one binding): else the tracers walk the tree alone
-    /// (`VARIANT_NO_PAIRS`).
+    /// Whether builds with `BuildOptions::pairs` write the pairs after the tree (their own
+    /// node buffer, made with room for them within one binding: [`Self::reserve_room`]);
+    /// else the tracers walk the tree alone (`VARIANT_NO_PAIRS`).
     pub fn has_pairs(&self) -> bool {
         self.nodes_at.is_none() && self.bufs.as_ref().is_some_and(|b| b.has_pairs)
     }
@@ -575,8 +591,8 @@ impl GpuLbvh {
     /// node's children copied as a flattened scene's binary walk reads them,
     /// `traverse::write_pairs`). Not for nodes placed in another buffer (the levels of a
     /// scene in two levels, whose walk reads the tree itself).
-    fn record_pairs(&self, cmds: &mut Commands, p: &BuildParams) -> Result<()> {
-        if !self.has_pairs() || self.n < 2 {
+    fn record_pairs(&self, cmds: &mut Commands, p: &BuildParams, opts: BuildOptions) -> Result<()> {
+        if !opts.pairs || !self.has_pairs() || self.n < 2 {
             return Ok(());
         }
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
@@ -635,7 +651,7 @@ impl GpuLbvh {
             let (x, y) = grid(items);
             cmds.dispatch_pipeline(k, refit, &[set], bytemuck::bytes_of(&p), x, y);
             cmds.barrier();
-            self.record_pairs(cmds, &p)?;
+            self.record_pairs(cmds, &p, opts)?;
         }
         cmds.timestamp("refit");
         Ok(())
@@ -697,7 +713,7 @@ impl GpuLbvh {
         stages: bool,
         count: usize,
     ) -> Result<Vec<(&'static str, f64)>> {
-        self.reserve_wide(opts.wide)?;
+        self.reserve_room(opts)?;
         if let Some(b) = self.bufs.as_mut().filter(|b| capture && b.capture.is_none()) {
             b.capture = Some(Buffer::new(
                 &self.gpu,
@@ -747,7 +763,7 @@ impl GpuLbvh {
         };
         let total = (2 * n).saturating_sub(1);
         // The tree's nodes and, where the build wrote them, its pairs: one read.
-        let (nodes, pairs) = if opts.wide || n < 2 || !self.has_pairs() {
+        let (nodes, pairs) = if opts.wide || !opts.pairs || n < 2 || !self.has_pairs() {
             (self.download(|b| &b.nodes, total)?, Vec::new())
         } else {
             let mut nodes: Vec<Node> = self.download(|b| &b.nodes, traverse::traced_nodes(n as u32) as usize)?;

@@ -657,6 +657,7 @@ impl GpuRenderer {
             let placements = i.placements_at(&scene.objects);
             let opts = BuildOptions {
                 wide: false,
+                pairs: false,
                 ..self.build
             };
             let mut levels = GpuLevels::keeping(previous.as_ref(), gpu, &self.kernels, &i.meshes, &placements, opts)?;
@@ -667,6 +668,9 @@ impl GpuRenderer {
                 self.lbvh.reserve(i.world_tris as usize, 0)?;
             }
         } else {
+            // Buffers made here have the room the builds ask for (no second allocation at
+            // the first frame).
+            self.lbvh.reserve_room(self.build)?;
             self.lbvh.reserve(scene.model_tris.len(), scene.model_spheres.len())?;
         }
         if let Some(b) = self.bufs.as_mut() {
@@ -842,9 +846,9 @@ impl GpuRenderer {
     /// timestamp `begin`, then transform and build, `trace`, `display`. The samples count
     /// as accumulated from here on.
     pub fn record(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<()> {
-        // The first wide build makes the builder's buffers again with room for it (binary
-        // builds leave it out): the frame transforms and builds anew.
-        if self.levels.is_none() && self.lbvh.reserve_wide(self.build.wide)? {
+        // The first wide build, or the first with pairs, makes the builder's buffers again
+        // with room for it (other builds leave it out): the frame transforms and builds anew.
+        if self.levels.is_none() && self.lbvh.reserve_room(self.build)? {
             self.samples = 0;
         }
         let still = self.samples > 0;
