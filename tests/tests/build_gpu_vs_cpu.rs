@@ -339,6 +339,8 @@ fn buffers_are_reused_across_builds() {
     };
     let (t, s) = generate(5000, Distribution::Random, true, 7);
     lbvh.upload(&t, &s).unwrap();
+    // The first build makes the room for its pairs (`room_for_the_pairs_and_..`); none after.
+    lbvh.build(BuildOptions::lbvh(MortonBits::B30), false).unwrap();
     let before = lbvh.memory();
     for n in [4000, 5000, 10] {
         lbvh.upload(&t[..n.min(t.len())], &s[..n.min(s.len()) / 5]).unwrap();
