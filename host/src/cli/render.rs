@@ -738,9 +738,10 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         } else {
             let auto = if p.pairs == Pairs::Auto {
                 format!(
-                    " (--pairs auto: {} primitives, pairs up to {})",
+                    " (--pairs auto: {} primitives, {per_prim} path segments per primitive; pairs up to {} primitives, or from {} segments per primitive)",
                     p.frame.n_prims,
-                    Pairs::AUTO_MAX_PRIMS
+                    Pairs::AUTO_MAX_PRIMS,
+                    Pairs::AUTO_SEGMENTS_PER_PRIM
                 )
             } else {
                 String::new()
