@@ -117,6 +117,7 @@ pub struct Options {
     /// Timed frames per scene (after warm-up).
     #[arg(long, default_value_t = 300)]
     pub frames: usize,
+    /// Untimed frames before them (after half a second of frames for the GPU's clocks).
     #[arg(long, default_value_t = 30)]
     pub warmup: usize,
     /// Also run every scene with next-event estimation on.
@@ -228,12 +229,27 @@ struct Timed {
     wall: Vec<f64>,
 }
 
-/// Runs `o.warmup + o.frames` frames (the animation advancing 1/60 s a frame from time 0),
-/// timing the last `o.frames`; returns the times and the rays of the last frame.
+/// Seconds of frames (at animation time 0) a scene renders before its warm-up frames: the
+/// GPU's clocks rise over its first fraction of a second of work, which a count of frames
+/// does not cover for a scene of fast frames (H200: the first scene of a run, the bunny at
+/// 1.6 ms a frame, read p90 6.7 ms after its 20 warm-up frames; bench/NOTES.md, session 42).
+const CLOCK_WARMUP_S: f64 = 0.5;
+
+/// Runs [`CLOCK_WARMUP_S`] of frames, then `o.warmup + o.frames` frames (the animation
+/// advancing 1/60 s a frame from time 0), timing the last `o.frames`; returns the times and
+/// the rays of the last frame.
 fn frames(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options) -> Result<(Timed, f64)> {
     let mut cmds = Commands::new(gpu)?;
     let mut timed = Timed::default();
     let mut rays = 0.0;
+    let clocks = Instant::now();
+    while clocks.elapsed().as_secs_f64() < CLOCK_WARMUP_S {
+        live.time = 0.0;
+        live.sync(r)?;
+        cmds.begin()?;
+        r.record(&mut cmds, o.spf, true)?;
+        cmds.submit_wait().context("rendering a frame")?;
+    }
     for i in 0..o.warmup + o.frames {
         let start = Instant::now();
         live.time = i as f32 / 60.0;
