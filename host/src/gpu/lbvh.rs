@@ -417,7 +417,7 @@ impl GpuLbvh {
         }
         anyhow::ensure!(
             !opts.wide || b.has_wide,
-            "a wide build without room for it (GpuLbvh::reserve_wide first)"
+            "a wide build without room for it (GpuLbvh::reserve_room first)"
         );
         anyhow::ensure!(
             !opts.wide || n <= wide::MAX_PRIMITIVES,
