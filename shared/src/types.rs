@@ -549,8 +549,9 @@ pub const VARIANT_PLAIN_SLAB: u32 = 1 << 7;
 pub const VARIANT_WIDE_BVH: u32 = 1 << 9;
 
 /// The node buffer holds the binary tree without its pairs (`traverse::write_pairs`): set by
-/// the host where a device's storage-buffer binding cannot hold both (lavapipe's 134 MB: a
-/// flattened scene of more than about a million primitives). The walk then reads each node's
+/// the host where the builds write none (`BuildOptions::pairs`, `--pairs`: large scenes at a
+/// few samples a frame) or a device's storage-buffer binding cannot hold both (lavapipe's
+/// 134 MB: a flattened scene of more than about a million primitives). The walk then reads each node's
 /// links and then its children, visiting them in the same order: the same hits.
 pub const VARIANT_NO_PAIRS: u32 = 1 << 19;
 

@@ -199,12 +199,10 @@ pub fn bench_build(
                 gpu_result.wide.len() * size_of::<shared::wide::WideNode>(),
             )
         } else {
-            {
-                // The tree, and the padding and pairs where the build wrote them.
-                let pairs = gpu_result.pairs.len() + usize::from(!gpu_result.pairs.is_empty());
-                let traced = gpu_result.nodes.len() + pairs;
-                (sah_cost(&gpu_result.nodes), traced * size_of::<shared::types::Node>())
-            }
+            // The tree, and the padding and pairs where the build wrote them.
+            let pairs = gpu_result.pairs.len() + usize::from(!gpu_result.pairs.is_empty());
+            let traced = gpu_result.nodes.len() + pairs;
+            (sah_cost(&gpu_result.nodes), traced * size_of::<shared::types::Node>())
         };
         if !matches_cpu {
             bail!("GPU build of {} differs from the CPU executor's", input.name);

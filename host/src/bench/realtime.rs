@@ -242,21 +242,21 @@ fn frames(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options
     let mut cmds = Commands::new(gpu)?;
     let mut timed = Timed::default();
     let mut rays = 0.0;
-    let clocks = Instant::now();
-    while clocks.elapsed().as_secs_f64() < CLOCK_WARMUP_S {
-        live.time = 0.0;
+    // One frame at animation time `t`, waited for.
+    let frame = |r: &mut GpuRenderer, live: &mut LiveScene, cmds: &mut Commands, t: f32| -> Result<()> {
+        live.time = t;
         live.sync(r)?;
         cmds.begin()?;
-        r.record(&mut cmds, o.spf, true)?;
-        cmds.submit_wait().context("rendering a frame")?;
+        r.record(cmds, o.spf, true)?;
+        cmds.submit_wait().context("rendering a frame")
+    };
+    let clocks = Instant::now();
+    while clocks.elapsed().as_secs_f64() < CLOCK_WARMUP_S {
+        frame(r, live, &mut cmds, 0.0)?;
     }
     for i in 0..o.warmup + o.frames {
         let start = Instant::now();
-        live.time = i as f32 / 60.0;
-        live.sync(r)?;
-        cmds.begin()?;
-        r.record(&mut cmds, o.spf, true)?;
-        cmds.submit_wait().context("rendering a frame")?;
+        frame(r, live, &mut cmds, i as f32 / 60.0)?;
         let elapsed = start.elapsed().as_secs_f64();
         let t = frame_timings(&cmds)?;
         if i < o.warmup {

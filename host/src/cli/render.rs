@@ -731,8 +731,8 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         } else {
             format!("the binary LBVH: --bvh binary (the default, faster on the H100){why}")
         };
-        // Flattened binary trees are walked through their pairs, unless the device's binding
-        // cannot hold them (`GpuLbvh::has_pairs`).
+        // Flattened binary trees are walked through their pairs where the build writes them
+        // (`BuildOptions::pairs`) and the device's binding can hold them (`GpuLbvh::has_pairs`).
         let tree = if b.wide || p.data.instancing.is_some() {
             tree
         } else {
