@@ -17,7 +17,7 @@ use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, PunctualLight, Ray,
     RenderPush, Sphere, Triangle, VertexAttrs, FEATURES_ALL,
 };
-use shared::wide::{self, MarkState, ScanState, WideNode};
+use shared::wide::{self, WideNode};
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
 const _: () = assert!(FEATURES_ALL == 130111);
@@ -99,35 +99,43 @@ pub fn refit_restructured(
     refit::restructured(variant, lid.x, group, st, p, prims, parents, visits, node_words);
 }
 
-/// The box fit (`shared::refit::fit`); specialisation constant 0 is 1 for its ordered
-/// variant, 0 for the relaxed one (lavapipe).
-#[spirv(compute(threads(256)))]
-#[allow(clippy::too_many_arguments)]
-pub fn fit(
-    #[spirv(local_invocation_id)] lid: UVec3,
-    #[spirv(workgroup_id)] gid: UVec3,
-    #[spirv(spec_constant(id = 0, default = 1))] ordered: u32,
-    #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &[u32],
-    #[spirv(workgroup)] st: &mut FitState,
-) {
-    let group = flat_group(gid.x, gid.y);
-    refit::fit_clear(lid.x, st);
-    barrier();
-    refit::fit_links(lid.x, group, st, p, visits, node_words);
-    barrier();
-    let prims = refit::Prims { order, tris, spheres };
-    if ordered != 0 {
-        refit::fit::<true>(lid.x, group, st, p, prims, parents, visits, node_words);
-    } else {
-        refit::fit::<false>(lid.x, group, st, p, prims, parents, visits, node_words);
-    }
+/// The box fit (`shared::refit::fit`): `fit`, and `fit_wide`, which decides the wide
+/// collapse's nodes on the way (`shared::wide`); specialisation constant 0 is 1 for the
+/// ordered variant, 0 for the relaxed one (lavapipe).
+macro_rules! fit_kernel {
+    ($name:ident, $wide:literal) => {
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $name(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(spec_constant(id = 0, default = 1))] ordered: u32,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
+            #[spirv(workgroup)] st: &mut FitState,
+        ) {
+            let group = flat_group(gid.x, gid.y);
+            refit::fit_clear(lid.x, st);
+            barrier();
+            refit::fit_links(lid.x, group, st, p, visits, node_words);
+            barrier();
+            let prims = refit::Prims { order, tris, spheres };
+            if ordered != 0 {
+                refit::fit::<true, $wide>(lid.x, group, st, p, prims, parents, visits, node_words, scratch);
+            } else {
+                refit::fit::<false, $wide>(lid.x, group, st, p, prims, parents, visits, node_words, scratch);
+            }
+        }
+    };
 }
+fit_kernel!(fit, false);
+fit_kernel!(fit_wide, true);
 
 /// Before a refit of a kept tree: every internal node's box emptied
 /// (`shared::refit::empty_box`), for `fit` to fit again.
@@ -387,77 +395,19 @@ key_kernels!(
     ploc_u64
 );
 
-/// The wide collapse's first stage: frontier sizes, bottom-up (`shared::wide`);
-/// specialisation constant 0 is 1 for the ordered counters, 0 for relaxed ones (lavapipe).
+/// The wide collapse's last stage, after `fit_wide`: every root writes its wide node.
 #[spirv(compute(threads(256)))]
 #[allow(clippy::too_many_arguments)]
-pub fn wide_climb(
-    #[spirv(global_invocation_id)] id: UVec3,
-    #[spirv(spec_constant(id = 0, default = 1))] ordered: u32,
-    #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
-) {
-    let k = flat_index(id.x, id.y);
-    if ordered != 0 {
-        wide::climb::<true>(k, p, nodes, parents, visits, scratch);
-    } else {
-        wide::climb::<false>(k, p, nodes, parents, visits, scratch);
-    }
-}
-
-/// The wide collapse's second stage: which binary nodes root wide nodes.
-#[spirv(compute(threads(256)))]
-#[allow(clippy::too_many_arguments)]
-pub fn wide_mark(
-    #[spirv(local_invocation_id)] lid: UVec3,
-    #[spirv(workgroup_id)] gid: UVec3,
-    #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ends: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
-    #[spirv(workgroup)] st: &mut MarkState,
-) {
-    let group = flat_group(gid.x, gid.y);
-    wide::mark_clear(lid.x, st);
-    barrier();
-    wide::mark(lid.x, group, st, p, nodes, parents, ends, scratch);
-    barrier();
-    wide::mark_words(lid.x, group, st, p, scratch);
-    barrier();
-    wide::mark_counts(lid.x, group, st, p, scratch);
-}
-
-/// The wide collapse's third stage (one workgroup of `wide::SCAN_LANES`): where each
-/// group's wide nodes start.
-#[spirv(compute(threads(64)))]
-pub fn wide_scan(
-    #[spirv(local_invocation_id)] lid: UVec3,
-    #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
-    #[spirv(workgroup)] st: &mut ScanState,
-) {
-    wide::scan_sum(lid.x, st, p, scratch);
-    barrier();
-    wide::scan_lanes(lid.x, st, p, scratch);
-    barrier();
-    wide::scan_write(lid.x, st, p, scratch);
-}
-
-/// The wide collapse's last stage: every root writes its wide node.
-#[spirv(compute(threads(256)))]
 pub fn wide_write(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[spirv_std::glam::UVec4],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] ends: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] out: &mut [WideNode],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] out: &mut [spirv_std::glam::UVec4],
 ) {
-    wide::write(flat_index(id.x, id.y), p, nodes, ends, scratch, out);
+    wide::write(flat_index(id.x, id.y), p, nodes, parents, ends, scratch, out);
 }
 
 /// After the tree's boxes are final: each internal node's pair, its children as the walk

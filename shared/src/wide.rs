@@ -1,5 +1,5 @@
-//! A 4-wide BVH collapsed from the binary Karras tree on every build, deterministically, in
-//! four dispatches after the fit (the wide BVH of Ylitie, Karras & Laine 2017, "Efficient
+//! A 4-wide BVH collapsed from the binary Karras tree on every build, deterministically, by
+//! the build's fit and one dispatch after it (the wide BVH of Ylitie, Karras & Laine 2017, "Efficient
 //! Incoherent Ray Traversal on GPUs Through Compressed Wide BVHs", without their
 //! quantisation: child boxes are the binary nodes' exact `f32` boxes).
 //!
@@ -21,25 +21,28 @@
 //! 9,121 of the bunny's 15,199 wide nodes then had two children, and it traced 1.5-3x slower
 //! than the binary tree on the H100.)
 //!
-//! **Where each goes.** Wide nodes are numbered in the order of their binary roots, so the
-//! numbering is a prefix sum of the root flags, exact on every backend:
+//! **Where each goes.** A wide node takes the index of the binary internal node that roots
+//! it (node 0, the root, included), so no numbering pass is needed: the wide BVH's buffer has
+//! a slot per binary internal node (the worst case, which it had to hold anyway), the
+//! traversal reads only the slots of roots, and a slot that roots nothing is never written.
+//! Two passes, both after the binary tree is built:
 //!
 //! ```text
-//! climb   (per leaf)                          frontier size and absorbed children -> info[]
-//! mark    (a workgroup per 256 binary nodes)  root bit of each node -> bits[], the count
-//!         before each 32-node word within the group -> word_before[], the group's -> totals[]
-//! scan    (one workgroup of 64)               exclusive prefix of the group totals -> before[]
-//! write   (per binary node)                   a root writes its wide node at
-//!         before[i / 256] + word_before[i / 32] + popcount(bits[i / 32] below bit i % 32)
+//! fit_wide (the build's fit, a workgroup     each node's climb result -> scratch[node]:
+//!           per 256 leaves)                  inside a block where the fit's climb meets
+//!                                            in workgroup memory, above the blocks by an
+//!                                            arrival flag in the same word (`arrive`)
+//! write    (per binary internal node)        a root writes its wide node at its own index
 //! ```
 //!
-//! The wide nodes' count goes to a word of the scratch buffer ([`Scratch::count`]).
-use crate::sync::{
-    at, at_mut, atomic_add_device, atomic_load_u32, atomic_store_u32, elem, elem_mut, workgroup_or_ordered,
-};
-use crate::types::{BuildParams, Node, INVALID, WORKGROUP};
+//! (Until session 43 the climb was a dispatch of its own with a device counter at every
+//! level, and the nodes were numbered densely by two more dispatches, a mark and a scan of the
+//! root flags: bunny 82 us for the four.)
+use crate::sync::{at, at_mut, atomic_exchange_device, atomic_store_u32, elem, elem_mut};
+use crate::types::{BuildParams, Node, INVALID};
 use bytemuck::{Pod, Zeroable};
 use core::mem::size_of;
+use spirv_std::glam::UVec4;
 
 /// Children of a wide node at most.
 pub const WIDTH: usize = 4;
@@ -73,7 +76,7 @@ pub struct WideNode {
     pub child: [u32; 4],
     pub _pad: [u32; 4],
 }
-const _: () = assert!(size_of::<WideNode>() == 128);
+const _: () = assert!(size_of::<WideNode>() == 128 && size_of::<Node>() == 32);
 
 impl WideNode {
     /// A node with every slot empty.
@@ -92,25 +95,47 @@ impl WideNode {
         )
     }
 
-    /// Puts child `word` with box `b` in slot `k` (constant indices: no bounds checks).
-    fn set(&mut self, k: u32, word: u32, b: &Node) {
+    /// Puts child `word` with the box of binary node words `(lo, hi)` (see [`node_at`]) in
+    /// slot `k` (constant indices: no bounds checks).
+    fn set(&mut self, k: u32, word: u32, (lo, hi): (UVec4, UVec4)) {
         match k {
-            0 => self.put::<0>(word, b),
-            1 => self.put::<1>(word, b),
-            2 => self.put::<2>(word, b),
-            _ => self.put::<3>(word, b),
+            0 => self.put::<0>(word, lo, hi),
+            1 => self.put::<1>(word, lo, hi),
+            2 => self.put::<2>(word, lo, hi),
+            _ => self.put::<3>(word, lo, hi),
         }
     }
 
-    fn put<const K: usize>(&mut self, word: u32, b: &Node) {
+    fn put<const K: usize>(&mut self, word: u32, lo: UVec4, hi: UVec4) {
         self.child[K] = word;
-        self.lo[0][K] = b.min[0];
-        self.lo[1][K] = b.min[1];
-        self.lo[2][K] = b.min[2];
-        self.hi[0][K] = b.max[0];
-        self.hi[1][K] = b.max[1];
-        self.hi[2][K] = b.max[2];
+        self.lo[0][K] = f32::from_bits(lo.x);
+        self.lo[1][K] = f32::from_bits(lo.y);
+        self.lo[2][K] = f32::from_bits(lo.z);
+        self.hi[0][K] = f32::from_bits(hi.x);
+        self.hi[1][K] = f32::from_bits(hi.y);
+        self.hi[2][K] = f32::from_bits(hi.z);
     }
+
+    /// Stores the node as wide node `i` of `words` (8 16-byte words a node), in vector
+    /// stores.
+    fn store(&self, words: &mut [UVec4], i: u32) {
+        let bits = |v: [f32; 4]| UVec4::new(v[0].to_bits(), v[1].to_bits(), v[2].to_bits(), v[3].to_bits());
+        let c = self.child;
+        *at_mut(words, 8 * i) = bits(self.lo[0]);
+        *at_mut(words, 8 * i + 1) = bits(self.lo[1]);
+        *at_mut(words, 8 * i + 2) = bits(self.lo[2]);
+        *at_mut(words, 8 * i + 3) = bits(self.hi[0]);
+        *at_mut(words, 8 * i + 4) = bits(self.hi[1]);
+        *at_mut(words, 8 * i + 5) = bits(self.hi[2]);
+        *at_mut(words, 8 * i + 6) = UVec4::new(c[0], c[1], c[2], c[3]);
+        *at_mut(words, 8 * i + 7) = UVec4::ZERO;
+    }
+}
+
+/// Binary node `c` of the node buffer seen as 16-byte words: `(min, a)` and `(max, b)`, two
+/// vector loads (the write pass moved nodes as `Node` values before: bunny 18.7 us).
+fn node_at(nodes: &[UVec4], c: u32) -> (UVec4, UVec4) {
+    (*at(nodes, 2 * c), *at(nodes, 2 * c + 1))
 }
 
 /// The child word of a leaf of `count` (1..=[`LEAF_MAX`]) primitives from sorted position
@@ -124,49 +149,10 @@ pub fn leaf_range(word: u32) -> (u32, u32) {
     (word & FIRST_MASK, ((word >> COUNT_SHIFT) & 3) + 1)
 }
 
-/// Where the collapse keeps its words in the scratch buffer, for `n` primitives: one slot
-/// per binary internal node (one for `n <= 1`), root bits and per-word counts, per-group
-/// totals and their prefix, the wide node count, and each node's climb result.
-#[derive(Copy, Clone, Debug, PartialEq, Eq)]
-pub struct Scratch {
-    pub slots: u32,
-    pub words: u32,
-    pub groups: u32,
-}
-
-impl Scratch {
-    pub fn new(n: u32) -> Scratch {
-        let slots = n.max(2) - 1;
-        Scratch {
-            slots,
-            words: slots.div_ceil(32),
-            groups: slots.div_ceil(WORKGROUP),
-        }
-    }
-    fn bits(&self) -> u32 {
-        0
-    }
-    fn word_before(&self) -> u32 {
-        self.words
-    }
-    fn totals(&self) -> u32 {
-        2 * self.words
-    }
-    fn before(&self) -> u32 {
-        2 * self.words + self.groups
-    }
-    /// Index of the word holding the number of wide nodes.
-    pub fn count(&self) -> u32 {
-        2 * self.words + 2 * self.groups
-    }
-    /// Where node `i`'s climb result is (see [`climb`]).
-    pub fn info(&self) -> u32 {
-        self.count() + 1
-    }
-    /// Words of scratch the collapse needs.
-    pub fn total_words(&self) -> u32 {
-        self.info() + self.slots
-    }
+/// Words of scratch the collapse needs for `n` primitives: one per binary internal node (one
+/// for `n <= 1`), its climb result ([`decide`]) and the above-block climb's arrival flag.
+pub fn scratch_words(n: u32) -> u32 {
+    n.max(2) - 1
 }
 
 /// `[first, last]`: the sorted range under internal node `i` (`i` is one end; the far end is
@@ -190,82 +176,95 @@ fn size(c: u32, n: u32, ends: &[u32]) -> u32 {
 /// in bit 4.
 const ABSORB_A: u32 = 1 << 3;
 const ABSORB_B: u32 = 1 << 4;
+/// A scratch word's flag: the first child has arrived at the node in the climb above the
+/// blocks, its frontier in the bits from [`FRONTIER_SHIFT`] (see [`arrive`]).
+const ARRIVED: u32 = 1 << 5;
+const FRONTIER_SHIFT: u32 = 8;
 
-/// Child `c`'s frontier size, and whether it can be absorbed (an internal node of more
-/// than [`LEAF_MAX`] primitives), from its climb result.
-fn frontier(c: u32, n: u32, ends: &[u32], info: &[u32], s: &Scratch) -> (u32, bool) {
-    if size(c, n, ends) <= LEAF_MAX {
-        (1, false)
-    } else {
-        (atomic_load_u32(at(info, s.info() + c)) & 7, true)
+/// What the climb carries for a binary node: its primitive count and its frontier size,
+/// with [`ABSORBABLE`] where it is an internal node of more than [`LEAF_MAX`] primitives.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct Part {
+    pub size: u32,
+    pub frontier: u32,
+}
+
+/// A [`Part`]'s flag: the node can be absorbed by its parent.
+const ABSORBABLE: u32 = 1 << 3;
+
+impl Part {
+    /// A binary leaf's.
+    pub const LEAF: Part = Part { size: 1, frontier: 1 };
+
+    /// A node of `size` primitives whose climb result is `info` (read only where `size`
+    /// exceeds [`LEAF_MAX`]: a smaller subtree is one leaf of the wide BVH).
+    fn of(size: u32, info: u32) -> Part {
+        Part {
+            size,
+            frontier: if size <= LEAF_MAX { 1 } else { (info & 7) | ABSORBABLE },
+        }
     }
 }
 
-/// The climb result of internal node `p` (of more than [`LEAF_MAX`] primitives), from its
-/// children's (see the module's header).
-fn decide(p: u32, n: u32, nodes: &[Node], ends: &[u32], info: &[u32], s: &Scratch) -> u32 {
-    let m = at(nodes, p);
-    let (a, b) = (m.a, m.b);
-    let (ga, absorbs_a) = frontier(a, n, ends, info, s);
-    let (gb, absorbs_b) = frontier(b, n, ends, info, s);
+/// Decides an internal node from its children's parts (see the module's header): its climb
+/// result, and its own part.
+pub fn decide(a: Part, b: Part) -> (u32, Part) {
+    let size = a.size + b.size;
+    let (ga, absorbs_a) = (a.frontier & 7, a.frontier & ABSORBABLE != 0);
+    let (gb, absorbs_b) = (b.frontier & 7, b.frontier & ABSORBABLE != 0);
     let fits = WIDTH as u32;
-    if absorbs_a && absorbs_b && ga + gb <= fits {
-        return (ga + gb) | ABSORB_A | ABSORB_B;
-    }
-    // The larger subtree first (ties: the left one).
-    let a_first = size(a, n, ends) >= size(b, n, ends);
-    let (g1, ok1, bit1, g2, ok2, bit2) = if a_first {
-        (ga, absorbs_a, ABSORB_A, gb, absorbs_b, ABSORB_B)
+    let info = if absorbs_a && absorbs_b && ga + gb <= fits {
+        (ga + gb) | ABSORB_A | ABSORB_B
     } else {
-        (gb, absorbs_b, ABSORB_B, ga, absorbs_a, ABSORB_A)
+        // The larger subtree first (ties: the left one).
+        let a_first = a.size >= b.size;
+        let (g1, ok1, bit1, g2, ok2, bit2) = if a_first {
+            (ga, absorbs_a, ABSORB_A, gb, absorbs_b, ABSORB_B)
+        } else {
+            (gb, absorbs_b, ABSORB_B, ga, absorbs_a, ABSORB_A)
+        };
+        if ok1 && g1 < fits {
+            (g1 + 1) | bit1
+        } else if ok2 && g2 < fits {
+            (g2 + 1) | bit2
+        } else {
+            2
+        }
     };
-    if ok1 && g1 < fits {
-        (g1 + 1) | bit1
-    } else if ok2 && g2 < fits {
-        (g2 + 1) | bit2
-    } else {
-        2
-    }
+    (info, Part::of(size, info))
 }
 
-/// Per binary leaf `k` (`climb`): climbs from the leaf's parent; at each internal node the
-/// first arrival stops and the second decides the node (its children are decided by then)
-/// and goes on. `visits` holds the counters (`0..n-1`, zero from the tree kernel; the fit
-/// leaves them so) and the node ranges' far ends (`n..2n-1`). `ORDERED` selects the
-/// acquire-release counter that real GPUs need, as in [`crate::refit::refit`] (lavapipe runs
-/// the relaxed variant).
-pub fn climb<const ORDERED: bool>(
-    k: u32,
-    p: &BuildParams,
-    nodes: &[Node],
-    parents: &[u32],
-    visits: &mut [u32],
-    scratch: &mut [u32],
-) {
-    let n = p.n;
-    if n < 2 || k >= n {
-        return;
+/// Above the blocks (the build's fit with the collapse, [`crate::refit::fit`]): the child
+/// `node`, with part `part`, arrives at its parent `a`, whose left child is `left` and
+/// whose leaves are `ends[n + a]`'s range. Each arrival swaps [`ARRIVED`]
+/// and its frontier into the parent's word; the first finds no flag there and stops; the
+/// second finds the first's frontier, decides the parent from it and its own part, stores
+/// the parent's climb result (which clears the flag, so every word is free of it after a
+/// build and the next build needs no fill) and returns `true` and the parent's part.
+/// Everything the second arrival needs travels in the one word, so relaxed atomics suffice:
+/// no fence waits for this lane's box merges (acquire-release arrivals and the sibling's
+/// result in its own word took the bunny's fit 25 -> 51 us on the H200, 16M 1.8 -> 2.9 ms).
+pub fn arrive(a: u32, node: u32, part: Part, left: u32, n: u32, ends: &[u32], scratch: &mut [u32]) -> (bool, Part) {
+    let old = atomic_exchange_device::<false>(at_mut(scratch, a), ARRIVED | part.frontier << FRONTIER_SHIFT);
+    if old & ARRIVED == 0 {
+        return (false, part);
     }
-    let s = Scratch::new(n);
-    let mut node = *at(parents, n - 1 + k);
-    loop {
-        if atomic_add_device::<ORDERED>(at_mut(visits, node), 1) == 0 {
-            return;
-        }
-        if size(node, n, visits) > LEAF_MAX {
-            let v = decide(node, n, nodes, visits, scratch, &s);
-            atomic_store_u32(at_mut(scratch, s.info() + node), v);
-        }
-        if node == 0 {
-            return;
-        }
-        node = *at(parents, node);
-    }
+    let sibling = Part {
+        size: size(a, n, ends) - part.size,
+        frontier: (old >> FRONTIER_SHIFT) & 15,
+    };
+    let (info, up) = if left == node {
+        decide(part, sibling)
+    } else {
+        decide(sibling, part)
+    };
+    atomic_store_u32(at_mut(scratch, a), info);
+    (true, up)
 }
 
 /// Whether binary internal node `i` roots a wide node: the root does; otherwise a node of
 /// more than [`LEAF_MAX`] primitives that its parent did not absorb.
-pub fn is_root(i: u32, n: u32, nodes: &[Node], parents: &[u32], ends: &[u32], scratch: &[u32]) -> bool {
+fn is_root(i: u32, n: u32, nodes: &[UVec4], parents: &[u32], ends: &[u32], scratch: &[u32]) -> bool {
     if i == 0 {
         return true;
     }
@@ -273,212 +272,83 @@ pub fn is_root(i: u32, n: u32, nodes: &[Node], parents: &[u32], ends: &[u32], sc
         return false;
     }
     let p = *at(parents, i);
-    let bit = if at(nodes, p).a == i { ABSORB_A } else { ABSORB_B };
-    *at(scratch, Scratch::new(n).info() + p) & bit == 0
+    let bit = if at(nodes, 2 * p).w == i { ABSORB_A } else { ABSORB_B };
+    *at(scratch, p) & bit == 0
 }
 
-/// Workgroup memory of [`mark`]: the group's 8 root-bit words and their counts.
-pub struct MarkState {
-    pub bits: [u32; 8],
-    pub counts: [u32; 8],
-}
-
-/// Phase 1 of `mark`: clears the group's words.
-pub fn mark_clear(lane: u32, st: &mut MarkState) {
-    if lane < 8 {
-        *elem_mut(&mut st.bits, lane) = 0;
-    }
-}
-
-/// Phase 2 of `mark`: binary node `WORKGROUP * group + lane` sets its root bit.
-#[allow(clippy::too_many_arguments)]
-pub fn mark(
-    lane: u32,
-    group: u32,
-    st: &mut MarkState,
-    p: &BuildParams,
-    nodes: &[Node],
-    parents: &[u32],
-    ends: &[u32],
-    scratch: &[u32],
-) {
-    let i = group * WORKGROUP + lane;
-    let internal = p.n.max(1) - 1;
-    if (i < internal && is_root(i, p.n, nodes, parents, ends, scratch)) || i == 0 {
-        workgroup_or_ordered::<false>(elem_mut(&mut st.bits, lane / 32), 1 << (lane % 32));
-    }
-}
-
-/// Phase 3 of `mark`: lanes 0..8 store their word and its count.
-pub fn mark_words(lane: u32, group: u32, st: &mut MarkState, p: &BuildParams, scratch: &mut [u32]) {
-    let s = Scratch::new(p.n);
-    let w = group * 8 + lane;
-    if lane < 8 {
-        let bits = *elem(&st.bits, lane);
-        *elem_mut(&mut st.counts, lane) = bits.count_ones();
-        if w < s.words {
-            *at_mut(scratch, s.bits() + w) = bits;
-        }
-    }
-}
-
-/// Phase 4 of `mark`: lanes 0..8 store the count of roots before their word in the group,
-/// lane 0 the group's total.
-pub fn mark_counts(lane: u32, group: u32, st: &MarkState, p: &BuildParams, scratch: &mut [u32]) {
-    let s = Scratch::new(p.n);
-    let w = group * 8 + lane;
-    if lane < 8 {
-        let mut before = 0;
-        let mut k = 0;
-        while k < lane {
-            before += *elem(&st.counts, k);
-            k += 1;
-        }
-        if w < s.words {
-            *at_mut(scratch, s.word_before() + w) = before;
-        }
-        if lane == 0 {
-            let mut total = 0;
-            let mut k = 0;
-            while k < 8 {
-                total += *elem(&st.counts, k);
-                k += 1;
-            }
-            *at_mut(scratch, s.totals() + group) = total;
-        }
-    }
-}
-
-/// Invocations of the `scan` kernel. Debian's validation layer counts the workgroup memory
-/// of every entry point of the module against lavapipe's 32 KB, and the module left 536 bytes:
-/// a block scan of 256 lanes (1 KB) did not fit, 64 lanes' sums do.
-pub const SCAN_LANES: u32 = 64;
-
-/// Workgroup memory of `scan`: each lane's sum of its run of group totals.
-pub struct ScanState {
-    pub sums: [u32; SCAN_LANES as usize],
-}
-
-/// The group totals lane `lane` of `scan` sums: a run of `ceil(groups / SCAN_LANES)`.
-fn lane_run(lane: u32, s: &Scratch) -> (u32, u32) {
-    let run = s.groups.div_ceil(SCAN_LANES);
-    let first = (lane * run).min(s.groups);
-    (first, (first + run).min(s.groups))
-}
-
-/// Phase 1 of `scan` (one workgroup of [`SCAN_LANES`]): each lane sums its run of group
-/// totals.
-pub fn scan_sum(lane: u32, st: &mut ScanState, p: &BuildParams, scratch: &[u32]) {
-    let s = Scratch::new(p.n);
-    let (first, end) = lane_run(lane, &s);
-    let mut sum = 0;
-    let mut g = first;
-    while g < end {
-        sum += *at(scratch, s.totals() + g);
-        g += 1;
-    }
-    *elem_mut(&mut st.sums, lane) = sum;
-}
-
-/// Phase 2 of `scan`: lane 0 turns the sums into exclusive prefixes and stores the wide
-/// node count.
-pub fn scan_lanes(lane: u32, st: &mut ScanState, p: &BuildParams, scratch: &mut [u32]) {
-    if lane == 0 {
-        let mut before = 0;
-        let mut l = 0;
-        while l < SCAN_LANES {
-            let sum = *elem(&st.sums, l);
-            *elem_mut(&mut st.sums, l) = before;
-            before += sum;
-            l += 1;
-        }
-        *at_mut(scratch, Scratch::new(p.n).count()) = before;
-    }
-}
-
-/// Phase 3 of `scan`: each lane writes the exclusive prefix of every group total of its run.
-pub fn scan_write(lane: u32, st: &ScanState, p: &BuildParams, scratch: &mut [u32]) {
-    let s = Scratch::new(p.n);
-    let (first, end) = lane_run(lane, &s);
-    let mut before = *elem(&st.sums, lane);
-    let mut g = first;
-    while g < end {
-        *at_mut(scratch, s.before() + g) = before;
-        before += *at(scratch, s.totals() + g);
-        g += 1;
-    }
-}
-
-/// Whether binary internal node `i` roots a wide node (its bit from [`mark`]).
-fn root_bit(s: &Scratch, scratch: &[u32], i: u32) -> bool {
-    (*at(scratch, s.bits() + i / 32) >> (i % 32)) & 1 != 0
-}
-
-/// The wide node rooted at binary node `i` (a root).
-fn wide_index(s: &Scratch, scratch: &[u32], i: u32) -> u32 {
-    let w = i / 32;
-    let below = *at(scratch, s.bits() + w) & ((1u32 << (i % 32)) - 1);
-    *at(scratch, s.before() + i / WORKGROUP) + *at(scratch, s.word_before() + w) + below.count_ones()
-}
-
-/// The child word of binary node `c` as a child of a wide node: a leaf for a binary leaf or
-/// a subtree of at most [`LEAF_MAX`] primitives, else the wide node it roots.
-fn child_word(c: u32, n: u32, nodes: &[Node], s: &Scratch, scratch: &[u32], ends: &[u32]) -> u32 {
+/// The child word of binary node `c` (its node words `lo`, see [`node_at`]) as a child of a
+/// wide node: a leaf for a binary leaf or a subtree of at most [`LEAF_MAX`] primitives, else
+/// the wide node it roots (numbered as the binary node).
+fn child_word(c: u32, lo: UVec4, n: u32, ends: &[u32]) -> u32 {
     if c >= n - 1 {
-        return leaf_word(at(nodes, c).a, 1);
+        return leaf_word(lo.w, 1);
     }
     let (first, last) = range(c, n, ends);
     if last - first < LEAF_MAX {
         leaf_word(first, last - first + 1)
     } else {
-        wide_index(s, scratch, c)
+        c
     }
 }
 
-/// Per binary node `i` (`write`): a root writes its wide node, its frontier's nodes as
-/// children in sorted order (an explicit stack: absorbed nodes are replaced by their
-/// children, left before right).
-pub fn write(i: u32, p: &BuildParams, nodes: &[Node], ends: &[u32], scratch: &[u32], wide: &mut [WideNode]) {
+/// A stack entry of [`write`]: node `c`, [`ABSORBED`] where its parent `v` absorbs it.
+fn entry(c: u32, v: u32, bit: u32) -> u32 {
+    c | if v & bit != 0 { ABSORBED } else { 0 }
+}
+
+/// Per binary internal node `i` (`write`): a root writes its wide node at index `i`, its
+/// frontier's nodes as children in sorted order (an explicit stack: absorbed nodes are
+/// replaced by their children, left before right). `nodes` is the binary tree as 16-byte
+/// words ([`node_at`]), `wide` the wide BVH's buffer as 16-byte words (8 a node).
+pub fn write(
+    i: u32,
+    p: &BuildParams,
+    nodes: &[UVec4],
+    parents: &[u32],
+    ends: &[u32],
+    scratch: &[u32],
+    wide: &mut [UVec4],
+) {
     let n = p.n;
-    let s = Scratch::new(n);
-    if n == 0 || i >= s.slots || !root_bit(&s, scratch, i) {
+    if n == 0 || i >= scratch_words(n) || !is_root(i, n, nodes, parents, ends, scratch) {
         return;
     }
     let mut w = WideNode::EMPTY;
+    let root = node_at(nodes, 0);
     if n <= LEAF_MAX {
         // One leaf of every primitive under the root (for n == 1, the root is that leaf).
         let word = if n == 1 {
-            leaf_word(at(nodes, 0).a, 1)
+            leaf_word(root.0.w, 1)
         } else {
             leaf_word(0, n)
         };
-        w.set(0, word, at(nodes, 0));
+        w.set(0, word, root);
     } else {
         // Nodes to place, right ones deeper in the stack; an absorbed one is opened.
         let mut stack = [0u32; 2 * WIDTH];
-        let m = at(nodes, i);
-        let v = *at(scratch, s.info() + i);
-        *elem_mut(&mut stack, 0) = m.b | if v & ABSORB_B != 0 { ABSORBED } else { 0 };
-        *elem_mut(&mut stack, 1) = m.a | if v & ABSORB_A != 0 { ABSORBED } else { 0 };
+        let (lo, hi) = node_at(nodes, i);
+        let v = *at(scratch, i);
+        *elem_mut(&mut stack, 0) = entry(hi.w, v, ABSORB_B);
+        *elem_mut(&mut stack, 1) = entry(lo.w, v, ABSORB_A);
         let mut sp = 2;
         let mut k = 0;
         while sp > 0 && k < WIDTH as u32 {
             sp -= 1;
             let e = *elem(&stack, sp);
             let c = e & !ABSORBED;
+            let (lo, hi) = node_at(nodes, c);
             if e & ABSORBED != 0 && sp + 2 <= 2 * WIDTH as u32 {
-                let m = at(nodes, c);
-                let v = *at(scratch, s.info() + c);
-                *elem_mut(&mut stack, sp) = m.b | if v & ABSORB_B != 0 { ABSORBED } else { 0 };
-                *elem_mut(&mut stack, sp + 1) = m.a | if v & ABSORB_A != 0 { ABSORBED } else { 0 };
+                let v = *at(scratch, c);
+                *elem_mut(&mut stack, sp) = entry(hi.w, v, ABSORB_B);
+                *elem_mut(&mut stack, sp + 1) = entry(lo.w, v, ABSORB_A);
                 sp += 2;
             } else {
-                w.set(k, child_word(c, n, nodes, &s, scratch, ends), at(nodes, c));
+                w.set(k, child_word(c, lo, n, ends), (lo, hi));
                 k += 1;
             }
         }
     }
-    *at_mut(wide, wide_index(&s, scratch, i)) = w;
+    w.store(wide, i);
 }
 
 /// Marks a node on [`write`]'s stack as absorbed (node indices are below `2^31`).
@@ -498,14 +368,16 @@ mod tests {
     }
 
     #[test]
-    fn scratch_regions_do_not_overlap() {
-        for n in [0, 1, 2, 33, 257, 70_000] {
-            let s = Scratch::new(n);
-            assert!(s.words * 32 >= s.slots && s.groups * WORKGROUP >= s.slots);
-            assert!(s.bits() + s.words <= s.word_before());
-            assert!(s.word_before() + s.words <= s.totals());
-            assert!(s.totals() + s.groups <= s.before());
-            assert!(s.before() + s.groups <= s.count());
-        }
+    fn decisions_from_both_sides() {
+        // Two absorbable children of frontier 2 fill the four slots.
+        let two = Part::of(40, 2);
+        assert_eq!(decide(two, two), (4 | ABSORB_A | ABSORB_B, Part::of(80, 4)));
+        // Frontiers of 3 and 2 do not fit together: the larger subtree is absorbed.
+        let (deep, big) = (Part::of(30, 3), Part::of(50, 2));
+        assert_eq!(decide(deep, big).0, 3 | ABSORB_B);
+        assert_eq!(decide(big, deep).0, 3 | ABSORB_A);
+        // Leaves are never absorbed; two leaves make a leaf of two.
+        assert_eq!(decide(Part::LEAF, Part::LEAF), (2, Part::of(2, 0)));
+        assert_eq!(Part::of(2, 0).frontier, 1);
     }
 }

@@ -1,6 +1,6 @@
 //! The build kernels run by the CPU executor: sort order and stability, Karras's worked
-//! example, valid trees on every input shape, a validator that catches broken trees, and
-//! clear errors for bad mesh files.
+//! example, valid trees on every input shape, the wide collapse's decisions, a validator
+//! that catches broken trees, and clear errors for bad mesh files.
 use raytrace::bvh::{validate, BuildOptions, MortonBits};
 use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
@@ -8,6 +8,7 @@ use shared::karras::range_and_split;
 use shared::merge_sort::{self, BATCH, RUN};
 use shared::radix_sort::WINDOW;
 use shared::types::{BuildParams, Node, TILE, WORKGROUP};
+use shared::wide::{leaf_word, WideNode, LEAF_MAX, WIDTH};
 
 #[test]
 fn the_sort_is_a_stable_sort_of_the_morton_codes() {
@@ -203,6 +204,129 @@ fn the_fit_gives_every_node_exactly_its_childrens_union() {
                     }
                 }
             }
+        }
+    }
+}
+
+/// The collapse's rule by plain recursion over a binary tree (`shared::wide`'s header): a
+/// node's primitive count, frontier size, whether it can be absorbed, and which children it
+/// absorbs (left, right).
+struct Decided {
+    size: u32,
+    frontier: u32,
+    absorbable: bool,
+    absorbs: (bool, bool),
+    first: u32,
+}
+
+fn decide_all(nodes: &[Node], c: usize, out: &mut Vec<Option<Decided>>) {
+    let n = nodes.len().div_ceil(2);
+    if c >= n - 1 {
+        out[c] = Some(Decided {
+            size: 1,
+            frontier: 1,
+            absorbable: false,
+            absorbs: (false, false),
+            first: (c - (n - 1)) as u32,
+        });
+        return;
+    }
+    let (a, b) = (nodes[c].a as usize, nodes[c].b as usize);
+    decide_all(nodes, a, out);
+    decide_all(nodes, b, out);
+    let (l, r) = (out[a].as_ref().unwrap(), out[b].as_ref().unwrap());
+    let size = l.size + r.size;
+    let first = l.first.min(r.first);
+    let width = WIDTH as u32;
+    let (frontier, absorbs) = if size <= LEAF_MAX {
+        (1, (false, false))
+    } else if l.absorbable && r.absorbable && l.frontier + r.frontier <= width {
+        (l.frontier + r.frontier, (true, true))
+    } else {
+        // The larger subtree (ties: the left) if it fits beside the other, else the other.
+        let left_first = l.size >= r.size;
+        let (big, small) = if left_first { (l, r) } else { (r, l) };
+        if big.absorbable && big.frontier < width {
+            (big.frontier + 1, (left_first, !left_first))
+        } else if small.absorbable && small.frontier < width {
+            (small.frontier + 1, (!left_first, left_first))
+        } else {
+            (2, (false, false))
+        }
+    };
+    out[c] = Some(Decided {
+        size,
+        frontier,
+        absorbable: size > LEAF_MAX,
+        absorbs,
+        first,
+    });
+}
+
+/// The wide BVH the collapse should give for the binary tree `nodes`, from [`decide_all`]:
+/// a wide node at the index of each binary root, its frontier's nodes in order.
+fn expected_wide(nodes: &[Node]) -> Vec<WideNode> {
+    let n = nodes.len().div_ceil(2);
+    let mut out = vec![WideNode::EMPTY; n.max(2) - 1];
+    let mut d = (0..nodes.len()).map(|_| None).collect();
+    decide_all(nodes, 0, &mut d);
+    let d: Vec<Decided> = d.into_iter().map(Option::unwrap).collect();
+    let put = |w: &mut WideNode, k: usize, word: u32, c: usize| {
+        w.child[k] = word;
+        for axis in 0..3 {
+            w.lo[axis][k] = nodes[c].min[axis];
+            w.hi[axis][k] = nodes[c].max[axis];
+        }
+    };
+    if n <= LEAF_MAX as usize {
+        // One leaf of every primitive (for n == 1 the root is that leaf).
+        let word = if n == 1 {
+            leaf_word(nodes[0].a, 1)
+        } else {
+            leaf_word(0, n as u32)
+        };
+        put(&mut out[0], 0, word, 0);
+        return out;
+    }
+    let mut roots = vec![0usize];
+    while let Some(r) = roots.pop() {
+        // Children left to right; an absorbed one replaced by its own children.
+        let mut open = vec![
+            (nodes[r].b as usize, d[r].absorbs.1),
+            (nodes[r].a as usize, d[r].absorbs.0),
+        ];
+        let mut k = 0;
+        while let Some((c, absorbed)) = open.pop() {
+            if absorbed {
+                open.push((nodes[c].b as usize, d[c].absorbs.1));
+                open.push((nodes[c].a as usize, d[c].absorbs.0));
+                continue;
+            }
+            let word = if c >= n - 1 {
+                leaf_word(nodes[c].a, 1)
+            } else if d[c].size <= LEAF_MAX {
+                leaf_word(d[c].first, d[c].size)
+            } else {
+                roots.push(c);
+                c as u32
+            };
+            put(&mut out[r], k, word, c);
+            k += 1;
+        }
+    }
+    out
+}
+
+#[test]
+fn the_wide_collapse_decides_as_a_recursion_over_the_binary_tree() {
+    // The fit decides the collapse where its climbs meet: in workgroup memory inside a block,
+    // by arrival words above; across 1 to 160 blocks the result must be the plain
+    // recursion's, equal centroids (index tie-breaks) and lopsided trees included.
+    for dist in Distribution::ALL {
+        for n in [1, 2, 3, 5, 255, 256, 257, 5000, 40_000] {
+            let (t, s) = generate(n, dist, n % 2 == 0, 5);
+            let (r, _) = cpu::build(&t, &s, BuildOptions::wide(MortonBits::B30));
+            assert_eq!(r.wide, expected_wide(&r.nodes), "{dist:?} n={n}");
         }
     }
 }

@@ -196,7 +196,7 @@ pub fn bench_build(
             stats.depth = w.depth;
             (
                 sah_cost_wide(&gpu_result.wide),
-                gpu_result.wide.len() * size_of::<shared::wide::WideNode>(),
+                w.nodes * size_of::<shared::wide::WideNode>(),
             )
         } else {
             // The tree, and the padding and pairs where the build wrote them.

@@ -10,7 +10,7 @@ pub use levels::{
 pub use validate::{validate, validate_wide, BvhStats, WideStats};
 
 use shared::traverse;
-use shared::types::{Node, OrderedBounds};
+use shared::types::{Node, OrderedBounds, INVALID};
 use shared::wide::WideNode;
 
 /// Morton code width: 30 bits in `u32` keys (Karras 2012) or 63 bits in `u64` keys.
@@ -147,7 +147,9 @@ pub struct BuildResult {
     /// Internal nodes `0..n-1`, then leaves.
     pub nodes: Vec<Node>,
     pub parents: Vec<u32>,
-    /// The wide BVH (wide builds only), root first.
+    /// The wide BVH (wide builds only): a slot per binary internal node, wide node `i`
+    /// rooted at binary node `i` (the root at 0), the slots no wide node takes empty
+    /// ([`clear_unreached`]).
     pub wide: Vec<WideNode>,
     /// Binary builds of two or more primitives: each internal node's pair, its two children
     /// as the binary walk reads them (`shared::traverse::write_pairs`), node `i`'s at
@@ -165,6 +167,31 @@ impl BuildResult {
             nodes.extend_from_slice(&self.pairs);
         }
         nodes
+    }
+}
+
+/// Empties the slots of `wide` that no wide node takes (those not reached from the root),
+/// which the GPU's collapse never writes (`shared::wide`): a build's result holds its tree
+/// and nothing left from an earlier one.
+pub fn clear_unreached(wide: &mut [WideNode]) {
+    use shared::wide::{LEAF, WIDTH};
+    let mut reached = vec![false; wide.len()];
+    let mut stack = vec![0usize];
+    while let Some(i) = stack.pop() {
+        match reached.get_mut(i) {
+            Some(r) if !*r => *r = true,
+            _ => continue,
+        }
+        let w = &wide[i];
+        stack.extend(
+            (0..WIDTH)
+                .map(|k| w.child[k])
+                .filter(|&c| c != INVALID && c & LEAF == 0)
+                .map(|c| c as usize),
+        );
+    }
+    for (w, _) in wide.iter_mut().zip(reached).filter(|(_, r)| !r) {
+        *w = WideNode::EMPTY;
     }
 }
 

@@ -126,7 +126,8 @@ pub struct WideStats {
 }
 
 /// Checks a wide BVH (`shared::wide`) over `tris` then `spheres`, its leaves naming sorted
-/// positions of `order`: every node reached once from node 0, children packed before the
+/// positions of `order`: every node reached once from node 0 (a slot no node takes is
+/// empty: [`super::clear_unreached`]), children packed before the
 /// empty slots (whose boxes are empty), every child's box containing every primitive below it
 /// (the boxes of its subtree's primitives, not only its children's), and every primitive in
 /// exactly one leaf of 1..=`LEAF_MAX` primitives (a leaf of one names the primitive itself).
@@ -235,13 +236,17 @@ pub fn validate_wide(
             report(format!("wide node {i} has fewer than two children"));
         }
     }
-    coverage("wide node", &seen_node, &seen_prim, &mut report);
+    // Slots that no wide node takes hold nothing.
+    let unused = |i: &usize| !seen_node[*i] && wide[*i] == shared::wide::WideNode::EMPTY;
+    let reached: Vec<bool> = (0..wide.len()).map(|i| seen_node[i] || unused(&i)).collect();
+    coverage("wide node", &reached, &seen_prim, &mut report);
+    let nodes = seen_node.iter().filter(|&&s| s).count();
     if problems.is_empty() {
         Ok(WideStats {
-            nodes: wide.len(),
+            nodes,
             leaves,
             depth,
-            children: children as f64 / wide.len() as f64,
+            children: children as f64 / nodes as f64,
             leaf_size: in_leaves as f64 / leaves.max(1) as f64,
         })
     } else {

@@ -221,6 +221,12 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         spheres,
     };
     let groups = n.div_ceil(refit::BLOCK);
+    // The wide collapse's climb results, decided by the fit (none for a binary build).
+    let mut scratch = if opts.wide {
+        vec![0u32; wide::scratch_words(n) as usize]
+    } else {
+        Vec::new()
+    };
     let nodes: Vec<Node> = if opts.restructures() {
         // The treelet refit sees the nodes as 64-bit words (`Node` is only 4-aligned: copy, not cast).
         let mut words: Vec<u64> = bytemuck::pod_collect_to_vec(&nodes);
@@ -241,12 +247,12 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         }
         bytemuck::pod_collect_to_vec(&words)
     } else {
-        fit(&p, prims, &parents, &visits, &nodes)
+        fit(&p, prims, &parents, &visits, &nodes, &mut scratch)
     };
     out.pairs = crate::bvh::pairs_if(opts, &nodes);
     lap("refit", &mut times);
     if opts.wide && n > 0 {
-        out.wide = collapse(&p, &nodes, &parents, &mut visits);
+        out.wide = collapse(&p, &nodes, &parents, &visits, &scratch);
         lap("wide", &mut times);
     }
     out.nodes = nodes;
@@ -255,8 +261,17 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 }
 
 /// The build's fit (`shared::refit::fit`) over the Karras tree `nodes` (its leaf ranges'
-/// far ends in `visits[n..]`), as the GPU runs it; returns the fitted nodes.
-fn fit(p: &BuildParams, prims: refit::Prims, parents: &[u32], visits: &[u32], nodes: &[Node]) -> Vec<Node> {
+/// far ends in `visits[n..]`), as the GPU runs it; returns the fitted nodes. With the wide
+/// collapse's `scratch` (a word per internal node; empty for a binary build), it decides
+/// the collapse's nodes on the way (`fit_wide`).
+fn fit(
+    p: &BuildParams,
+    prims: refit::Prims,
+    parents: &[u32],
+    visits: &[u32],
+    nodes: &[Node],
+    scratch: &mut [u32],
+) -> Vec<Node> {
     // The fit sees the nodes as 32-bit words.
     let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(nodes);
     for g in 0..p.n.div_ceil(refit::BLOCK) {
@@ -267,7 +282,11 @@ fn fit(p: &BuildParams, prims: refit::Prims, parents: &[u32], visits: &[u32], no
         };
         lanes(|l| refit::fit_clear(l, &mut st));
         lanes(|l| refit::fit_links(l, g, &mut st, p, visits, &words));
-        lanes(|l| refit::fit::<true>(l, g, &mut st, p, prims, parents, visits, &mut words));
+        if scratch.is_empty() {
+            lanes(|l| refit::fit::<true, false>(l, g, &mut st, p, prims, parents, visits, &mut words, scratch));
+        } else {
+            lanes(|l| refit::fit::<true, true>(l, g, &mut st, p, prims, parents, visits, &mut words, scratch));
+        }
     }
     bytemuck::pod_collect_to_vec(&words)
 }
@@ -390,7 +409,7 @@ fn refit_with(
     let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(&earlier.nodes);
     (0..n).for_each(|i| refit::empty_box(i, &p, &mut words));
     let emptied: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
-    let nodes = fit(&p, prims, &earlier.parents, &visits, &emptied);
+    let nodes = fit(&p, prims, &earlier.parents, &visits, &emptied, &mut []);
     Ok(BuildResult {
         pairs: crate::bvh::pairs_if(opts, &nodes),
         nodes,
@@ -399,36 +418,16 @@ fn refit_with(
     })
 }
 
-/// The wide collapse (`shared::wide`): mark, scan and write, as the GPU runs them.
-fn collapse(p: &BuildParams, nodes: &[Node], parents: &[u32], visits: &mut [u32]) -> Vec<WideNode> {
-    let s = wide::Scratch::new(p.n);
-    let mut scratch = vec![0u32; s.total_words() as usize];
-    for k in 0..p.n {
-        wide::climb::<true>(k, p, nodes, parents, visits, &mut scratch);
+/// The wide collapse's last pass (`shared::wide::write`), after the fit decided every node
+/// (`fit_wide`), as the GPU runs it.
+fn collapse(p: &BuildParams, nodes: &[Node], parents: &[u32], ends: &[u32], scratch: &[u32]) -> Vec<WideNode> {
+    let slots = wide::scratch_words(p.n);
+    let mut out = vec![WideNode::EMPTY; slots as usize];
+    let words: &mut [glam::UVec4] = bytemuck::cast_slice_mut(&mut out);
+    let nodes: &[glam::UVec4] = bytemuck::cast_slice(nodes);
+    for i in 0..slots {
+        wide::write(i, p, nodes, parents, ends, scratch, words);
     }
-    let ends = &*visits;
-    for g in 0..s.groups {
-        let mut st = wide::MarkState {
-            bits: [0; 8],
-            counts: [0; 8],
-        };
-        lanes(|l| wide::mark_clear(l, &mut st));
-        lanes(|l| wide::mark(l, g, &mut st, p, nodes, parents, ends, &scratch));
-        lanes(|l| wide::mark_words(l, g, &mut st, p, &mut scratch));
-        lanes(|l| wide::mark_counts(l, g, &st, p, &mut scratch));
-    }
-    let mut st = wide::ScanState {
-        sums: [0; wide::SCAN_LANES as usize],
-    };
-    (0..wide::SCAN_LANES).for_each(|l| wide::scan_sum(l, &mut st, p, &scratch));
-    (0..wide::SCAN_LANES).for_each(|l| wide::scan_lanes(l, &mut st, p, &mut scratch));
-    (0..wide::SCAN_LANES).for_each(|l| wide::scan_write(l, &st, p, &mut scratch));
-    let count = scratch[s.count() as usize] as usize;
-    let mut out = vec![WideNode::EMPTY; s.slots as usize];
-    for i in 0..s.slots {
-        wide::write(i, p, nodes, ends, &scratch, &mut out);
-    }
-    out.truncate(count);
     out
 }
 

@@ -34,10 +34,8 @@ pub enum Kernel {
     PlocU32,
     PlocU64,
     Fit,
+    FitWide,
     EmptyBoxes,
-    WideClimb,
-    WideMark,
-    WideScan,
     WideWrite,
     PairsWrite,
     RefitTreelets,
@@ -75,7 +73,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 38] = [
+    pub const ALL: [Kernel; 36] = [
         Kernel::BoundsReduce,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
@@ -90,10 +88,8 @@ impl Kernel {
         Kernel::PlocU32,
         Kernel::PlocU64,
         Kernel::Fit,
+        Kernel::FitWide,
         Kernel::EmptyBoxes,
-        Kernel::WideClimb,
-        Kernel::WideMark,
-        Kernel::WideScan,
         Kernel::WideWrite,
         Kernel::PairsWrite,
         Kernel::RefitTreelets,
@@ -138,10 +134,8 @@ impl Kernel {
             Kernel::PlocU32 => "ploc_u32",
             Kernel::PlocU64 => "ploc_u64",
             Kernel::Fit => "fit",
+            Kernel::FitWide => "fit_wide",
             Kernel::EmptyBoxes => "empty_boxes",
-            Kernel::WideClimb => "wide_climb",
-            Kernel::WideMark => "wide_mark",
-            Kernel::WideScan => "wide_scan",
             Kernel::WideWrite => "wide_write",
             Kernel::PairsWrite => "pairs_write",
             Kernel::RefitTreelets => "refit_treelets",

@@ -33,8 +33,8 @@ struct Buffers {
     nodes: Buffer,
     parents: Buffer,
     visits: Buffer,
-    /// The wide BVH (room for its worst case: a node per binary internal node) and the
-    /// collapse's scratch (`shared::wide::Scratch`), where wide builds were asked for
+    /// The wide BVH (a slot per binary internal node: wide nodes take their binary roots'
+    /// indices) and the collapse's scratch (`shared::wide::scratch_words`), where wide builds were asked for
     /// (`has_wide`); else a word each, for the bindings (132 bytes a primitive saved).
     wide: Buffer,
     wide_scratch: Buffer,
@@ -86,12 +86,9 @@ impl Buffers {
         let nodes = dev("nodes", if has_pairs { traced } else { (2 * n - 1) * node })?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
-        let scratch = wide::Scratch::new(n as u32);
+        let slots = wide::scratch_words(n as u32) as u64;
         let (wide_bytes, scratch_bytes) = if has_wide {
-            (
-                scratch.slots as u64 * size_of::<WideNode>() as u64,
-                scratch.total_words() as u64 * 4,
-            )
+            (slots * size_of::<WideNode>() as u64, slots * 4)
         } else {
             (4, 4)
         };
@@ -265,6 +262,8 @@ impl GpuLbvh {
         Self::empty_bounds(&self.cmds, &b, 1);
         self.cmds.fill_range(&b.totals, 0, b.totals.size, 0);
         self.cmds.fill_range(&b.table, 0, b.table.size, 0);
+        // The collapse's arrival flags start clear; every wide build leaves them so.
+        self.cmds.fill_range(&b.wide_scratch, 0, b.wide_scratch.size, 0);
         if let Some(old) = self.bufs.as_mut().filter(|_| keep) {
             for (from, to) in [(&old.tris, &b.tris), (&old.spheres, &b.spheres)] {
                 let bytes = from.size.min(to.size);
@@ -543,6 +542,8 @@ impl GpuLbvh {
         cmds.barrier();
         stamp(cmds, STAGES[3]);
         let refit = match self.gpu.refit_kernel(opts.restructures()) {
+            // The wide collapse's nodes are decided by the fit on the way.
+            (Kernel::Fit, Some(constant)) if opts.wide => k.specialised(Kernel::FitWide, constant)?,
             (kernel, Some(constant)) => k.specialised(kernel, constant)?,
             (kernel, None) => k.pipeline(kernel)?,
         };
@@ -560,16 +561,8 @@ impl GpuLbvh {
         }
         if opts.wide {
             stamp(cmds, STAGES[4]);
-            let s = wide::Scratch::new(n);
-            let climb = k.specialised(Kernel::WideClimb, u32::from(!self.gpu.is_lavapipe()))?;
-            let (x, y) = grid(items);
-            cmds.dispatch_pipeline(k, climb, &[set_ab], bytemuck::bytes_of(&p), x, y);
-            cmds.barrier();
-            cmds.dispatch(k, set_ab, Kernel::WideMark, &p, s.groups)?;
-            cmds.barrier();
-            cmds.dispatch(k, set_ab, Kernel::WideScan, &p, 1)?;
-            cmds.barrier();
-            cmds.dispatch(k, set_ab, Kernel::WideWrite, &p, s.slots.div_ceil(WORKGROUP))?;
+            let slots = wide::scratch_words(n);
+            cmds.dispatch(k, set_ab, Kernel::WideWrite, &p, slots.div_ceil(WORKGROUP))?;
             cmds.barrier();
             cmds.timestamp(if stages { "wide" } else { "build" });
         } else {
@@ -788,10 +781,10 @@ impl GpuLbvh {
             pairs,
             parents: self.download(|b| &b.parents, total)?,
             wide: if opts.wide && n > 0 {
-                let s = wide::Scratch::new(n as u32);
-                let words: Vec<u32> = self.download(|b| &b.wide_scratch, s.total_words() as usize)?;
-                let count = (words[s.count() as usize] as usize).min(s.slots as usize);
-                self.download(|b| &b.wide, count)?
+                // The slots of binary nodes that root no wide node were never written.
+                let mut wide = self.download(|b| &b.wide, wide::scratch_words(n as u32) as usize)?;
+                crate::bvh::clear_unreached(&mut wide);
+                wide
             } else {
                 Vec::new()
             },
