@@ -1,14 +1,14 @@
 //! The build kernels run by the CPU executor: sort order and stability, Karras's worked
 //! example, valid trees on every input shape, the wide collapse's decisions, a validator
 //! that catches broken trees, and clear errors for bad mesh files.
-use raytrace::bvh::{validate, BuildOptions, MortonBits};
+use raytrace::bvh::{clear_unreached, validate, validate_wide, BuildOptions, MortonBits};
 use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
 use shared::karras::range_and_split;
 use shared::merge_sort::{self, BATCH, RUN};
 use shared::radix_sort::WINDOW;
 use shared::types::{BuildParams, Node, TILE, WORKGROUP};
-use shared::wide::{leaf_word, WideNode, LEAF_MAX, WIDTH};
+use shared::wide::{leaf_word, WideNode, LEAF, LEAF_MAX, WIDTH};
 
 #[test]
 fn the_sort_is_a_stable_sort_of_the_morton_codes() {
@@ -355,6 +355,40 @@ fn the_validator_catches_broken_trees() {
     assert!(validate(&r.nodes[1..], &r.parents, &t, &s)
         .unwrap_err()
         .contains("nodes for"));
+}
+
+#[test]
+fn the_wide_validator_catches_broken_trees_and_stale_slots() {
+    let (t, s) = generate(5000, Distribution::Random, true, 5);
+    let (r, _) = cpu::build(&t, &s, BuildOptions::wide(MortonBits::B30));
+    let check = |wide: &[WideNode]| validate_wide(wide, &r.sorted_prims, &t, &s);
+    let stats = check(&r.wide).unwrap();
+    // Wide nodes sit at their binary roots' indices: most slots are unused.
+    assert!(
+        stats.nodes < r.wide.len() / 2,
+        "{} of {} slots",
+        stats.nodes,
+        r.wide.len()
+    );
+    let unused = r.wide.iter().position(|w| *w == WideNode::EMPTY).unwrap();
+    let inner = r.wide[0].child.iter().position(|&c| c & LEAF == 0).unwrap();
+    let child = r.wide[0].child[inner] as usize;
+
+    let mut shrunk = r.wide.clone();
+    shrunk[0].hi[1][inner] = shrunk[0].lo[1][inner];
+    assert!(check(&shrunk).unwrap_err().contains("does not contain"));
+
+    let mut cycle = r.wide.clone();
+    cycle[child].child[0] = 0;
+    assert!(check(&cycle).unwrap_err().contains("reached twice"));
+
+    // A slot left from an earlier build (the GPU never writes unused slots) is reported,
+    // and emptied by what the GPU builder does to its download.
+    let mut stale = r.wide.clone();
+    stale[unused] = r.wide[child];
+    assert!(check(&stale).unwrap_err().contains("not reachable"));
+    clear_unreached(&mut stale);
+    assert_eq!(stale, r.wide);
 }
 
 fn obj_error(name: &str, text: &str) -> String {

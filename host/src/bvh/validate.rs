@@ -237,9 +237,10 @@ pub fn validate_wide(
         }
     }
     // Slots that no wide node takes hold nothing.
-    let unused = |i: &usize| !seen_node[*i] && wide[*i] == shared::wide::WideNode::EMPTY;
-    let reached: Vec<bool> = (0..wide.len()).map(|i| seen_node[i] || unused(&i)).collect();
-    coverage("wide node", &reached, &seen_prim, &mut report);
+    let accounted: Vec<bool> = (seen_node.iter().zip(wide))
+        .map(|(&seen, w)| seen || *w == shared::wide::WideNode::EMPTY)
+        .collect();
+    coverage("wide node", &accounted, &seen_prim, &mut report);
     let nodes = seen_node.iter().filter(|&&s| s).count();
     if problems.is_empty() {
         Ok(WideStats {
