@@ -4,7 +4,8 @@
 //! timing. Writes Markdown and JSON.
 use crate::bvh::{validate, validate_wide, BuildOptions, MortonBits, STAGES};
 
-/// Reported columns: the stages, and the wide collapse (0 for binary builds).
+/// Reported columns: the stages, and the wide collapse's write pass (0 for binary builds;
+/// the fit of a wide build decides the collapse, in the `refit` stage).
 const COLUMNS: [&str; 6] = [STAGES[0], STAGES[1], STAGES[2], STAGES[3], STAGES[4], "wide"];
 use super::accuracy::{sah_cost, sah_cost_wide};
 use super::{percentile, write_files};
@@ -258,11 +259,12 @@ pub fn markdown(r: &BuildReport) -> String {
          kept; an H-PLOC tree's by the counter refit), timed as `total` (none for treelets or wide \
          trees, which cannot be refit); an H-PLOC build's tree and boxes are one kernel, timed in \
          `tree`; a binary build's `refit` stage includes its pairs pass (each internal node's \
-         children copied into one 64-byte pair, as the binary walk reads them). BVH bytes count \
+         children copied into one 64-byte pair, as the binary walk reads them), a wide build's \
+         the collapse's decisions (its fit decides which binary nodes root wide nodes; `wide` \
+         is the pass writing them). BVH bytes count \
          the nodes traced (a binary build: the tree and its pairs; a wide build: the wide \
-         nodes it wrote; its buffer has room for \
-         the worst case, a node per binary internal node, counted under scratch with the \
-         binary tree); scratch is everything else the builder holds (inputs included). SAH: \
+         nodes it wrote, at their binary roots' indices in a buffer with a slot per binary \
+         internal node, counted under scratch with the binary tree); scratch is everything else the builder holds (inputs included). SAH: \
          surface-area cost of the tree traced (node areas, and leaf areas once per primitive, \
          over the root's).\n"
     );
