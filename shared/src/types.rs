@@ -15,7 +15,7 @@
 //! | 10      | refit: visit counters (treelet builds); far end of every internal node's leaf range |
 //! | 11      | radix sort: digit totals and tile counter, every pass |
 //! | 12      | `[WideNode]` the wide BVH (`crate::wide`)   |
-//! | 13      | the wide collapse's scratch (`wide::scratch_words`) |
+//! | 13      | the wide collapse's scratch (a word per `wide::slots`) |
 use bytemuck::{Pod, Zeroable};
 use core::mem::size_of;
 use spirv_std::glam::Vec3;

@@ -149,9 +149,10 @@ pub fn leaf_range(word: u32) -> (u32, u32) {
     (word & FIRST_MASK, ((word >> COUNT_SHIFT) & 3) + 1)
 }
 
-/// Words of scratch the collapse needs for `n` primitives: one per binary internal node (one
-/// for `n <= 1`), its climb result ([`decide`]) and the above-block climb's arrival flag.
-pub fn scratch_words(n: u32) -> u32 {
+/// Slots of the wide BVH's buffer for `n` primitives, and words of the collapse's scratch:
+/// one per binary internal node (one for `n <= 1`), a wide node rooted there and the node's
+/// climb result ([`decide`]) with the above-block climb's arrival flag.
+pub fn slots(n: u32) -> u32 {
     n.max(2) - 1
 }
 
@@ -242,8 +243,9 @@ pub fn decide(a: Part, b: Part) -> (u32, Part) {
 /// the parent's climb result (which clears the flag, so every word is free of it after a
 /// build and the next build needs no fill) and returns `true` and the parent's part.
 /// Everything the second arrival needs travels in the one word, so relaxed atomics suffice:
-/// no fence waits for this lane's box merges (acquire-release arrivals and the sibling's
-/// result in its own word took the bunny's fit 25 -> 51 us on the H200, 16M 1.8 -> 2.9 ms).
+/// no fence waits for this lane's box merges (a first version, with acquire-release arrivals
+/// reading the sibling's result from its own word, took the bunny's wide fit to 51 us on the
+/// H200 and 16M to 2.9 ms; this one 38 us and 2.2 ms, the plain fit 25 us and 1.8 ms).
 pub fn arrive(a: u32, node: u32, part: Part, left: u32, n: u32, ends: &[u32], scratch: &mut [u32]) -> (bool, Part) {
     let old = atomic_exchange_device::<false>(at_mut(scratch, a), ARRIVED | part.frontier << FRONTIER_SHIFT);
     if old & ARRIVED == 0 {
@@ -310,7 +312,7 @@ pub fn write(
     wide: &mut [UVec4],
 ) {
     let n = p.n;
-    if n == 0 || i >= scratch_words(n) || !is_root(i, n, nodes, parents, ends, scratch) {
+    if n == 0 || i >= slots(n) || !is_root(i, n, nodes, parents, ends, scratch) {
         return;
     }
     let mut w = WideNode::EMPTY;

@@ -223,7 +223,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let groups = n.div_ceil(refit::BLOCK);
     // The wide collapse's climb results, decided by the fit (none for a binary build).
     let mut scratch = if opts.wide {
-        vec![0u32; wide::scratch_words(n) as usize]
+        vec![0u32; wide::slots(n) as usize]
     } else {
         Vec::new()
     };
@@ -421,7 +421,7 @@ fn refit_with(
 /// The wide collapse's last pass (`shared::wide::write`), after the fit decided every node
 /// (`fit_wide`), as the GPU runs it.
 fn collapse(p: &BuildParams, nodes: &[Node], parents: &[u32], ends: &[u32], scratch: &[u32]) -> Vec<WideNode> {
-    let slots = wide::scratch_words(p.n);
+    let slots = wide::slots(p.n);
     let mut out = vec![WideNode::EMPTY; slots as usize];
     let words: &mut [glam::UVec4] = bytemuck::cast_slice_mut(&mut out);
     let nodes: &[glam::UVec4] = bytemuck::cast_slice(nodes);

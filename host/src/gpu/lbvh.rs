@@ -34,7 +34,7 @@ struct Buffers {
     parents: Buffer,
     visits: Buffer,
     /// The wide BVH (a slot per binary internal node: wide nodes take their binary roots'
-    /// indices) and the collapse's scratch (`shared::wide::scratch_words`), where wide builds were asked for
+    /// indices) and the collapse's scratch, `shared::wide::slots` each, where wide builds were asked for
     /// (`has_wide`); else a word each, for the bindings (132 bytes a primitive saved).
     wide: Buffer,
     wide_scratch: Buffer,
@@ -86,7 +86,7 @@ impl Buffers {
         let nodes = dev("nodes", if has_pairs { traced } else { (2 * n - 1) * node })?;
         let parents = dev("parents", (2 * n - 1) * 4)?;
         let visits = dev("visit counters and node ranges", 2 * n * 4)?;
-        let slots = wide::scratch_words(n as u32) as u64;
+        let slots = wide::slots(n as u32) as u64;
         let (wide_bytes, scratch_bytes) = if has_wide {
             (slots * size_of::<WideNode>() as u64, slots * 4)
         } else {
@@ -561,8 +561,7 @@ impl GpuLbvh {
         }
         if opts.wide {
             stamp(cmds, STAGES[4]);
-            let slots = wide::scratch_words(n);
-            cmds.dispatch(k, set_ab, Kernel::WideWrite, &p, slots.div_ceil(WORKGROUP))?;
+            cmds.dispatch(k, set_ab, Kernel::WideWrite, &p, wide::slots(n).div_ceil(WORKGROUP))?;
             cmds.barrier();
             cmds.timestamp(if stages { "wide" } else { "build" });
         } else {
@@ -782,7 +781,7 @@ impl GpuLbvh {
             parents: self.download(|b| &b.parents, total)?,
             wide: if opts.wide && n > 0 {
                 // The slots of binary nodes that root no wide node were never written.
-                let mut wide = self.download(|b| &b.wide, wide::scratch_words(n as u32) as usize)?;
+                let mut wide = self.download(|b| &b.wide, wide::slots(n as u32) as usize)?;
                 crate::bvh::clear_unreached(&mut wide);
                 wide
             } else {
