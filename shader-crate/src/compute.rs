@@ -21,6 +21,7 @@ use shared::wide::{self, WideNode};
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
 const _: () = assert!(FEATURES_ALL == 130111);
+use shared::sync::{at, at_mut};
 use shared::{display, karras, morton, refit, transform as xform};
 use spirv_std::arch::all_memory_barrier_with_group_sync as all_barrier;
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
@@ -150,7 +151,7 @@ pub fn empty_boxes(
 
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
-    ($k:ty, $code:ident, $morton:ident, $morton_counted:ident, $scatter:ident, $runs:ident, $merge:ident, $build:ident, $ploc:ident) => {
+    ($k:ty, $code:ident, $code_of:ident, $morton:ident, $morton_counted:ident, $scatter:ident, $runs:ident, $instance_runs:ident, $merge:ident, $build:ident, $ploc:ident) => {
         /// Morton codes and every sort pass's digit counts (see `shared::radix_sort`).
         #[spirv(compute(threads(256)))]
         #[allow(clippy::too_many_arguments)]
@@ -234,6 +235,38 @@ macro_rules! key_kernels {
             let key = morton::$code(group * merge_sort::RUN + lid.x, p, b, summaries);
             merge_sort::run_load(lid.x, group, key, st, p, codes);
             barrier();
+            merge_sort::run_rank(lid.x, group, st, p, keys, vals);
+        }
+
+        /// The runs kernel of a top level's build after the first (`shared::bounds::
+        /// instance_summary`): workgroup g's instances' world boxes into binding 0, their
+        /// codes from the last build's bounds (`b[1]`), this build's reduced into `b[0]`,
+        /// the run sorted as `$runs` sorts it.
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $instance_runs(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(workgroup_id)] gid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] boxes: &mut [Triangle],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] b: &mut [OrderedBounds],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] codes: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+            #[spirv(storage_buffer, descriptor_set = 1, binding = 17)] instances: &[Instance],
+            #[spirv(workgroup)] st: &mut RunState<$k>,
+            #[spirv(workgroup)] reduced: &mut BoundsState,
+        ) {
+            bounds::clear(lid.x, reduced);
+            barrier();
+            let group = flat_group(gid.x, gid.y);
+            let i = group * merge_sort::RUN + lid.x;
+            let s = bounds::instance_summary(i, reduced, p, instances, objects, boxes);
+            let key = morton::$code_of(s, at(b, 1));
+            merge_sort::run_load(lid.x, group, key, st, p, codes);
+            barrier();
+            bounds::flush(lid.x, reduced, at_mut(b, 0));
             merge_sort::run_rank(lid.x, group, st, p, keys, vals);
         }
 
@@ -375,10 +408,12 @@ macro_rules! key_kernels {
 key_kernels!(
     u32,
     code30,
+    code30_of,
     morton30,
     morton30_counted,
     sort_scatter_u32,
     sort_runs_u32,
+    instance_runs_u32,
     sort_merge_u32,
     karras_build_u32,
     ploc_u32
@@ -386,10 +421,12 @@ key_kernels!(
 key_kernels!(
     u64,
     code63,
+    code63_of,
     morton63,
     morton63_counted,
     sort_scatter_u64,
     sort_runs_u64,
+    instance_runs_u64,
     sort_merge_u64,
     karras_build_u64,
     ploc_u64

@@ -10,10 +10,11 @@
 //! last build's. A later kernel of the build (after the Morton stage has read them) runs
 //! [`publish`], which copies the first into the second and empties the first for the next
 //! build, so that no build starts with a fill (the host empties it once when it allocates it).
-use crate::instance::{instance_box, Instance};
+use crate::instance::{instance_box, world_triangle, Instance};
 use crate::sync::{self, at, at_mut};
 use crate::types::{
-    f32_to_ordered, items_per_lane, prim_summary, BuildParams, Object, OrderedBounds, Sphere, Triangle, WORKGROUP,
+    f32_to_ordered, items_per_lane, prim_summary, tri_summary, BuildParams, Object, OrderedBounds, Sphere, Triangle,
+    WORKGROUP,
 };
 use spirv_std::glam::Vec3;
 
@@ -102,6 +103,31 @@ pub fn accumulate_instances(
         }
     }
     fold(st, lo, hi);
+}
+
+/// The top level's inputs for a build whose codes take the last build's bounds (the merge
+/// sort's runs kernel over instances, `instance_runs_*`: one dispatch and the bounds' pass
+/// fewer than [`accumulate_instances`] and the runs kernel): instance `i`'s world box stored
+/// as [`instance_box`] stores it, its centroid folded into the workgroup's bounds (this
+/// build's, for the next; one primitive a lane) and its [`prim_summary`] returned for its
+/// code. Past the last instance: nothing stored or folded, a summary of zeros.
+pub fn instance_summary(
+    i: u32,
+    st: &mut BoundsState,
+    p: &BuildParams,
+    instances: &[Instance],
+    objects: &[Object],
+    boxes: &mut [Triangle],
+) -> [f32; 4] {
+    if i >= p.n {
+        return [0.0; 4];
+    }
+    let t = world_triangle(i, instances, objects);
+    *at_mut(boxes, i) = t;
+    let s = tri_summary(&t);
+    let c = Vec3::new(s[0], s[1], s[2]);
+    fold(st, c, c);
+    s
 }
 
 /// Stores primitive `i`'s summary; returns twice its centroid.

@@ -176,9 +176,13 @@ pub const IDENTITY: [[f32; 4]; 3] = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0],
 /// [`IDENTITY`]), as a [`box_triangle`] (the `instance_boxes` kernel; the CPU executor calls
 /// it for every instance).
 pub fn instance_box(i: u32, n: u32, instances: &[Instance], objects: &[Object], out: &mut [Triangle]) {
-    if i >= n {
-        return;
+    if i < n {
+        *at_mut(out, i) = world_triangle(i, instances, objects);
     }
+}
+
+/// Instance `i`'s world box as a [`box_triangle`] (what [`instance_box`] stores).
+pub fn world_triangle(i: u32, instances: &[Instance], objects: &[Object]) -> Triangle {
     let inst = at(instances, i);
     let rows = if inst.object == INVALID {
         IDENTITY
@@ -186,7 +190,7 @@ pub fn instance_box(i: u32, n: u32, instances: &[Instance], objects: &[Object], 
         at(objects, inst.object).rows
     };
     let (lo, hi) = world_box(&rows, Vec3::from(inst.lo), Vec3::from(inst.hi));
-    *at_mut(out, i) = box_triangle(lo, hi);
+    box_triangle(lo, hi)
 }
 
 /// The box `[lo, hi]` as a degenerate triangle whose box is that box (what the builder

@@ -94,7 +94,12 @@ pub fn code30(i: u32, p: &BuildParams, b: &OrderedBounds, summaries: &[[f32; 4]]
     if i >= p.n {
         return 0;
     }
-    let s = *at(summaries, i);
+    code30_of(*at(summaries, i), b)
+}
+
+/// The 30-bit code of a primitive of summary `s` ([`crate::types::prim_summary`]) in the
+/// bounds `b`; a primitive outside them takes the nearest cell.
+pub fn code30_of(s: [f32; 4], b: &OrderedBounds) -> u32 {
     let q = cells(s, b, 10);
     let m = (expand_bits_10(q[2]) << 2) | (expand_bits_10(q[1]) << 1) | expand_bits_10(q[0]);
     let low = (1u32 << (30 - OCTREE_BITS)) - 1;
@@ -125,7 +130,11 @@ pub fn code63(i: u32, p: &BuildParams, b: &OrderedBounds, summaries: &[[f32; 4]]
     if i >= p.n {
         return 0;
     }
-    let s = *at(summaries, i);
+    code63_of(*at(summaries, i), b)
+}
+
+/// [`code30_of`]'s 63-bit code.
+pub fn code63_of(s: [f32; 4], b: &OrderedBounds) -> u64 {
     let q = cells(s, b, 21);
     let m = (expand_bits_21(q[2] as u64) << 2) | (expand_bits_21(q[1] as u64) << 1) | expand_bits_21(q[0] as u64);
     let low = (1u64 << (63 - OCTREE_BITS)) - 1;

@@ -166,9 +166,7 @@ pub fn xyz(v: [f32; 4]) -> Vec3 {
 /// see `sync::at`).
 pub fn prim_box(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> (Vec3, Vec3) {
     if i < n_tris {
-        let t = *crate::sync::at(tris, i);
-        let (a, b, c) = (xyz(t.v0), xyz(t.v1), xyz(t.v2));
-        (a.min(b).min(c), a.max(b).max(c))
+        tri_box(crate::sync::at(tris, i))
     } else {
         let s = crate::sync::at(spheres, i - n_tris).center_radius;
         let r = Vec3::splat(s[3].abs());
@@ -182,13 +180,27 @@ pub fn prim_box(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> (
 /// differently. The bounds stage gathers the primitive once and stores this (16 bytes, where a
 /// triangle is 48), so the Morton stage reads a third of the bytes.
 pub fn prim_summary(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> [f32; 4] {
+    if i < n_tris {
+        return tri_summary(crate::sync::at(tris, i));
+    }
     let (lo, hi) = prim_box(i, n_tris, tris, spheres);
-    let c = if i < n_tris {
-        lo + hi
-    } else {
-        let c = xyz(crate::sync::at(spheres, i - n_tris).center_radius);
-        c + c
-    };
+    let c = xyz(crate::sync::at(spheres, i - n_tris).center_radius);
+    summary(c + c, lo, hi)
+}
+
+/// A triangle's axis-aligned box.
+pub fn tri_box(t: &Triangle) -> (Vec3, Vec3) {
+    let (a, b, c) = (xyz(t.v0), xyz(t.v1), xyz(t.v2));
+    (a.min(b).min(c), a.max(b).max(c))
+}
+
+/// [`prim_summary`] of a triangle.
+pub fn tri_summary(t: &Triangle) -> [f32; 4] {
+    let (lo, hi) = tri_box(t);
+    summary(lo + hi, lo, hi)
+}
+
+fn summary(c: Vec3, lo: Vec3, hi: Vec3) -> [f32; 4] {
     let d = hi - lo;
     [c.x, c.y, c.z, d.x.max(d.y).max(d.z)]
 }

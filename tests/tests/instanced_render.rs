@@ -265,9 +265,9 @@ fn the_gpu_builds_and_refits_a_mixed_scenes_group_as_the_cpu() {
     // `GROUP_REFITS` over its triangles as they are then, built again by the one after; the
     // top level, built (restructured) when the scene loads, refit by the next `TOP_REFITS`
     // frames over the instances' boxes as they are then (the first `TOP_ROUNDS - 1`
-    // restructuring it again), built again by the one after. The
-    // CPU's levels with both trees made the same way (`cpu::refit`) are sound and equal, bit
-    // for bit.
+    // restructuring it again), built again by the one after (coding the instances in the
+    // bounds of the build before: `cpu::build_coded`). The CPU's levels with both trees made
+    // the same way (`cpu::refit`) are sound and equal, bit for bit.
     let mut r = GpuRenderer::new(&gpu, &kernels).expect("renderer");
     r.set_build(p.build(1));
     r.load(&p.data, &p.frame).expect("load");
@@ -287,6 +287,8 @@ fn the_gpu_builds_and_refits_a_mixed_scenes_group_as_the_cpu() {
     };
     let (meshes, placements) = raytrace::cpu::levels_inputs(&p.data, i, &p.data.objects);
     let mut top = (raytrace::cpu::build(&boxes(&meshes, &placements), &[], top_opts).0, 0);
+    // The bounds of the top level's last build, in which the next codes its instances.
+    let mut last = top.0.bounds;
     let mut group_built = None;
     for f in 0..TOP_REFITS + 2 {
         let t = 1.1 + f as f32 * 0.05;
@@ -313,7 +315,9 @@ fn the_gpu_builds_and_refits_a_mixed_scenes_group_as_the_cpu() {
             };
             (refit(&top.0, &b, &[], top_opts).expect("refit"), top.1 + 1)
         } else {
-            (raytrace::cpu::build(&b, &[], top_opts).0, 0)
+            let built = raytrace::cpu::build_coded(&b, &[], top_opts, Some(&last)).0;
+            last = built.bounds;
+            (built, 0)
         };
         let checked = [
             0,

@@ -9,7 +9,9 @@ const WIDE: bool = false;
 mod common;
 
 use common::{cube, icosphere, octahedron, Mesh, Random, OFFSETS};
-use raytrace::bvh::{build_levels, validate_levels, BuildOptions, Levels, MeshPrims, MortonBits, Placement};
+use raytrace::bvh::{
+    build_levels, build_levels_coded, validate_levels, BuildOptions, Levels, MeshPrims, MortonBits, Placement,
+};
 use raytrace::inputs::hard_cases::{closed_meshes, INSIDE};
 use shared::glam::{DVec3, Mat3, Vec3};
 use shared::math::fma;
@@ -545,16 +547,32 @@ fn gpu_builds_both_levels_as_the_cpu_executor_does() {
             refitted.nodes,
             "offset {offset}: the moved scene's levels, refit"
         );
-        // Built again: the CPU's levels of the moved scene.
+        // Built again: the CPU's levels of the moved scene, its instances coded in the
+        // bounds of the first build's (which the GPU kept through the refit).
         g.set_top_refits(0);
+        assert_eq!(
+            g.top_code_bounds().expect("bounds"),
+            Some(top.bounds),
+            "offset {offset}: the last build's bounds"
+        );
         g.rebuild_top().expect("top level");
         assert_eq!(g.top_refits(), Some(0));
-        let cpu = fresh;
+        let cpu = build_levels_coded(&meshes, &moved, opts(), Some(&top.bounds)).expect("levels");
+        validate_levels(&cpu, &meshes, &moved).expect("valid levels");
         assert_eq!(
             g.nodes().expect("nodes"),
             cpu.nodes,
             "offset {offset}: the moved scene's levels"
         );
+        // Built again over the same boxes: coded in their own bounds, the CPU's levels
+        // without a hint.
+        g.rebuild_top().expect("top level");
+        assert_eq!(
+            g.nodes().expect("nodes"),
+            fresh.nodes,
+            "offset {offset}: the moved scene built again"
+        );
+        let cpu = fresh;
         // A singular transform is refused by its instance's number, and nothing changes.
         let mut bad = rows_of(&moved);
         bad[3][1] = [0.0; 4];
@@ -572,39 +590,60 @@ fn gpu_builds_both_levels_as_the_cpu_executor_does() {
 
 /// A plain top level (the radix tree and its fit, as `bench levels` times it) equals the CPU
 /// executor's build over the same boxes, at sizes of one merge-sort run, of a run's edge and
-/// of several runs and fit blocks, twice in a row.
+/// of several runs and fit blocks, three times in a row: each build after the first codes
+/// the instances in the bounds of the build before (`GpuLbvh::record_instanced`), the third
+/// with one instance moved far outside them (its code clamped: the tree is still sound).
+/// After `build_top_next` a build codes them in their own bounds, as the CPU's levels do.
 #[test]
 fn a_plain_top_level_is_built_as_the_cpu_builds_it() {
     let Some(gpu) = integration_tests::gpu("a_plain_top_level_is_built_as_the_cpu_builds_it") else {
         return;
     };
     let kernels = std::sync::Arc::new(raytrace::gpu::Kernels::new(&gpu).expect("kernels"));
-    for count in [1, 2, 255, 256, 257, 1000, 4099] {
-        let (meshes, placements, _) = instanced(Vec3::new(0.0, 1e3, 0.0), count, 7 + count as u32);
-        let mut g = raytrace::gpu::GpuLevels::new(&gpu, &kernels, &meshes, &placements, opts()).expect("GPU levels");
-        g.set_top_plain(true);
-        g.set_top_refits(0);
-        for turn in 0..2 {
-            let moved: Vec<[[f32; 4]; 3]> = placements
-                .iter()
-                .enumerate()
-                .map(|(k, p)| {
-                    let mut r = p.rows;
-                    r[1][3] += (turn * (k % 7)) as f32;
-                    r
-                })
-                .collect();
-            g.set_transforms(&moved).expect("new transforms");
-            g.rebuild_top().expect("top level");
-            let boxes = g.boxes().expect("boxes");
-            let top = raytrace::cpu::build(&boxes, &[], opts()).0;
-            let nodes = g.nodes().expect("nodes");
-            let first = g.layout().top as usize;
-            assert_eq!(
-                &nodes[first..],
-                &top.nodes[..],
-                "{count} instances, build {turn}: the plain top level"
-            );
+    for bits in [MortonBits::B30, MortonBits::B63] {
+        let opts = BuildOptions::lbvh(bits);
+        for count in [1, 2, 255, 256, 257, 1000, 4099] {
+            let (meshes, placements, _) = instanced(Vec3::new(0.0, 1e3, 0.0), count, 7 + count as u32);
+            let mut g = raytrace::gpu::GpuLevels::new(&gpu, &kernels, &meshes, &placements, opts).expect("GPU levels");
+            let mut last = raytrace::cpu::build(&g.boxes().expect("boxes"), &[], opts).0.bounds;
+            g.set_top_plain(true);
+            g.set_top_refits(0);
+            for turn in 0..4 {
+                let moved: Vec<[[f32; 4]; 3]> = placements
+                    .iter()
+                    .enumerate()
+                    .map(|(k, p)| {
+                        let mut r = p.rows;
+                        r[1][3] += (turn * (k % 7)) as f32;
+                        if turn == 2 && k == count / 2 {
+                            r[0][3] -= 1e4;
+                        }
+                        r
+                    })
+                    .collect();
+                g.set_transforms(&moved).expect("new transforms");
+                if turn == 3 {
+                    g.build_top_next();
+                }
+                let coded = g.top_code_bounds().expect("bounds");
+                assert_eq!(
+                    coded,
+                    (turn < 3).then_some(last),
+                    "{count} instances, build {turn}: the bounds kept"
+                );
+                g.rebuild_top().expect("top level");
+                let boxes = g.boxes().expect("boxes");
+                let top = raytrace::cpu::build_coded(&boxes, &[], opts, coded.as_ref()).0;
+                raytrace::bvh::validate(&top.nodes, &top.parents, &boxes, &[]).expect("a valid top level");
+                let nodes = g.nodes().expect("nodes");
+                let first = g.layout().top as usize;
+                assert_eq!(
+                    &nodes[first..],
+                    &top.nodes[..],
+                    "{count} instances, {bits:?}, build {turn}: the plain top level"
+                );
+                last = top.bounds;
+            }
         }
     }
     integration_tests::assert_no_validation_errors(&gpu);

@@ -3,7 +3,7 @@
 //! of an animated instanced scene would), memory per instance and per distinct primitive,
 //! and the GPU's levels compared with the CPU executor's, bit for bit.
 use super::{percentile, warm};
-use crate::bvh::{build_levels, BuildOptions, MeshPrims, MortonBits, Placement};
+use crate::bvh::{build_levels_coded, BuildOptions, MeshPrims, MortonBits, Placement};
 use crate::gpu::{Gpu, GpuLevels, Kernels};
 use crate::inputs::{assets_dir, generate, load_obj, Distribution};
 use anyhow::{bail, Result};
@@ -108,29 +108,35 @@ pub fn run(gpu: &Arc<Gpu>, o: &Options) -> Result<Report> {
         g.rebuild_top()
     };
     // Refits (never built again), then builds (every frame); the last frame built.
-    let mut timed = |g: &mut GpuLevels, refits: u32| -> Result<Vec<f64>> {
-        g.set_top_refits(refits);
-        warm(|| step(g).map(|_| ()))?;
-        let mut times = Vec::with_capacity(o.runs);
-        for _ in 0..o.runs {
-            times.push(step(g)? * 1e3);
-        }
-        times.sort_by(f64::total_cmp);
-        Ok(times)
-    };
-    let refits = timed(&mut g, u32::MAX)?;
+    let timed =
+        |g: &mut GpuLevels, refits: u32, step: &mut dyn FnMut(&mut GpuLevels) -> Result<f64>| -> Result<Vec<f64>> {
+            g.set_top_refits(refits);
+            warm(|| step(g).map(|_| ()))?;
+            let mut times = Vec::with_capacity(o.runs);
+            for _ in 0..o.runs {
+                times.push(step(g)? * 1e3);
+            }
+            times.sort_by(f64::total_cmp);
+            Ok(times)
+        };
+    let refits = timed(&mut g, u32::MAX, &mut step)?;
     g.set_top_plain(true);
-    let plain = timed(&mut g, 0)?;
-    // The plain build's top level against the CPU executor's over the same boxes.
-    let top = crate::cpu::build(&g.boxes()?, &[], BuildOptions::lbvh(opts.bits)).0;
+    let plain = timed(&mut g, 0, &mut step)?;
+    // A plain build's top level against the CPU executor's over the same boxes, coded in
+    // the same bounds (the last build's).
+    let coded = g.top_code_bounds()?;
+    step(&mut g)?;
+    let top = crate::cpu::build_coded(&g.boxes()?, &[], BuildOptions::lbvh(opts.bits), coded.as_ref()).0;
     if g.nodes()?[g.layout().top as usize..] != top.nodes[..] {
         bail!("the GPU's plain top level differs from the CPU executor's");
     }
     g.set_top_plain(false);
-    let times = timed(&mut g, 0)?;
-    // The last frame's levels against the CPU executor's.
+    let times = timed(&mut g, 0, &mut step)?;
+    // A frame's levels against the CPU executor's.
+    let coded = g.top_code_bounds()?;
+    step(&mut g)?;
     let last = placements(meshes.len(), o.instances, frame);
-    let cpu = build_levels(&meshes, &last, opts).map_err(anyhow::Error::msg)?;
+    let cpu = build_levels_coded(&meshes, &last, opts, coded.as_ref()).map_err(anyhow::Error::msg)?;
     let matches_cpu = g.nodes()? == cpu.nodes && g.boxes()? == cpu.boxes;
     if !matches_cpu {
         bail!("the GPU's levels differ from the CPU executor's");

@@ -5,7 +5,7 @@ use super::{validate, BuildOptions};
 use shared::glam::{DMat3, DVec3, Vec3};
 use shared::instance::{instance_box, Instance, IDENTITY};
 use shared::traverse::Scene;
-use shared::types::{prim_box, Node, Object, Sphere, Triangle, FEATURE_INSTANCES, INVALID};
+use shared::types::{prim_box, Node, Object, OrderedBounds, Sphere, Triangle, FEATURE_INSTANCES, INVALID};
 
 /// A mesh's primitives in its model space.
 #[derive(Clone, Debug, Default)]
@@ -258,6 +258,18 @@ pub fn mesh_build(placements: &[Placement], mesh: usize, opts: BuildOptions) -> 
 /// top level as [`top_build`] does),
 /// in the [`layout`] of `placements`, whose errors it returns.
 pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildOptions) -> Result<Levels, String> {
+    build_levels_coded(meshes, placements, opts, None)
+}
+
+/// [`build_levels`] with the top level's Morton codes taken in `top_code_bounds` where given
+/// (`cpu::build_coded`): the GPU's levels from the top level's second build on
+/// (`GpuLevels::top_code_bounds`).
+pub fn build_levels_coded(
+    meshes: &[MeshPrims],
+    placements: &[Placement],
+    opts: BuildOptions,
+    top_code_bounds: Option<&OrderedBounds>,
+) -> Result<Levels, String> {
     let layout = layout(meshes, placements).map_err(|e| e.to_string())?;
     let opts = BuildOptions { wide: false, ..opts };
     let mut l = Levels {
@@ -286,7 +298,7 @@ pub fn build_levels(meshes: &[MeshPrims], placements: &[Placement], opts: BuildO
         instance_box(i, n, &l.instances, &l.objects, &mut l.boxes);
     }
     if !l.boxes.is_empty() {
-        let r = crate::cpu::build(&l.boxes, &[], top_build(opts)).0;
+        let r = crate::cpu::build_coded(&l.boxes, &[], top_build(opts), top_code_bounds).0;
         l.nodes.extend_from_slice(&r.nodes);
         l.top_parents = r.parents;
     }

@@ -4,8 +4,8 @@ mod levels;
 mod validate;
 
 pub use levels::{
-    build_levels, inverse_rows, layout, mesh_build, top_build, validate_levels, LayoutError, Levels, LevelsLayout,
-    MeshPrims, Placement, TOP_ROUNDS,
+    build_levels, build_levels_coded, inverse_rows, layout, mesh_build, top_build, validate_levels, LayoutError,
+    Levels, LevelsLayout, MeshPrims, Placement, TOP_ROUNDS,
 };
 pub use validate::{validate, validate_wide, BvhStats, WideStats};
 

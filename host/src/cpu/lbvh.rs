@@ -24,9 +24,22 @@ fn lanes(mut phase: impl FnMut(u32)) {
 
 /// Builds the BVH on the CPU; returns every stage's output and each stage's seconds.
 pub fn build(tris: &[Triangle], spheres: &[Sphere], opts: BuildOptions) -> (BuildResult, Vec<(&'static str, f64)>) {
+    build_coded(tris, spheres, opts, None)
+}
+
+/// [`build`] with the Morton codes taken in `code_bounds` where given (the primitives'
+/// own bounds are still reduced, published and returned): what the GPU's top level does
+/// from its second build on, coding the instances in the last build's bounds
+/// (`GpuLbvh::record_instanced`).
+pub fn build_coded(
+    tris: &[Triangle],
+    spheres: &[Sphere],
+    opts: BuildOptions,
+    code_bounds: Option<&OrderedBounds>,
+) -> (BuildResult, Vec<(&'static str, f64)>) {
     match opts.bits {
-        MortonBits::B30 => build_keyed::<u32>(tris, spheres, opts, morton::morton30, morton::code30),
-        MortonBits::B63 => build_keyed::<u64>(tris, spheres, opts, morton::morton63, morton::code63),
+        MortonBits::B30 => build_keyed::<u32>(tris, spheres, opts, code_bounds, morton::morton30, morton::code30),
+        MortonBits::B63 => build_keyed::<u64>(tris, spheres, opts, code_bounds, morton::morton63, morton::code63),
     }
 }
 
@@ -37,6 +50,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     tris: &[Triangle],
     spheres: &[Sphere],
     opts: BuildOptions,
+    code_bounds: Option<&OrderedBounds>,
     morton_fn: MortonFn<K>,
     code_fn: CodeFn<K>,
 ) -> (BuildResult, Vec<(&'static str, f64)>) {
@@ -73,6 +87,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         lanes(|l| bounds::flush(l, &st, &mut b));
     }
     out.bounds = b;
+    let coded = *code_bounds.unwrap_or(&b);
     lap("bounds", &mut times);
 
     let mut keys = vec![K::default(); n as usize];
@@ -85,7 +100,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
                 counts: [0; sort::DIGIT_WORDS],
             });
             lanes(|l| sort::digits_clear(l, &mut st));
-            lanes(|l| sort::count_codes(l, g, &mut st, &p, &b, &summaries, &mut keys, &mut vals, morton_fn));
+            lanes(|l| sort::count_codes(l, g, &mut st, &p, &coded, &summaries, &mut keys, &mut vals, morton_fn));
             lanes(|l| sort::digits_store(l, &st, &p, &mut totals));
         }
         out.morton = keys.iter().map(|&k| k.into()).collect();
@@ -98,7 +113,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
                 keys: [K::default(); merge_sort::RUN as usize],
             });
             lanes(|l| {
-                let key = code_fn(g * merge_sort::RUN + l, &p, &b, &summaries);
+                let key = code_fn(g * merge_sort::RUN + l, &p, &coded, &summaries);
                 merge_sort::run_load(l, g, key, &mut st, &p, &mut codes)
             });
             lanes(|l| merge_sort::run_rank(l, g, &st, &p, &mut keys, &mut vals));

@@ -6,7 +6,7 @@ mod lbvh;
 mod render;
 
 pub use denoise::{unplane as guides_from_planes, CpuDenoiser, Denoised};
-pub use lbvh::{build, refit, refit_round};
+pub use lbvh::{build, build_coded, refit, refit_round};
 pub use render::{
     display_image, levels_inputs, render_cpu, render_cpu_moving, render_cpu_samples, transformed, world_primitives,
     CpuRender,

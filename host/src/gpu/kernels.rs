@@ -27,6 +27,8 @@ pub enum Kernel {
     SortScatterU64,
     SortRunsU32,
     SortRunsU64,
+    InstanceRunsU32,
+    InstanceRunsU64,
     SortMergeU32,
     SortMergeU64,
     KarrasBuildU32,
@@ -73,7 +75,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 36] = [
+    pub const ALL: [Kernel; 38] = [
         Kernel::BoundsReduce,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
@@ -81,6 +83,8 @@ impl Kernel {
         Kernel::SortScatterU64,
         Kernel::SortRunsU32,
         Kernel::SortRunsU64,
+        Kernel::InstanceRunsU32,
+        Kernel::InstanceRunsU64,
         Kernel::SortMergeU32,
         Kernel::SortMergeU64,
         Kernel::KarrasBuildU32,
@@ -127,6 +131,8 @@ impl Kernel {
             Kernel::SortScatterU64 => "sort_scatter_u64",
             Kernel::SortRunsU32 => "sort_runs_u32",
             Kernel::SortRunsU64 => "sort_runs_u64",
+            Kernel::InstanceRunsU32 => "instance_runs_u32",
+            Kernel::InstanceRunsU64 => "instance_runs_u64",
             Kernel::SortMergeU32 => "sort_merge_u32",
             Kernel::SortMergeU64 => "sort_merge_u64",
             Kernel::KarrasBuildU32 => "karras_build_u32",

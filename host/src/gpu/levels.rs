@@ -14,7 +14,7 @@ use anyhow::{anyhow, ensure, Context, Result};
 use gpu_allocator::MemoryLocation;
 use shared::instance::Instance;
 use shared::types::{
-    grid, item_groups, BuildParams, Node, Object, Sphere, Triangle, INVALID, RENDER_BINDINGS, WORKGROUP,
+    grid, item_groups, BuildParams, Node, Object, OrderedBounds, Sphere, Triangle, INVALID, RENDER_BINDINGS, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -49,6 +49,9 @@ pub struct GpuLevels {
     top_refits_max: u32,
     /// The top level built as a plain LBVH instead of [`top_build`]'s (`bench levels`).
     top_plain: bool,
+    /// The top level's builder holds its last build's bounds (its `b[1]`), in which the next
+    /// build codes the instances ([`GpuLbvh::record_instanced`]).
+    top_bounds: bool,
     /// The top level's builder writes its nodes into `nodes` (`GpuLbvh::place_nodes`), else
     /// they are copied there after each build or refit.
     top_in_place: bool,
@@ -156,6 +159,7 @@ impl GpuLevels {
             top_refits: None,
             top_refits_max: TOP_REFITS,
             top_plain: false,
+            top_bounds: false,
             top_in_place,
         };
         l.objects.write(&l.layout.objects)?;
@@ -320,31 +324,29 @@ impl GpuLevels {
             top_build(self.opts)
         };
         let refit = matches!(self.top_refits, Some(r) if r < self.top_refits_max);
-        // A build takes the boxes' bounds in the same kernel; a refit keeps the tree (and
-        // the bounds' reduction untouched: the next build's starts empty).
-        let (kernel, groups) = if refit {
-            (Kernel::InstanceBoxes, n.div_ceil(WORKGROUP))
+        // A build after the first, sorted by merging, makes the boxes in its runs kernel and
+        // codes them in the last build's bounds (this build's are reduced for the next).
+        if !refit && self.top_bounds && self.top.merges(top.bits) {
+            self.top.record_instanced(cmds, top, false, sets[1])?;
+            self.top_refits = Some(0);
         } else {
-            (Kernel::InstanceBounds, item_groups(n))
-        };
-        let (x, y) = grid(groups);
-        cmds.dispatch_sets(&self.kernels, &sets, kernel, bytemuck::bytes_of(&p), x, y)?;
-        cmds.barrier();
-        // Every interval a frame's timings report ends at a named timestamp: the builder's
-        // own first one ("start") then covers nothing (`frame_timings` leaves it out).
-        cmds.timestamp("top level");
-        match self.top_refits {
-            Some(r) if refit => {
-                // The first `TOP_ROUNDS - 1` refits after a build restructure it again.
-                let again = top.restructures() && r + 1 < TOP_ROUNDS;
-                self.top.record_refit(cmds, top, again)?;
-                self.top_refits = Some(r + 1);
-            }
-            _ => {
-                self.top.record_bounded(cmds, top, false)?;
-                self.top_refits = Some(0);
-            }
+            // Else the boxes first, a build taking their bounds in the same kernel; a refit
+            // keeps the tree (and the bounds' reduction untouched: the next build's starts
+            // empty).
+            let (kernel, groups) = if refit {
+                (Kernel::InstanceBoxes, n.div_ceil(WORKGROUP))
+            } else {
+                (Kernel::InstanceBounds, item_groups(n))
+            };
+            let (x, y) = grid(groups);
+            cmds.dispatch_sets(&self.kernels, &sets, kernel, bytemuck::bytes_of(&p), x, y)?;
+            cmds.barrier();
+            // Every interval a frame's timings report ends at a named timestamp (the
+            // builder's follow this one).
+            cmds.timestamp("top level");
+            self.record_top_update(cmds, top, refit)?;
         }
+        self.top_bounds = true;
         if !self.top_in_place {
             let (_, _, top_nodes) = self.top.buffers()?;
             let node = size_of::<Node>() as u64;
@@ -357,6 +359,23 @@ impl GpuLevels {
             );
             cmds.barrier();
             cmds.timestamp("top level");
+        }
+        Ok(())
+    }
+
+    /// The top level's build or refit after its instances' boxes.
+    fn record_top_update(&mut self, cmds: &mut Commands, top: BuildOptions, refit: bool) -> Result<()> {
+        match self.top_refits {
+            Some(r) if refit => {
+                // The first `TOP_ROUNDS - 1` refits after a build restructure it again.
+                let again = top.restructures() && r + 1 < TOP_ROUNDS;
+                self.top.record_refit(cmds, top, again)?;
+                self.top_refits = Some(r + 1);
+            }
+            _ => {
+                self.top.record_bounded(cmds, top, false)?;
+                self.top_refits = Some(0);
+            }
         }
         Ok(())
     }
@@ -375,9 +394,22 @@ impl GpuLevels {
         self.top_refits = None;
     }
 
-    /// The next update of the top level builds it (instead of refitting it).
+    /// The next update of the top level builds it (instead of refitting it), coding the
+    /// instances in their own bounds as the CPU executor's levels do (not the last build's).
     pub fn build_top_next(&mut self) {
         self.top_refits = None;
+        self.top_bounds = false;
+    }
+
+    /// The bounds the next build of the top level codes its instances in when it takes the
+    /// last build's ([`GpuLbvh::record_instanced`]; `None` when it reduces its own): what
+    /// the CPU executor's build needs to equal it (`cpu::build_coded`).
+    pub fn top_code_bounds(&mut self) -> Result<Option<OrderedBounds>> {
+        let n = self.layout.instances.len() as u32;
+        if !self.top_bounds || !self.top.merges(self.opts.bits) || n == 0 {
+            return Ok(None);
+        }
+        Ok(Some(self.top.bounds()?[1]))
     }
 
     /// Top-level refits since its last build (`None` before the first).
