@@ -122,15 +122,15 @@ macro_rules! fit_kernel {
             #[spirv(workgroup)] st: &mut FitState,
         ) {
             let group = flat_group(gid.x, gid.y);
+            let leaf = refit::fit_leaf(lid.x, group, p, refit::Prims { order, tris, spheres });
             refit::fit_clear(lid.x, st);
             barrier();
             refit::fit_links(lid.x, group, st, p, visits, node_words);
             barrier();
-            let prims = refit::Prims { order, tris, spheres };
             if ordered != 0 {
-                refit::fit::<true, $wide>(lid.x, group, st, p, prims, parents, visits, node_words, scratch);
+                refit::fit::<true, $wide>(lid.x, group, st, p, leaf, parents, visits, node_words, scratch);
             } else {
-                refit::fit::<false, $wide>(lid.x, group, st, p, prims, parents, visits, node_words, scratch);
+                refit::fit::<false, $wide>(lid.x, group, st, p, leaf, parents, visits, node_words, scratch);
             }
         }
     };

@@ -202,22 +202,6 @@ pub struct FitState {
     pub leaf_links: [u32; BLOCK as usize],
 }
 
-/// Ancestors whose leaf range spans `check_span(n)` leaves or more are tested before the
-/// merges (see [`fit`]); below, merged into blindly (few local roots meet there). H100,
-/// refit stage: merging blindly everywhere, bunny 25 us, 1M 322, 16M 5718 (the root takes
-/// every local root's merges); testing every ancestor 32 / 166 / 2017 (each test waits for
-/// the boxes' loads); from 4 blocks 27 / 157 / 1892; from 32 blocks 25 / 170 / 2141. A
-/// small input's refit is a latency chain, a large one's a stream of atomics: from 32
-/// blocks below `SMALL_FIT` primitives, from 4 above.
-pub fn check_span(n: u32) -> u32 {
-    if n < SMALL_FIT {
-        32 * BLOCK
-    } else {
-        4 * BLOCK
-    }
-}
-const SMALL_FIT: u32 = 1 << 18;
-
 /// A link's flag: the parent's leaves all lie in the block (its slot is the low byte).
 const LOCAL: u32 = 1 << 8;
 /// A link's flag: the node is its parent's left child.
@@ -228,6 +212,30 @@ const ARRIVAL: u32 = 16;
 const ARRIVAL_MASK: u32 = 0x1ff;
 const FRONTIER: u32 = 25;
 const _: () = assert!(BLOCK <= ARRIVAL_MASK && ARRIVAL + 9 == FRONTIER);
+
+/// Merges the box `(lo, hi)` into node `node`'s, above the blocks: loads the node's box and
+/// merges the sides the box extends (in the order where -0.0 < +0.0); whether it merged any.
+#[allow(clippy::identity_op)] // `seq!` starts at 0
+fn grow(words: &mut [u32], node: u32, lo: [f32; 3], hi: [f32; 3]) -> bool {
+    let w = 8 * node;
+    let mut held = [0u32; 6];
+    seq!(K in 0..3 {
+        held[K] = sync::atomic_load_u32(at(words, w + K));
+        held[3 + K] = sync::atomic_load_u32(at(words, w + 4 + K));
+    });
+    let mut grew = false;
+    seq!(K in 0..3 {
+        if f32_to_ordered(lo[K]) < f32_to_ordered(f32::from_bits(held[K])) {
+            sync::atomic_fmin_bits(at_mut(words, w + K), lo[K]);
+            grew = true;
+        }
+        if f32_to_ordered(hi[K]) > f32_to_ordered(f32::from_bits(held[3 + K])) {
+            sync::atomic_fmax_bits(at_mut(words, w + 4 + K), hi[K]);
+            grew = true;
+        }
+    });
+    grew
+}
 
 /// Writes node `node`'s box (its 32-bit words 0-2 and 4-6; the links are the tree kernel's).
 #[allow(clippy::identity_op)] // `seq!` starts at 0
@@ -282,8 +290,20 @@ fn set_link(st: &mut FitState, n: u32, base: u32, c: u32, link: u32) {
     }
 }
 
+/// Leaf `BLOCK * group + lane`'s primitive and box for [`fit`], loaded before the links'
+/// phases so that the loads overlap them (nothing past the last leaf).
+pub type Leaf = (u32, [f32; 3], [f32; 3]);
+pub fn fit_leaf(lane: u32, group: u32, p: &BuildParams, prims: Prims) -> Leaf {
+    let i = group * BLOCK + lane;
+    if i < p.n {
+        leaf_box(i, p, prims)
+    } else {
+        (INVALID, [0.0; 3], [0.0; 3])
+    }
+}
+
 /// Phase 3 (after a barrier): the box fit without the visit counters' chain across the
-/// GPU. Lane `l` writes leaf `BLOCK * group + l` and climbs while the parent's leaves all
+/// GPU. Lane `l` writes leaf `BLOCK * group + l` (its [`fit_leaf`]) and climbs while the parent's leaves all
 /// lie in the block (a *local* node), meeting its sibling in workgroup memory: it leaves
 /// its box in its slot and sets its lane in the parent's link word; the first to arrive
 /// stops, the second reads the first's box from its slot, fits the parent (children in
@@ -291,17 +311,19 @@ fn set_link(st: &mut FitState, n: u32, base: u32, c: u32, link: u32) {
 /// on. A lane stops at most once, so its slot is read at most once, after its last write.
 ///
 /// At a node whose parent is not local (a *local root*), the lane merges its box into its
-/// ancestors with atomic float `min`/`max` on their bits ([`sync::atomic_fmin_bits`]; the
-/// tree kernel left them empty), from the parent up, and stops at the first ancestor of
-/// [`check_span`] leaves or more whose box (as loaded: it only grows) already holds its
-/// own. No invocation waits for another,
+/// ancestors ([`grow`]: the sides it extends, by atomic float `min`/`max` on their bits; the
+/// tree kernel left them empty), from the parent up, and stops at the first ancestor whose
+/// box (as loaded: it only grows) already holds its own. No invocation waits for another,
 /// so a level above the blocks costs a load of the parent and its box instead of a
-/// device-scope counter, a fence and the sibling's box; the early stop keeps the merges off
-/// the top of the tree, which every local root reaches. Each node's box is still exactly
-/// the union of its leaves, whatever the order: a lane that merged into a node goes on to
-/// the parent, or stops there because the parent already holds its box; so every node
-/// holds each box merged into its child, and by induction every local root's below it.
-/// Boxes of nodes above the blocks order -0.0 below +0.0 (in the merges and the test).
+/// device-scope counter, a fence and the sibling's box, and the early stop and the merges of
+/// only the sides that grow keep the atomics off the top of the tree, which every local root
+/// reaches (all six merged at every level but the tests' top ones cost the H200's fit of the
+/// top level of 10,000 instances ~3 us of its critical path: bench/NOTES.md, session 44).
+/// Each node's box is still exactly the union of its leaves, whatever the order: every value
+/// a node's side holds was merged by a lane that went on to the parent, where it merged it
+/// or found a value at least as far out; so, from the root down, every ancestor of a node
+/// ends with each value the node held, and every local root's box is in each ancestor's.
+/// Boxes of nodes above the blocks order -0.0 below +0.0 (in the merges and the tests).
 ///
 /// `ORDERED` makes the link word's `or` acquire-release on workgroup memory; lavapipe runs
 /// the relaxed variant (see [`refit`]).
@@ -320,7 +342,7 @@ pub fn fit<const ORDERED: bool, const WIDE: bool>(
     group: u32,
     st: &mut FitState,
     p: &BuildParams,
-    prims: Prims,
+    leaf: Leaf,
     parents: &[u32],
     visits: &[u32],
     words: &mut [u32],
@@ -333,7 +355,7 @@ pub fn fit<const ORDERED: bool, const WIDE: bool>(
         return;
     }
     let mut node = n - 1 + i;
-    let (prim, mut lo, mut hi) = leaf_box(i, p, prims);
+    let (prim, mut lo, mut hi) = leaf;
     store_box(words, node, lo, hi);
     *at_mut(words, 8 * node + 3) = prim;
     *at_mut(words, 8 * node + 7) = INVALID;
@@ -387,24 +409,10 @@ pub fn fit<const ORDERED: bool, const WIDE: bool>(
     }
     let mut a = *at(parents, node);
     while a != INVALID {
-        let w = 8 * a;
         let next = *at(parents, a);
-        let far = *at(visits, n + a);
-        if a.abs_diff(far) >= check_span(n) {
-            let mut covered = true;
-            seq!(K in 0..3 {
-                let (a_lo, a_hi) = (sync::atomic_load_u32(at(words, w + K)), sync::atomic_load_u32(at(words, w + 4 + K)));
-                covered &= f32_to_ordered(f32::from_bits(a_lo)) <= f32_to_ordered(lo[K])
-                    && f32_to_ordered(f32::from_bits(a_hi)) >= f32_to_ordered(hi[K]);
-            });
-            if covered {
-                break;
-            }
+        if !grow(words, a, lo, hi) {
+            break;
         }
-        seq!(K in 0..3 {
-            sync::atomic_fmin_bits(at_mut(words, w + K), lo[K]);
-            sync::atomic_fmax_bits(at_mut(words, w + 4 + K), hi[K]);
-        });
         a = next;
     }
     if WIDE {

@@ -295,12 +295,14 @@ fn fit(
             links: [0; refit::BLOCK as usize],
             leaf_links: [0; refit::BLOCK as usize],
         };
+        let leaves: Vec<refit::Leaf> = (0..WORKGROUP).map(|l| refit::fit_leaf(l, g, p, prims)).collect();
         lanes(|l| refit::fit_clear(l, &mut st));
         lanes(|l| refit::fit_links(l, g, &mut st, p, visits, &words));
+        let leaf = |l: u32| leaves[l as usize];
         if scratch.is_empty() {
-            lanes(|l| refit::fit::<true, false>(l, g, &mut st, p, prims, parents, visits, &mut words, scratch));
+            lanes(|l| refit::fit::<true, false>(l, g, &mut st, p, leaf(l), parents, visits, &mut words, scratch));
         } else {
-            lanes(|l| refit::fit::<true, true>(l, g, &mut st, p, prims, parents, visits, &mut words, scratch));
+            lanes(|l| refit::fit::<true, true>(l, g, &mut st, p, leaf(l), parents, visits, &mut words, scratch));
         }
     }
     bytemuck::pod_collect_to_vec(&words)
