@@ -178,7 +178,7 @@ pub fn markdown(r: &Report) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Two levels: instances of meshes\n\n- date: {}\n- device: {}\n- command: `{}`\n- {} instances of 3 meshes (Suzanne, the bunny, 37 mixed primitives): {} distinct primitives, {} instanced; every run turns every instance and builds the top level again (world boxes and their bounds, build restructured by treelets in one round, its nodes written where the tracers read them), as the renderer does every 60th frame (the next two frames' refits restructure it again), or as a plain LBVH (Karras's tree and the fit), or refits it (world boxes, refit), as the frames between two builds do\n",
+        "# Two levels: instances of meshes\n\n- date: {}\n- device: {}\n- command: `{}`\n- {} instances of 3 meshes (Suzanne, the bunny, 37 mixed primitives): {} distinct primitives, {} instanced; every run turns every instance and builds the top level again (world boxes, coded in the last build's bounds, and this build's bounds in the merge sort's runs kernel, build restructured by treelets in one round, its nodes written where the tracers read them), as the renderer does every 60th frame (the next two frames' refits restructure it again), or as a plain LBVH (Karras's tree and the fit), or refits it (world boxes, refit), as the frames between two builds do\n",
         r.date, r.device, r.command, r.options.instances, r.distinct_primitives, r.instanced_primitives
     );
     let _ = writeln!(
