@@ -312,6 +312,9 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
         ) {
             let i = flat_index(id.x, id.y);
+            if karras::warm(i, p, keys) {
+                return;
+            }
             karras::build(i, p, keys, nodes, parents, visits);
             // The sort and the Morton stage are done with these: reset for the next build.
             sort::clear_tables(i, p, counts, totals);
