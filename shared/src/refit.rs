@@ -290,9 +290,11 @@ fn set_link(st: &mut FitState, n: u32, base: u32, c: u32, link: u32) {
     }
 }
 
-/// Leaf `BLOCK * group + lane`'s primitive and box for [`fit`], loaded before the links'
-/// phases so that the loads overlap them (nothing past the last leaf).
+/// A leaf's primitive and box (`lo`, `hi`).
 pub type Leaf = (u32, [f32; 3], [f32; 3]);
+
+/// Leaf `BLOCK * group + lane`'s primitive and box for [`fit`], loaded before the links'
+/// phases so that the loads overlap them (`INVALID` past the last leaf).
 pub fn fit_leaf(lane: u32, group: u32, p: &BuildParams, prims: Prims) -> Leaf {
     let i = group * BLOCK + lane;
     if i < p.n {
@@ -303,12 +305,13 @@ pub fn fit_leaf(lane: u32, group: u32, p: &BuildParams, prims: Prims) -> Leaf {
 }
 
 /// Phase 3 (after a barrier): the box fit without the visit counters' chain across the
-/// GPU. Lane `l` writes leaf `BLOCK * group + l` (its [`fit_leaf`]) and climbs while the parent's leaves all
-/// lie in the block (a *local* node), meeting its sibling in workgroup memory: it leaves
-/// its box in its slot and sets its lane in the parent's link word; the first to arrive
-/// stops, the second reads the first's box from its slot, fits the parent (children in
-/// (left, right) order, so that `min(-0.0, +0.0)` is the same on every backend) and goes
-/// on. A lane stops at most once, so its slot is read at most once, after its last write.
+/// GPU. Lane `l` writes leaf `BLOCK * group + l` (its [`fit_leaf`]) and climbs while the
+/// parent's leaves all lie in the block (a *local* node), meeting its sibling in workgroup
+/// memory: it leaves its box in its slot and sets its lane in the parent's link word; the
+/// first to arrive stops, the second reads the first's box from its slot, fits the parent
+/// (children in (left, right) order, so that `min(-0.0, +0.0)` is the same on every backend)
+/// and goes on. A lane stops at most once, so its slot is read at most once, after its last
+/// write.
 ///
 /// At a node whose parent is not local (a *local root*), the lane merges its box into its
 /// ancestors ([`grow`]: the sides it extends, by atomic float `min`/`max` on their bits; the
