@@ -49,7 +49,7 @@ pub struct Prims<'a> {
 }
 
 /// Leaf `i`'s primitive and its box `(lo, hi)`.
-fn leaf_box(i: u32, p: &BuildParams, prims: Prims) -> (u32, [f32; 3], [f32; 3]) {
+fn leaf_box(i: u32, p: &BuildParams, prims: Prims) -> Leaf {
     let prim = *at(prims.order, i);
     let (l, h) = prim_box(prim, p.n_tris, prims.tris, prims.spheres);
     (prim, l.to_array(), h.to_array())
