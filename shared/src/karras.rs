@@ -134,3 +134,32 @@ pub fn build<K: SortKey>(
         *at_mut(visits, n + i) = if first == i { last } else { first };
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// [`warm`] finds no top bit in the largest Morton codes of either width (so the tree
+    /// kernel never returns before [`build`]), at the sizes where it loads keys.
+    #[test]
+    fn warm_keys_never_stop_the_tree_kernel() {
+        let p = |n| BuildParams {
+            n_tris: n,
+            n,
+            shift: 0,
+            passes: 0,
+        };
+        let k30 = [(1u32 << 30) - 1; WARM_WORDS as usize];
+        let k63 = [(1u64 << 63) - 1; (WARM_WORDS / 2) as usize];
+        for n in [WARM_FROM, 5000, WARM_WORDS / 2] {
+            for i in [0, 1, WORKGROUP - 1, WORKGROUP, n - 1] {
+                assert!(!warm(i, &p(n), &k30), "30-bit codes, n {n}, lane {i}");
+                assert!(!warm(i, &p(n), &k63), "63-bit codes, n {n}, lane {i}");
+            }
+        }
+        // The test it relies on: a key with its top bit set is found.
+        let mut bad = k30;
+        bad[WORKGROUP as usize + 3] = 1 << 31;
+        assert!(warm(3, &p(WARM_FROM), &bad));
+    }
+}
