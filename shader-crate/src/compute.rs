@@ -466,7 +466,7 @@ pub fn pairs_write(
 pub fn transform(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(push_constant)] p: &BuildParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &mut [Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &mut [spirv_std::glam::UVec4],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &mut [Sphere],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 1)] model_tris: &[Triangle],

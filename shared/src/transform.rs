@@ -3,7 +3,9 @@
 //! Tait-Bryan Y-X-Z rotation, scale). Explicit [`fma`] chains round identically on the CPU
 //! and the GPU, so both backends build the same BVH from the same scene.
 use crate::math::{floor, fma};
+use crate::sync::{at, at_mut};
 use crate::types::{BuildParams, Object, Sphere, Triangle};
+use spirv_std::glam::UVec4;
 
 /// `rows * [v, 1]`; `w` of the result is 0.
 pub fn apply(o: &Object, v: [f32; 4]) -> [f32; 4] {
@@ -15,7 +17,11 @@ pub fn row(r: [f32; 4], v: [f32; 4]) -> f32 {
     fma(r[0], v[0], fma(r[1], v[1], fma(r[2], v[2], r[3])))
 }
 
-/// World-space copy of primitive `i` (triangles `0..n_tris`, then spheres).
+/// World-space copy of primitive `i` (triangles `0..n_tris`, then spheres). The world
+/// triangles are written as 16-byte words, three to a triangle (`tris` is the triangle
+/// buffer seen as `[UVec4]`): NVIDIA's compiler stores a `Triangle` value as narrow words,
+/// which made the stage four times its bytes' time (H200, 10M triangles 0.90 ms; see
+/// bench/NOTES.md, session 46).
 #[allow(clippy::too_many_arguments)]
 pub fn transform(
     i: u32,
@@ -24,24 +30,26 @@ pub fn transform(
     prim_object: &[u32],
     model_tris: &[Triangle],
     model_spheres: &[Sphere],
-    tris: &mut [Triangle],
+    tris: &mut [UVec4],
     spheres: &mut [Sphere],
 ) {
     if i >= p.n {
         return;
     }
-    let o = objects[prim_object[i as usize] as usize];
+    // By reference: a copy of the object would load all its 128 bytes.
+    let o = at(objects, *at(prim_object, i));
     if i < p.n_tris {
-        let t = &model_tris[i as usize];
-        let waved = Triangle {
-            v0: waved(&o, t.v0),
-            v1: waved(&o, t.v1),
-            v2: waved(&o, t.v2),
+        let t = at(model_tris, i);
+        let word = |v: [f32; 4]| {
+            let w = apply(o, waved(o, v));
+            UVec4::new(w[0].to_bits(), w[1].to_bits(), w[2].to_bits(), w[3].to_bits())
         };
-        tris[i as usize] = world_triangle(&o, &waved);
+        *at_mut(tris, 3 * i) = word(t.v0);
+        *at_mut(tris, 3 * i + 1) = word(t.v1);
+        *at_mut(tris, 3 * i + 2) = word(t.v2);
     } else {
-        let k = (i - p.n_tris) as usize;
-        spheres[k] = world_sphere(&o, &model_spheres[k]);
+        let k = i - p.n_tris;
+        *at_mut(spheres, k) = world_sphere(o, at(model_spheres, k));
     }
 }
 

@@ -69,7 +69,7 @@ pub fn transformed(
             prim_object,
             model_tris,
             model_spheres,
-            &mut tris,
+            bytemuck::cast_slice_mut(&mut tris),
             &mut spheres,
         );
     }
