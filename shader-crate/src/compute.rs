@@ -304,7 +304,7 @@ macro_rules! key_kernels {
             #[spirv(global_invocation_id)] id: UVec3,
             #[spirv(push_constant)] p: &BuildParams,
             #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys: &[$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &mut [Node],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [spirv_std::glam::UVec4],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] bounds: &mut [OrderedBounds],
@@ -315,7 +315,7 @@ macro_rules! key_kernels {
             if karras::warm(i, p, keys) {
                 return;
             }
-            karras::build(i, p, keys, nodes, parents, visits);
+            karras::build(i, p, keys, node_words, parents, visits);
             // The sort and the Morton stage are done with these: reset for the next build.
             sort::clear_tables(i, p, counts, totals);
             bounds::publish(i, bounds);

@@ -4,11 +4,13 @@
 //! Invocation `i` builds internal node `i` (for `i < n - 1`; the refit writes the leaves).
 //! Equal codes are told apart by their index: `delta(i, j)` is then `BITS + clz(i ^ j)`
 //! (Karras, sec. 4).
-//! Node layout: internal nodes `0..n-1`, leaves `n-1..2n-1`, root 0; see [`Node`].
+//! Node layout: internal nodes `0..n-1`, leaves `n-1..2n-1`, root 0; see
+//! [`crate::types::Node`].
 use crate::radix_sort::SortKey;
 use crate::sync::{at, at_mut};
-use crate::types::{BuildParams, Node, INVALID, WORKGROUP};
+use crate::types::{BuildParams, INVALID, WORKGROUP};
 use seq_macro::seq;
+use spirv_std::glam::UVec4;
 
 /// Length of the common prefix of keys `i` and `j`; -1 when `j` is outside `0..n`.
 pub fn delta<K: SortKey>(keys: &[K], n: u32, i: u32, j: i32) -> i32 {
@@ -103,11 +105,13 @@ const _: () = assert!(WARM_WORDS / WORKGROUP == 64);
 /// records the far end of its leaf range (`i` is one end) in `visits[n + i]` for the refit.
 /// The leaves are written by the refit (see [`crate::refit::fit`]), which gathers each
 /// leaf's primitive as it starts its climb: written here, they would cross memory twice more.
+/// `node_words` is the node buffer as 16-byte words (node `k`: words `2 k`, `2 k + 1`), so
+/// that a node is two vector stores (NVIDIA's compiler stores a `Node` value as narrow words).
 pub fn build<K: SortKey>(
     i: u32,
     p: &BuildParams,
     keys: &[K],
-    nodes: &mut [Node],
+    node_words: &mut [UVec4],
     parents: &mut [u32],
     visits: &mut [u32],
 ) {
@@ -122,12 +126,9 @@ pub fn build<K: SortKey>(
         let (first, last, gamma) = range_and_split(keys, n, i);
         let left = if first == gamma { n - 1 + gamma } else { gamma };
         let right = if last == gamma + 1 { n + gamma } else { gamma + 1 };
-        *at_mut(nodes, i) = Node {
-            min: [f32::INFINITY; 3],
-            a: left,
-            max: [f32::NEG_INFINITY; 3],
-            b: right,
-        };
+        let (inf, neg) = (f32::INFINITY.to_bits(), f32::NEG_INFINITY.to_bits());
+        *at_mut(node_words, 2 * i) = UVec4::new(inf, inf, inf, left);
+        *at_mut(node_words, 2 * i + 1) = UVec4::new(neg, neg, neg, right);
         *at_mut(parents, left) = i;
         *at_mut(parents, right) = i;
         *at_mut(visits, i) = 0;

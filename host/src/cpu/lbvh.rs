@@ -220,8 +220,9 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
     let total_nodes = (2 * n).saturating_sub(1) as usize;
     let mut nodes = vec![Node::default(); total_nodes];
     let mut parents = vec![0u32; total_nodes];
+    let words = bytemuck::cast_slice_mut(&mut nodes);
     for i in 0..n {
-        karras::build(i, &p, &keys, &mut nodes, &mut parents, &mut visits);
+        karras::build(i, &p, &keys, words, &mut parents, &mut visits);
         sort::clear_tables(i, &p, &mut counts, &mut totals);
     }
     debug_assert!(totals.iter().chain(&counts).all(|&w| w == 0));
@@ -409,9 +410,13 @@ fn refit_with(
     let ends = |keys: &[u64], tree: &mut [Node], parents: &mut [u32], visits: &mut [u32]| match opts.bits {
         MortonBits::B30 => {
             let keys: Vec<u32> = keys.iter().map(|&k| k as u32).collect();
-            (0..n).for_each(|i| karras::build(i, &p, &keys, tree, parents, visits));
+            let words = bytemuck::cast_slice_mut(tree);
+            (0..n).for_each(|i| karras::build(i, &p, &keys, words, parents, visits));
         }
-        MortonBits::B63 => (0..n).for_each(|i| karras::build(i, &p, keys, tree, parents, visits)),
+        MortonBits::B63 => {
+            let words = bytemuck::cast_slice_mut(tree);
+            (0..n).for_each(|i| karras::build(i, &p, keys, words, parents, visits))
+        }
     };
     ends(&earlier.sorted_keys, &mut tree, &mut parents, &mut visits);
     let linked = |a: &Node, b: &Node| (a.a, a.b) == (b.a, b.b);
