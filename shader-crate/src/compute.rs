@@ -116,6 +116,7 @@ macro_rules! fit_kernel {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_words: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] node_quads: &mut [spirv_std::glam::UVec4],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] scratch: &mut [u32],
@@ -127,10 +128,11 @@ macro_rules! fit_kernel {
             barrier();
             refit::fit_links(lid.x, group, st, p, visits, node_words);
             barrier();
+            let nodes = &mut refit::FitNodes::bound(node_words, node_quads);
             if ordered != 0 {
-                refit::fit::<true, $wide>(lid.x, group, st, p, leaf, parents, visits, node_words, scratch);
+                refit::fit::<true, $wide>(lid.x, group, st, p, leaf, parents, visits, nodes, scratch);
             } else {
-                refit::fit::<false, $wide>(lid.x, group, st, p, leaf, parents, visits, node_words, scratch);
+                refit::fit::<false, $wide>(lid.x, group, st, p, leaf, parents, visits, nodes, scratch);
             }
         }
     };

@@ -24,6 +24,7 @@ use crate::treelet;
 use crate::types::{f32_to_ordered, prim_box, BuildParams, Sphere, Triangle, INVALID, WORKGROUP};
 use crate::wide;
 use seq_macro::seq;
+use spirv_std::glam::UVec4;
 
 /// Leaves per workgroup, one per lane.
 pub const BLOCK: u32 = WORKGROUP;
@@ -202,6 +203,46 @@ pub struct FitState {
     pub leaf_links: [u32; BLOCK as usize],
 }
 
+/// The node buffer as [`fit`] sees it: 32-bit words, 8 per [`crate::types::Node`] (the
+/// links' reads, the boxes' stores and atomic merges), and on the GPU the same buffer bound
+/// again as 16-byte words (`quads`), through which the fit writes each leaf whole in two
+/// vector stores: NVIDIA's compiler makes a store of each 32-bit word, eight a leaf (H200:
+/// the fit of 10M primitives 1.58 -> 1.43 ms, of the bunny 30 -> 26 us). Writing the nodes
+/// inside a block whole too, their links kept in workgroup memory by [`fit_links`], made
+/// the fit of 10M primitives slower (1.66 ms; bench/NOTES.md, session 46). The CPU executor
+/// sees its words as quads by a cast.
+pub struct FitNodes<'a> {
+    pub words: &'a mut [u32],
+    #[cfg(target_arch = "spirv")]
+    pub quads: &'a mut [UVec4],
+}
+
+impl<'a> FitNodes<'a> {
+    /// The GPU's view: `quads` is binding `words` again. (Off the GPU, where the shader
+    /// crate's kernels are only compiled, `quads` is dropped: the CPU executor makes its
+    /// `FitNodes` of the words alone.)
+    pub fn bound(words: &'a mut [u32], quads: &'a mut [UVec4]) -> Self {
+        #[cfg(target_arch = "spirv")]
+        return FitNodes { words, quads };
+        #[cfg(not(target_arch = "spirv"))]
+        {
+            let _ = quads;
+            FitNodes { words }
+        }
+    }
+
+    /// Writes leaf node `node`: its primitive `prim` and box `(lo, hi)`.
+    fn store_leaf(&mut self, node: u32, prim: u32, lo: [f32; 3], hi: [f32; 3]) {
+        #[cfg(target_arch = "spirv")]
+        let quads = &mut *self.quads;
+        #[cfg(not(target_arch = "spirv"))]
+        let quads: &mut [UVec4] = bytemuck::cast_slice_mut(&mut *self.words);
+        let bits = |v: [f32; 3], w: u32| UVec4::new(v[0].to_bits(), v[1].to_bits(), v[2].to_bits(), w);
+        *at_mut(quads, 2 * node) = bits(lo, prim);
+        *at_mut(quads, 2 * node + 1) = bits(hi, INVALID);
+    }
+}
+
 /// A link's flag: the parent's leaves all lie in the block (its slot is the low byte).
 const LOCAL: u32 = 1 << 8;
 /// A link's flag: the node is its parent's left child.
@@ -348,7 +389,7 @@ pub fn fit<const ORDERED: bool, const WIDE: bool>(
     leaf: Leaf,
     parents: &[u32],
     visits: &[u32],
-    words: &mut [u32],
+    nodes: &mut FitNodes,
     scratch: &mut [u32],
 ) {
     let n = p.n;
@@ -359,9 +400,7 @@ pub fn fit<const ORDERED: bool, const WIDE: bool>(
     }
     let mut node = n - 1 + i;
     let (prim, mut lo, mut hi) = leaf;
-    store_box(words, node, lo, hi);
-    *at_mut(words, 8 * node + 3) = prim;
-    *at_mut(words, 8 * node + 7) = INVALID;
+    nodes.store_leaf(node, prim, lo, hi);
     let mut part = wide::Part::LEAF;
     let mut up = *elem(&st.leaf_links, lane);
     while up & LOCAL != 0 {
@@ -407,13 +446,13 @@ pub fn fit<const ORDERED: bool, const WIDE: bool>(
             hi[K] = l_hi.max(r_hi);
         });
         node = base + s;
-        store_box(words, node, lo, hi);
+        store_box(nodes.words, node, lo, hi);
         up = old & 0xffff;
     }
     let mut a = *at(parents, node);
     while a != INVALID {
         let next = *at(parents, a);
-        if !grow(words, a, lo, hi) {
+        if !grow(nodes.words, a, lo, hi) {
             break;
         }
         a = next;
@@ -424,7 +463,7 @@ pub fn fit<const ORDERED: bool, const WIDE: bool>(
             if a == INVALID {
                 return;
             }
-            let left = *at(words, 8 * a + 3);
+            let left = *at(nodes.words, 8 * a + 3);
             let (second, up) = wide::arrive(a, node, part, left, n, visits, scratch);
             if !second {
                 return;

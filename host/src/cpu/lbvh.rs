@@ -300,10 +300,11 @@ fn fit(
         lanes(|l| refit::fit_clear(l, &mut st));
         lanes(|l| refit::fit_links(l, g, &mut st, p, visits, &words));
         let leaf = |l: u32| leaves[l as usize];
+        let nodes = &mut refit::FitNodes { words: &mut words };
         if scratch.is_empty() {
-            lanes(|l| refit::fit::<true, false>(l, g, &mut st, p, leaf(l), parents, visits, &mut words, scratch));
+            lanes(|l| refit::fit::<true, false>(l, g, &mut st, p, leaf(l), parents, visits, nodes, scratch));
         } else {
-            lanes(|l| refit::fit::<true, true>(l, g, &mut st, p, leaf(l), parents, visits, &mut words, scratch));
+            lanes(|l| refit::fit::<true, true>(l, g, &mut st, p, leaf(l), parents, visits, nodes, scratch));
         }
     }
     bytemuck::pod_collect_to_vec(&words)
