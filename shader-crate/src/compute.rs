@@ -9,13 +9,13 @@ use shared::instance::Instance;
 use shared::merge_sort::{self, MergeState, RunState};
 use shared::path;
 use shared::ploc::{self, PlocState};
-use shared::radix_sort::{self as sort, DigitCounts, ScatterState};
+use shared::radix_sort::{self as sort, DigitCounts, ScatterState, SortKey};
 use shared::refit::{FitState, RefitState};
 use shared::scan;
 use shared::texture::TextureInfo;
 use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, PunctualLight, Ray,
-    RenderPush, Sphere, Triangle, VertexAttrs, FEATURES_ALL,
+    RenderPush, Sphere, Triangle, VertexAttrs, FEATURES_ALL, SORT_ITEMS,
 };
 use shared::wide::{self, WideNode};
 
@@ -151,9 +151,56 @@ pub fn empty_boxes(
     refit::empty_box(flat_index(id.x, id.y), p, node_words);
 }
 
+/// The buffers of a radix sort pass.
+struct SortIo<'a, K> {
+    keys_in: &'a [K],
+    vals_in: &'a [u32],
+    keys_out: &'a mut [K],
+    vals_out: &'a mut [u32],
+    counts: &'a mut [u32],
+    totals: &'a mut [u32],
+}
+
+/// A radix sort pass, lanes owning `I` keys (see `shared::radix_sort`).
+fn scatter<K: SortKey, const I: u32>(lane: u32, p: &BuildParams, io: SortIo<K>, st: &mut ScatterState) {
+    sort::scatter_claim(lane, st, p, io.totals);
+    barrier();
+    let owned = sort::scatter_count::<K, I>(lane, st, p, io.keys_in, io.vals_in, io.totals);
+    barrier();
+    sort::scatter_sums(lane, st);
+    barrier();
+    scan::rake(lane, &mut st.scan);
+    barrier();
+    scan::rake_totals(lane, &mut st.scan);
+    barrier();
+    sort::scatter_offsets(lane, st, p, io.counts);
+    barrier();
+    while sort::looking_back(st) {
+        sort::lookback_load(lane, st, p, io.counts);
+        barrier();
+        sort::lookback_sum(lane, st, p, io.counts);
+        barrier();
+    }
+    let staged = sort::scatter_rank::<K, I>(lane, st, p, owned);
+    barrier();
+    sort::scatter_stage_keys(st, &staged, 0);
+    barrier();
+    let lo = sort::scatter_staged::<I>(lane, st);
+    if K::WORDS == 2 {
+        barrier();
+        sort::scatter_stage_keys(st, &staged, 1);
+        barrier();
+    }
+    let at = sort::scatter_write_keys::<K, I>(lane, st, p, &lo, io.keys_out);
+    barrier();
+    sort::scatter_stage_vals(st, &staged);
+    barrier();
+    sort::scatter_write_vals(lane, st, &at, io.vals_out);
+}
+
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
-    ($k:ty, $code:ident, $code_of:ident, $morton:ident, $morton_counted:ident, $scatter:ident, $runs:ident, $instance_runs:ident, $merge:ident, $build:ident, $ploc:ident) => {
+    ($k:ty, $code:ident, $code_of:ident, $morton:ident, $morton_counted:ident, $scatter:ident, $scatter_many:ident, $runs:ident, $instance_runs:ident, $merge:ident, $build:ident, $ploc:ident) => {
         /// Morton codes and every sort pass's digit counts (see `shared::radix_sort`).
         #[spirv(compute(threads(256)))]
         #[allow(clippy::too_many_arguments)]
@@ -176,6 +223,7 @@ macro_rules! key_kernels {
             sort::digits_store(lid.x, st, p, totals);
         }
 
+        /// A radix sort pass (see `shared::radix_sort`) whose lanes own `FEW` keys.
         #[spirv(compute(threads(256)))]
         #[allow(clippy::too_many_arguments)]
         pub fn $scatter(
@@ -189,33 +237,40 @@ macro_rules! key_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
             #[spirv(workgroup)] st: &mut ScatterState,
         ) {
-            sort::scatter_claim(lid.x, st, p, totals);
-            barrier();
-            let owned = sort::scatter_count(lid.x, st, p, keys_in, vals_in, totals);
-            barrier();
-            sort::scatter_sums(lid.x, st);
-            barrier();
-            scan::rake(lid.x, &mut st.scan);
-            barrier();
-            scan::rake_totals(lid.x, &mut st.scan);
-            barrier();
-            sort::scatter_offsets(lid.x, st, p, counts);
-            barrier();
-            while sort::looking_back(st) {
-                sort::lookback_load(lid.x, st, p, counts);
-                barrier();
-                sort::lookback_sum(lid.x, st, p, counts);
-                barrier();
-            }
-            let staged = sort::scatter_rank(lid.x, st, p, owned);
-            barrier();
-            sort::scatter_stage_keys(st, &staged);
-            barrier();
-            let at = sort::scatter_write_keys(lid.x, st, p, keys_out);
-            barrier();
-            sort::scatter_stage_vals(st, &staged);
-            barrier();
-            sort::scatter_write_vals(lid.x, st, &at, vals_out);
+            let io = SortIo {
+                keys_in,
+                vals_in,
+                keys_out,
+                vals_out,
+                counts,
+                totals,
+            };
+            scatter::<$k, { sort::FEW }>(lid.x, p, io, st);
+        }
+
+        /// A radix sort pass whose lanes own `SORT_ITEMS` keys (large sorts).
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $scatter_many(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys_in: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals_in: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
+            #[spirv(workgroup)] st: &mut ScatterState,
+        ) {
+            let io = SortIo {
+                keys_in,
+                vals_in,
+                keys_out,
+                vals_out,
+                counts,
+                totals,
+            };
+            scatter::<$k, SORT_ITEMS>(lid.x, p, io, st);
         }
 
         /// The merge sort's runs kernel (see `shared::merge_sort`), the build's Morton stage:
@@ -417,6 +472,7 @@ key_kernels!(
     morton30,
     morton30_counted,
     sort_scatter_u32,
+    sort_scatter_many_u32,
     sort_runs_u32,
     instance_runs_u32,
     sort_merge_u32,
@@ -430,6 +486,7 @@ key_kernels!(
     morton63,
     morton63_counted,
     sort_scatter_u64,
+    sort_scatter_many_u64,
     sort_runs_u64,
     instance_runs_u64,
     sort_merge_u64,

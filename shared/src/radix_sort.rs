@@ -22,20 +22,20 @@
 //! A tile waits only for tiles that claimed theirs before it, which run or have run: the
 //! look-back needs no more of the GPU's scheduling (nor lavapipe's threads) than that.
 //!
-//! In the scatter, lane `l` owns the `ITEMS` consecutive keys at `l * ITEMS`, so order
+//! In the scatter, lane `l` owns the `SORT_ITEMS` consecutive keys at `l * SORT_ITEMS`, so order
 //! within a tile is (lane, item) = input order: the pass is stable. The tile's keys are put
 //! in their sorted order in workgroup memory first and written out from there, lane `l`
 //! taking places `l + k * WORKGROUP`: neighbouring lanes write neighbouring words of a
 //! digit's run instead of words of 32 different runs. The workgroup keeps one
 //! 16-bit counter per (digit, lane), two to a word (CUB's packing): word (c, l) holds digit
 //! `c` in its low half and digit `c + HALF` in its high half, column-major. An exclusive scan
-//! of the words (no carry crosses the halves: a tile has 2048 keys) gives, in the half of
+//! of the words (no carry crosses the halves: a tile has at most 4096 keys) gives, in the half of
 //! digit `d` at (c, l), (#keys of the tile with a digit below `d` in the same half) +
 //! (#keys with digit `d` of lanes < l); subtracting its value at (c, 0) leaves the rank
 //! among the tile's keys of digit `d`.
 use crate::scan::{self, BlockScan};
 use crate::sync::{self, at, at_mut, elem, elem_mut};
-use crate::types::{items_per_lane, load4, BuildParams, OrderedBounds, GROUP, ITEMS, TILE, WORKGROUP};
+use crate::types::{items_per_lane, load4, BuildParams, OrderedBounds, GROUP, SORT_ITEMS, TILE, WORKGROUP};
 use seq_macro::seq;
 
 pub const RADIX_BITS: u32 = 5;
@@ -43,8 +43,8 @@ pub const RADIX: u32 = 1 << RADIX_BITS;
 /// Packed counter words per lane in the scatter: two 16-bit digit counters each.
 pub const HALF: u32 = RADIX / 2;
 const _: () = assert!(TILE < 1 << 16);
-// The scatter stages a tile of 64-bit keys in the counters' memory.
-const _: () = assert!(2 * TILE as usize <= COUNTERS);
+// The scatter stages a word of every key of a tile in the counters' memory.
+const _: () = assert!(TILE as usize <= COUNTERS);
 /// Lanes per digit in a look-back step.
 const LANES_PER_DIGIT: u32 = WORKGROUP / RADIX;
 const _: () = assert!(RADIX * LANES_PER_DIGIT == WORKGROUP);
@@ -130,10 +130,30 @@ pub fn status(p: &BuildParams, tile: u32, d: u32) -> u32 {
 }
 
 /// Words of the `counts` buffer for sorts of up to `n` keys: a status table per pass of the
-/// widest sort (64-bit keys), `RADIX` words per tile.
+/// widest sort (64-bit keys), `RADIX` words per tile of the smallest.
 pub fn table_words(n: u32) -> u32 {
-    passes(64) * RADIX * n.div_ceil(TILE).max(1)
+    passes(64) * RADIX * n.div_ceil(WORKGROUP * FEW).max(1)
 }
+
+/// Keys a lane of the scatter owns in a sort of `n` keys (`BuildParams::items`): `SORT_ITEMS`
+/// from `MANY` keys, where they halve what each key pays of a tile's fixed work (its lanes'
+/// counter words, the block scan, the look-back); `FEW` below, where the GPU is not full and
+/// a tile's length is what a pass waits for. The scatter kernel is compiled for each (the
+/// functions' `I`), so that the small sort's holds no registers for slots it leaves empty:
+/// one kernel choosing at run time was slower at both sizes.
+pub fn items(n: u32) -> u32 {
+    if n >= MANY {
+        SORT_ITEMS
+    } else {
+        FEW
+    }
+}
+/// Keys a lane of the scatter owns in a small sort.
+pub const FEW: u32 = 8;
+/// The smallest sort whose lanes own `SORT_ITEMS` keys: above the sixteen bunnies (1.1M,
+/// slower with them, though 1M random keys were faster) and below lavapipe's largest binary
+/// tree (2^21 primitives in a 128 MiB binding), so that CI builds with both kernels.
+pub const MANY: u32 = 3 << 19;
 
 /// The `totals` buffer: every pass's digit totals (`pass * RADIX + d`), then every pass's
 /// tile counter.
@@ -272,17 +292,36 @@ pub struct ScatterState {
     pub scan: BlockScan,
 }
 
-fn owned(lane: u32, tile: u32) -> u32 {
-    tile * TILE + lane * ITEMS
+/// The first key lane owns in tile `tile` (lanes owning `I` keys).
+fn owned<const I: u32>(lane: u32, tile: u32) -> u32 {
+    (tile * WORKGROUP + lane) * I
 }
 
-// A lane owns two groups of four keys; the item loops below are written out so that every
-// key stays in a register (see `types::load4` for why loops are not).
-const _: () = assert!(ITEMS == 2 * GROUP);
+// A lane owns four groups of four keys; the item loops below are written out (`seq!`) so
+// that every key stays in a register (see `types::load4` for why loops are not).
+const _: () = assert!(SORT_ITEMS == 4 * GROUP && SORT_ITEMS == 16);
 
-/// Counts key `i` (if it exists) into lane's column.
-fn count_key<K: SortKey>(st: &mut ScatterState, lane: u32, p: &BuildParams, i: u32, key: K) {
-    if i < p.n {
+/// The lane's `I` items from `first` on, loaded four at a time (the slots past them repeat
+/// the first ones).
+#[allow(clippy::erasing_op, clippy::identity_op, clippy::eq_op)] // `seq!` starts at 0
+fn load_owned<T: Copy, const I: u32>(buf: &[T], first: u32, p: &BuildParams) -> [T; SORT_ITEMS as usize] {
+    let a = load4(buf, first, 1, p.n);
+    let b = load4(buf, first + GROUP, 1, p.n);
+    let (c, d) = if I > 2 * GROUP {
+        (
+            load4(buf, first + 2 * GROUP, 1, p.n),
+            load4(buf, first + 3 * GROUP, 1, p.n),
+        )
+    } else {
+        (a, b)
+    };
+    let g = [a, b, c, d];
+    seq!(I in 0..16 { [#(g[I / 4][I % 4],)*] })
+}
+
+/// Counts the lane's key `k`, key `i` of the input (if it exists), into lane's column.
+fn count_key<K: SortKey, const I: u32>(st: &mut ScatterState, lane: u32, p: &BuildParams, k: u32, i: u32, key: K) {
+    if k < I && i < p.n {
         let (c, half) = column(key.digit(p.shift));
         *elem_mut(&mut st.counts, slot(c * WORKGROUP + lane)) += 1 << half;
     }
@@ -298,9 +337,17 @@ fn lower_half(st: &ScatterState, half: u32) -> u32 {
     }
 }
 
-/// Key `i`'s place in the tile's sorted order (if it exists; `TILE` if not), counting it.
-fn rank_key<K: SortKey>(st: &mut ScatterState, lane: u32, p: &BuildParams, i: u32, key: K) -> u32 {
-    if i < p.n {
+/// The place of the lane's key `k`, key `i` of the input, in the tile's sorted order (if it
+/// exists; `TILE` if not), counting it.
+fn rank_key<K: SortKey, const I: u32>(
+    st: &mut ScatterState,
+    lane: u32,
+    p: &BuildParams,
+    k: u32,
+    i: u32,
+    key: K,
+) -> u32 {
+    if k < I && i < p.n {
         let (c, half) = column(key.digit(p.shift));
         let at = slot(c * WORKGROUP + lane);
         let v = *elem(&st.counts, at);
@@ -324,7 +371,7 @@ pub fn scatter_claim(lane: u32, st: &mut ScatterState, p: &BuildParams, totals: 
 /// [`scatter_rank`] (held in registers: reloading them there cost a round trip a pass, 1M
 /// 99 -> 93 us).
 #[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
-pub fn scatter_count<K: SortKey>(
+pub fn scatter_count<K: SortKey, const I: u32>(
     lane: u32,
     st: &mut ScatterState,
     p: &BuildParams,
@@ -335,32 +382,24 @@ pub fn scatter_count<K: SortKey>(
     seq!(C in 0..16 {
         *elem_mut(&mut st.counts, slot(C * WORKGROUP + lane)) = 0;
     });
-    let start = owned(lane, st.tile);
-    let (a, b) = (load4(keys, start, 1, p.n), load4(keys, start + GROUP, 1, p.n));
+    let start = owned::<I>(lane, st.tile);
+    let keys = load_owned::<_, I>(keys, start, p);
     // The values are loaded now, in the shadow of the counting, and held with the keys until
     // the ranking.
-    let (va, vb) = (load4(vals, start, 1, p.n), load4(vals, start + GROUP, 1, p.n));
+    let vals = load_owned::<_, I>(vals, start, p);
     if lane < RADIX {
         *elem_mut(&mut st.digit_total, lane) = *at(totals, p.shift / RADIX_BITS * RADIX + lane);
     }
-    count_key(st, lane, p, start, a[0]);
-    count_key(st, lane, p, start + 1, a[1]);
-    count_key(st, lane, p, start + 2, a[2]);
-    count_key(st, lane, p, start + 3, a[3]);
-    count_key(st, lane, p, start + 4, b[0]);
-    count_key(st, lane, p, start + 5, b[1]);
-    count_key(st, lane, p, start + 6, b[2]);
-    count_key(st, lane, p, start + 7, b[3]);
-    Owned {
-        keys: [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]],
-        vals: [va[0], va[1], va[2], va[3], vb[0], vb[1], vb[2], vb[3]],
-    }
+    seq!(N in 0..16 {
+        count_key::<K, I>(st, lane, p, N, start + N, keys[N]);
+    });
+    Owned { keys, vals }
 }
 
 /// The keys and values a lane owns, loaded once by [`scatter_count`] for [`scatter_rank`].
 pub struct Owned<K> {
-    pub keys: [K; ITEMS as usize],
-    pub vals: [u32; ITEMS as usize],
+    pub keys: [K; SORT_ITEMS as usize],
+    pub vals: [u32; SORT_ITEMS as usize],
 }
 
 /// Phase 2: lane sums its `HALF` consecutive counter words for the block scan.
@@ -532,25 +571,22 @@ pub fn lookback_sum(lane: u32, st: &mut ScatterState, p: &BuildParams, counts: &
 /// The keys a lane owns, their values and their ranks: places in the sorted order of the
 /// scatter's tile.
 pub struct Ranked<K> {
-    pub keys: [K; ITEMS as usize],
-    pub vals: [u32; ITEMS as usize],
-    pub ranks: [u32; ITEMS as usize],
+    pub keys: [K; SORT_ITEMS as usize],
+    pub vals: [u32; SORT_ITEMS as usize],
+    pub ranks: [u32; SORT_ITEMS as usize],
 }
 
 /// Phase 4: lane ranks its keys within the tile (stably: in order).
-pub fn scatter_rank<K: SortKey>(lane: u32, st: &mut ScatterState, p: &BuildParams, o: Owned<K>) -> Ranked<K> {
-    let start = owned(lane, st.tile);
+#[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
+pub fn scatter_rank<K: SortKey, const I: u32>(
+    lane: u32,
+    st: &mut ScatterState,
+    p: &BuildParams,
+    o: Owned<K>,
+) -> Ranked<K> {
+    let start = owned::<I>(lane, st.tile);
     let k = o.keys;
-    let ranks = [
-        rank_key(st, lane, p, start, k[0]),
-        rank_key(st, lane, p, start + 1, k[1]),
-        rank_key(st, lane, p, start + 2, k[2]),
-        rank_key(st, lane, p, start + 3, k[3]),
-        rank_key(st, lane, p, start + 4, k[4]),
-        rank_key(st, lane, p, start + 5, k[5]),
-        rank_key(st, lane, p, start + 6, k[6]),
-        rank_key(st, lane, p, start + 7, k[7]),
-    ];
+    let ranks = seq!(N in 0..16 { [#(rank_key::<K, I>(st, lane, p, N, start + N, k[N]),)*] });
     Ranked {
         keys: o.keys,
         vals: o.vals,
@@ -558,74 +594,80 @@ pub fn scatter_rank<K: SortKey>(lane: u32, st: &mut ScatterState, p: &BuildParam
     }
 }
 
-/// Stages one key (or value) in the counters' memory (free once every lane has ranked its
+/// Stages one word at its place in the counters' memory (free once every lane has ranked its
 /// keys).
-fn stage_key<K: SortKey>(st: &mut ScatterState, place: u32, key: K) {
+fn stage_word(st: &mut ScatterState, place: u32, word: u32) {
     if place < TILE {
-        *elem_mut(&mut st.counts, place * K::WORDS) = key.word(0);
-        if K::WORDS == 2 {
-            *elem_mut(&mut st.counts, 2 * place + 1) = key.word(1);
-        }
+        *elem_mut(&mut st.counts, place) = word;
     }
 }
 
-/// Stages the lane's eight keys (or values) at their places.
-fn stage_items<T: SortKey>(st: &mut ScatterState, places: &[u32; ITEMS as usize], items: &[T; ITEMS as usize]) {
-    stage_key(st, places[0], items[0]);
-    stage_key(st, places[1], items[1]);
-    stage_key(st, places[2], items[2]);
-    stage_key(st, places[3], items[3]);
-    stage_key(st, places[4], items[4]);
-    stage_key(st, places[5], items[5]);
-    stage_key(st, places[6], items[6]);
-    stage_key(st, places[7], items[7]);
+/// Phase 5 (after a barrier): the lane puts word `w` of each of its keys at the key's place
+/// in workgroup memory. The tile's keys are staged a word at a time (64-bit keys in two
+/// rounds: [`scatter_staged`] reads the low words back first), so that the counters' memory
+/// holds a tile.
+#[allow(clippy::identity_op)] // `seq!` starts at 0
+pub fn scatter_stage_keys<K: SortKey>(st: &mut ScatterState, s: &Ranked<K>, w: u32) {
+    seq!(I in 0..16 {
+        stage_word(st, s.ranks[I], s.keys[I].word(w));
+    });
 }
 
-/// Phase 5 (after a barrier): the lane puts its keys at their places in workgroup memory.
-pub fn scatter_stage_keys<K: SortKey>(st: &mut ScatterState, s: &Ranked<K>) {
-    stage_items(st, &s.ranks, &s.keys);
+/// Phase 6 (after a barrier): the staged words at the tile's sorted places `lane + k *
+/// WORKGROUP`, the places the lane writes out.
+#[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
+pub fn scatter_staged<const I: u32>(lane: u32, st: &ScatterState) -> [u32; SORT_ITEMS as usize] {
+    let staged = |k: u32| {
+        if k < I {
+            *elem(&st.counts, lane + k * WORKGROUP)
+        } else {
+            0
+        }
+    };
+    seq!(N in 0..16 { [#(staged(N),)*] })
 }
 
-/// Writes the staged key at `place` (if the tile has one there) to its global place, which
-/// it returns (`u32::MAX` if none).
-fn write_key<K: SortKey>(st: &ScatterState, p: &BuildParams, place: u32, keys_out: &mut [K]) -> u32 {
-    if st.tile * TILE + place >= p.n {
+/// Writes the key at the lane's `k`-th sorted place (if the tile has one there; `lo` its low
+/// word, its high word staged) to its global place, which it returns (`u32::MAX` if none).
+fn write_key<K: SortKey, const I: u32>(
+    st: &ScatterState,
+    p: &BuildParams,
+    lane: u32,
+    k: u32,
+    lo: u32,
+    keys_out: &mut [K],
+) -> u32 {
+    let place = lane + k * WORKGROUP;
+    if k >= I || st.tile * WORKGROUP * I + place >= p.n {
         return u32::MAX;
     }
-    let hi = if K::WORDS == 2 {
-        *elem(&st.counts, 2 * place + 1)
-    } else {
-        0
-    };
-    let key = K::from_words(*elem(&st.counts, place * K::WORDS), hi);
+    let hi = if K::WORDS == 2 { *elem(&st.counts, place) } else { 0 };
+    let key = K::from_words(lo, hi);
     let to = elem(&st.base, key.digit(p.shift)).wrapping_add(place);
     *at_mut(keys_out, to) = key;
     to
 }
 
-/// Phase 6 (after a barrier): lane writes the tile's sorted places `lane + k * WORKGROUP`
-/// out, so that neighbouring lanes write neighbouring words of a digit's run; returns where.
-pub fn scatter_write_keys<K: SortKey>(
+/// Phase 7 (64-bit keys: after a barrier, phase 5 for the high words and another barrier):
+/// lane writes the tile's sorted places `lane + k * WORKGROUP` out, so that neighbouring lanes write
+/// neighbouring words of a digit's run; returns where.
+#[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
+pub fn scatter_write_keys<K: SortKey, const I: u32>(
     lane: u32,
     st: &ScatterState,
     p: &BuildParams,
+    lo: &[u32; SORT_ITEMS as usize],
     keys_out: &mut [K],
-) -> [u32; ITEMS as usize] {
-    [
-        write_key(st, p, lane, keys_out),
-        write_key(st, p, lane + WORKGROUP, keys_out),
-        write_key(st, p, lane + 2 * WORKGROUP, keys_out),
-        write_key(st, p, lane + 3 * WORKGROUP, keys_out),
-        write_key(st, p, lane + 4 * WORKGROUP, keys_out),
-        write_key(st, p, lane + 5 * WORKGROUP, keys_out),
-        write_key(st, p, lane + 6 * WORKGROUP, keys_out),
-        write_key(st, p, lane + 7 * WORKGROUP, keys_out),
-    ]
+) -> [u32; SORT_ITEMS as usize] {
+    seq!(N in 0..16 { [#(write_key::<K, I>(st, p, lane, N, lo[N], keys_out),)*] })
 }
 
-/// Phase 7 (after a barrier): the lane puts its values at their places in workgroup memory.
+/// Phase 8 (after a barrier): the lane puts its values at their places in workgroup memory.
+#[allow(clippy::identity_op)] // `seq!` starts at 0
 pub fn scatter_stage_vals<K: SortKey>(st: &mut ScatterState, s: &Ranked<K>) {
-    stage_items(st, &s.ranks, &s.vals);
+    seq!(I in 0..16 {
+        stage_word(st, s.ranks[I], s.vals[I]);
+    });
 }
 
 fn write_val(st: &ScatterState, place: u32, at: u32, vals_out: &mut [u32]) {
@@ -634,14 +676,10 @@ fn write_val(st: &ScatterState, place: u32, at: u32, vals_out: &mut [u32]) {
     }
 }
 
-/// Phase 8 (after a barrier): lane writes the values of the places it wrote keys of.
-pub fn scatter_write_vals(lane: u32, st: &ScatterState, at: &[u32; ITEMS as usize], vals_out: &mut [u32]) {
-    write_val(st, lane, at[0], vals_out);
-    write_val(st, lane + WORKGROUP, at[1], vals_out);
-    write_val(st, lane + 2 * WORKGROUP, at[2], vals_out);
-    write_val(st, lane + 3 * WORKGROUP, at[3], vals_out);
-    write_val(st, lane + 4 * WORKGROUP, at[4], vals_out);
-    write_val(st, lane + 5 * WORKGROUP, at[5], vals_out);
-    write_val(st, lane + 6 * WORKGROUP, at[6], vals_out);
-    write_val(st, lane + 7 * WORKGROUP, at[7], vals_out);
+/// Phase 9 (after a barrier): lane writes the values of the places it wrote keys of.
+#[allow(clippy::erasing_op, clippy::identity_op)] // `seq!` starts at 0
+pub fn scatter_write_vals(lane: u32, st: &ScatterState, at: &[u32; SORT_ITEMS as usize], vals_out: &mut [u32]) {
+    seq!(I in 0..16 {
+        write_val(st, lane + I * WORKGROUP, at[I], vals_out);
+    });
 }

@@ -22,10 +22,14 @@ use spirv_std::glam::Vec3;
 
 /// Invocations per workgroup of every build kernel.
 pub const WORKGROUP: u32 = 256;
-/// Keys handled by one invocation of the radix sort; a tile is `WORKGROUP * ITEMS` keys.
+/// Most primitives a lane takes in the kernels that reduce over a workgroup's primitives (see
+/// [`items_per_lane`]).
 pub const ITEMS: u32 = 8;
-/// Keys per workgroup ("tile") in the scatter kernel.
-pub const TILE: u32 = WORKGROUP * ITEMS;
+/// Most keys a lane owns in the radix sort's scatter kernel (`BuildParams::items` of them:
+/// see `radix_sort::items`).
+pub const SORT_ITEMS: u32 = 16;
+/// Most keys per workgroup ("tile") in the scatter kernel.
+pub const TILE: u32 = WORKGROUP * SORT_ITEMS;
 
 /// Primitives per lane of the kernels that reduce over a workgroup's primitives (bounds,
 /// the Morton stage's digit counts): one while that gives at most `SPREAD` workgroups (a
@@ -125,12 +129,18 @@ pub struct BuildParams {
     pub shift: u32,
     /// Radix sort: number of digit passes (see [`crate::radix_sort::passes`]).
     pub passes: u32,
+    /// Radix sort: keys a lane of the scatter owns (see [`crate::radix_sort::items`]).
+    pub items: u32,
 }
 
 impl BuildParams {
-    /// Radix sort: number of tiles, `ceil(n / TILE)`.
+    /// Radix sort: keys per tile.
+    pub fn tile_keys(&self) -> u32 {
+        WORKGROUP * self.items
+    }
+    /// Radix sort: number of tiles.
     pub fn tiles(&self) -> u32 {
-        self.n.div_ceil(TILE)
+        self.n.div_ceil(self.tile_keys().max(1))
     }
 }
 
@@ -209,7 +219,7 @@ const _: () = assert!(size_of::<Triangle>() == 48);
 const _: () = assert!(size_of::<Sphere>() == 16);
 const _: () = assert!(size_of::<Node>() == 32);
 const _: () = assert!(size_of::<OrderedBounds>() == 32);
-const _: () = assert!(size_of::<BuildParams>() == 16);
+const _: () = assert!(size_of::<BuildParams>() == 20);
 
 /// Workgroups per dispatch row: dispatches larger than this use the y dimension.
 pub const GRID_X: u32 = 32768;

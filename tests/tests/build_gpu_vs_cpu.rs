@@ -155,7 +155,8 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
     let Some((gpu, mut lbvh)) = builder("generated_inputs_build_identically_on_gpu_and_cpu") else {
         return;
     };
-    let (wg, tile) = (WORKGROUP as usize, TILE as usize);
+    // The tile of the sorts below `sort::MANY` keys.
+    let (wg, tile) = (WORKGROUP as usize, (WORKGROUP * sort::FEW) as usize);
     let sizes = [
         0,
         1,
@@ -191,6 +192,26 @@ fn generated_inputs_build_identically_on_gpu_and_cpu() {
         for opts in BUILDS {
             let (t, s) = generate(n, Distribution::Random, true, 77);
             check(&mut lbvh, &format!("Random-{n}"), &t, &s, opts);
+        }
+    }
+    assert_no_validation_errors(&gpu);
+    // A large sort (lanes owning `SORT_ITEMS` keys, tiles of `TILE`, past a tile's edge), then
+    // a small one on the tables it left, both code widths, in a builder of their own without
+    // the pairs: a builder keeps the room it once made for the pairs or the wide BVH, and
+    // lavapipe's bindings cannot hold them at this size.
+    let Some((gpu, mut lbvh)) = builder("generated_inputs_build_identically_on_gpu_and_cpu") else {
+        return;
+    };
+    for n in [sort::MANY as usize + TILE as usize + 1, tile + 1] {
+        for opts in &BUILDS[..2] {
+            let (t, s) = generate(n, Distribution::Random, true, 78);
+            check(
+                &mut lbvh,
+                &format!("Random-{n}"),
+                &t,
+                &s,
+                BuildOptions { pairs: false, ..*opts },
+            );
         }
     }
     assert_no_validation_errors(&gpu);

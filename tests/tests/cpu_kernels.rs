@@ -6,14 +6,16 @@ use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
 use shared::karras::range_and_split;
 use shared::merge_sort::{self, BATCH, RUN};
-use shared::radix_sort::WINDOW;
+use shared::radix_sort::{FEW, MANY, WINDOW};
 use shared::types::{BuildParams, Node, TILE, WORKGROUP};
 use shared::wide::{leaf_word, WideNode, LEAF, LEAF_MAX, WIDTH};
 
 #[test]
 fn the_sort_is_a_stable_sort_of_the_morton_codes() {
     // Up to `merge_sort::max` the merge sort (one run, the edges of runs and of batches of
-    // them), above the radix passes, whose look-backs read `WINDOW` tiles a step.
+    // them), above the radix passes, whose look-backs read `WINDOW` tiles a step; from
+    // `MANY` keys the passes whose lanes own `TILE / WORKGROUP` keys.
+    let tile = WORKGROUP * FEW;
     for bits in [MortonBits::B30, MortonBits::B63] {
         for dist in Distribution::ALL {
             // The last size takes look-backs of several steps.
@@ -24,10 +26,10 @@ fn the_sort_is_a_stable_sort_of_the_morton_codes() {
                 3,
                 RUN as usize,
                 RUN as usize + 1,
-                TILE as usize,
-                TILE as usize + 1,
-                4 * TILE as usize,
-                4 * TILE as usize + 1,
+                tile as usize,
+                tile as usize + 1,
+                4 * tile as usize,
+                4 * tile as usize + 1,
                 (BATCH * RUN) as usize,
                 (BATCH * RUN + RUN + 1) as usize,
                 merge_sort::max(30) as usize,
@@ -35,8 +37,12 @@ fn the_sort_is_a_stable_sort_of_the_morton_codes() {
                 merge_sort::max(63) as usize,
                 merge_sort::max(63) as usize + 1,
                 20_000,
-                (3 * WINDOW * TILE + 1) as usize,
+                (3 * WINDOW * tile + 1) as usize,
+                (MANY + TILE + 1) as usize,
             ] {
+                if n > MANY as usize && dist != Distribution::Random {
+                    continue;
+                }
                 let (t, s) = generate(n, dist, true, 3);
                 let (r, _) = cpu::build(&t, &s, BuildOptions::lbvh(bits));
                 let mut expected: Vec<u32> = (0..r.morton.len() as u32).collect();
@@ -57,12 +63,14 @@ fn the_look_back_waits_for_unpublished_tiles_and_stops_at_a_prefix() {
     // tile 40; digit 7 has a prefix at tile 100 and nothing published below it.
     use shared::radix_sort::{self as sort, ScatterState, AGGREGATE, PREFIX, RADIX};
     use shared::scan::{BlockScan, RAKES};
+    use shared::types::SORT_ITEMS;
     let tiles = 200u32;
     let p = BuildParams {
         n_tris: 0,
         n: tiles * TILE,
         shift: 2 * sort::RADIX_BITS,
         passes: 6,
+        items: SORT_ITEMS,
     };
     let me = tiles - 1;
     let count = |t: u32, d: u32| (t * 7 + d * 3) % 50;

@@ -8,7 +8,7 @@ use shared::merge_sort::{self, MergeState, RunState};
 use shared::radix_sort::{self as sort, DigitCounts, ScatterState, SortKey, RADIX};
 use shared::refit::{ORDERED_COUNTERS as ORDERED, RESTRUCTURE as AGAIN};
 use shared::scan::{self, BlockScan};
-use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, WORKGROUP};
+use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, SORT_ITEMS, WORKGROUP};
 use shared::wide::{self, WideNode};
 use shared::{karras, morton, ploc, refit};
 use std::time::Instant;
@@ -61,6 +61,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         n,
         shift: 0,
         passes: sorting.passes(opts.bits),
+        items: sort::items(n),
     };
     let tiles = p.tiles();
     let mut times = Vec::new();
@@ -169,29 +170,11 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
             // Workgroups in turn: each claims the next tile, so its look-back finds every
             // tile before it published.
             for _ in 0..tiles {
-                lanes(|l| sort::scatter_claim(l, &mut st, &p, &mut totals));
-                let owned: Vec<_> = (0..WORKGROUP)
-                    .map(|l| sort::scatter_count(l, &mut st, &p, &keys, &vals, &totals))
-                    .collect();
-                lanes(|l| sort::scatter_sums(l, &mut st));
-                lanes(|l| scan::rake(l, &mut st.scan));
-                lanes(|l| scan::rake_totals(l, &mut st.scan));
-                lanes(|l| sort::scatter_offsets(l, &mut st, &p, &mut counts));
-                while sort::looking_back(&st) {
-                    lanes(|l| sort::lookback_load(l, &mut st, &p, &counts));
-                    lanes(|l| sort::lookback_sum(l, &mut st, &p, &mut counts));
-                }
-                let staged: Vec<_> = (0..WORKGROUP)
-                    .zip(owned)
-                    .map(|(l, o)| sort::scatter_rank(l, &mut st, &p, o))
-                    .collect();
-                staged.iter().for_each(|s| sort::scatter_stage_keys(&mut st, s));
-                let at: Vec<_> = (0..WORKGROUP)
-                    .map(|l| sort::scatter_write_keys(l, &st, &p, &mut keys_b))
-                    .collect();
-                staged.iter().for_each(|s| sort::scatter_stage_vals(&mut st, s));
-                for (l, at) in (0..WORKGROUP).zip(&at) {
-                    sort::scatter_write_vals(l, &st, at, &mut vals_b);
+                let io = (&keys[..], &vals[..], &mut keys_b[..], &mut vals_b[..]);
+                if p.items == sort::FEW {
+                    scatter_tile::<K, { sort::FEW }>(&mut st, &p, io, &mut counts, &mut totals);
+                } else {
+                    scatter_tile::<K, SORT_ITEMS>(&mut st, &p, io, &mut counts, &mut totals);
                 }
             }
             std::mem::swap(&mut keys, &mut keys_b);
@@ -382,6 +365,7 @@ fn refit_with(
         n,
         shift: 0,
         passes: 0,
+        items: 0,
     };
     let prims = refit::Prims {
         order: &earlier.sorted_prims,
@@ -456,6 +440,45 @@ fn collapse(p: &BuildParams, nodes: &[Node], parents: &[u32], ends: &[u32], scra
 
 /// The H-PLOC tree and its boxes (`shared::ploc`) over the sorted `keys` and primitives
 /// `order`, as the GPU builds them: returns the nodes and their parents.
+/// One workgroup of a radix sort pass, lanes owning `I` keys, lane by lane between barriers.
+fn scatter_tile<K: SortKey, const I: u32>(
+    st: &mut ScatterState,
+    p: &BuildParams,
+    (keys, vals, keys_b, vals_b): (&[K], &[u32], &mut [K], &mut [u32]),
+    counts: &mut [u32],
+    totals: &mut [u32],
+) {
+    lanes(|l| sort::scatter_claim(l, st, p, totals));
+    let owned: Vec<_> = (0..WORKGROUP)
+        .map(|l| sort::scatter_count::<K, I>(l, st, p, keys, vals, totals))
+        .collect();
+    lanes(|l| sort::scatter_sums(l, st));
+    lanes(|l| scan::rake(l, &mut st.scan));
+    lanes(|l| scan::rake_totals(l, &mut st.scan));
+    lanes(|l| sort::scatter_offsets(l, st, p, counts));
+    while sort::looking_back(st) {
+        lanes(|l| sort::lookback_load(l, st, p, counts));
+        lanes(|l| sort::lookback_sum(l, st, p, counts));
+    }
+    let staged: Vec<_> = (0..WORKGROUP)
+        .zip(owned)
+        .map(|(l, o)| sort::scatter_rank::<K, I>(l, st, p, o))
+        .collect();
+    staged.iter().for_each(|s| sort::scatter_stage_keys(st, s, 0));
+    let lo: Vec<_> = (0..WORKGROUP).map(|l| sort::scatter_staged::<I>(l, st)).collect();
+    if K::WORDS == 2 {
+        staged.iter().for_each(|s| sort::scatter_stage_keys(st, s, 1));
+    }
+    let at: Vec<_> = (0..WORKGROUP)
+        .zip(&lo)
+        .map(|(l, lo)| sort::scatter_write_keys::<K, I>(l, st, p, lo, keys_b))
+        .collect();
+    staged.iter().for_each(|s| sort::scatter_stage_vals(st, s));
+    for (l, at) in (0..WORKGROUP).zip(&at) {
+        sort::scatter_write_vals(l, st, at, vals_b);
+    }
+}
+
 fn ploc<K: SortKey>(
     p: &BuildParams,
     keys: &[K],

@@ -1,6 +1,6 @@
 //! Compute pipelines for every entry point of the embedded SPIR-V, one shared pipeline layout
 //! (set 0: the build's `BINDINGS` storage buffers; set 1: the renderer's `RENDER_BINDINGS`;
-//! 16 bytes of push constants: `BuildParams` or `RenderPush`), and descriptor sets.
+//! one push-constant range for `BuildParams`, `RenderPush` or `DenoisePush`), and descriptor sets.
 use super::{shader_module, Buffer, Commands, Gpu};
 use anyhow::{bail, Context, Result};
 use ash::vk;
@@ -25,6 +25,8 @@ pub enum Kernel {
     Morton63Counted,
     SortScatterU32,
     SortScatterU64,
+    SortScatterManyU32,
+    SortScatterManyU64,
     SortRunsU32,
     SortRunsU64,
     InstanceRunsU32,
@@ -75,12 +77,14 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 38] = [
+    pub const ALL: [Kernel; 40] = [
         Kernel::BoundsReduce,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
         Kernel::SortScatterU32,
         Kernel::SortScatterU64,
+        Kernel::SortScatterManyU32,
+        Kernel::SortScatterManyU64,
         Kernel::SortRunsU32,
         Kernel::SortRunsU64,
         Kernel::InstanceRunsU32,
@@ -129,6 +133,8 @@ impl Kernel {
             Kernel::Morton63Counted => "morton63_counted",
             Kernel::SortScatterU32 => "sort_scatter_u32",
             Kernel::SortScatterU64 => "sort_scatter_u64",
+            Kernel::SortScatterManyU32 => "sort_scatter_many_u32",
+            Kernel::SortScatterManyU64 => "sort_scatter_many_u64",
             Kernel::SortRunsU32 => "sort_runs_u32",
             Kernel::SortRunsU64 => "sort_runs_u64",
             Kernel::InstanceRunsU32 => "instance_runs_u32",

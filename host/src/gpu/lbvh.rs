@@ -468,13 +468,19 @@ impl GpuLbvh {
             n,
             shift: 0,
             passes: sorting.passes(bits),
+            items: sort::items(n),
         };
         let tiles = p.tiles();
         let (set_ab, set_ba) = (b.sets.sets[0], b.sets.sets[1]);
+        let many = p.items != sort::FEW;
         let (morton_counted, scatter, runs, instance_runs, merge, build) = match bits {
             MortonBits::B30 => (
                 Kernel::Morton30Counted,
-                Kernel::SortScatterU32,
+                if many {
+                    Kernel::SortScatterManyU32
+                } else {
+                    Kernel::SortScatterU32
+                },
                 Kernel::SortRunsU32,
                 Kernel::InstanceRunsU32,
                 Kernel::SortMergeU32,
@@ -482,7 +488,11 @@ impl GpuLbvh {
             ),
             MortonBits::B63 => (
                 Kernel::Morton63Counted,
-                Kernel::SortScatterU64,
+                if many {
+                    Kernel::SortScatterManyU64
+                } else {
+                    Kernel::SortScatterU64
+                },
                 Kernel::SortRunsU64,
                 Kernel::InstanceRunsU64,
                 Kernel::SortMergeU64,
@@ -669,6 +679,7 @@ impl GpuLbvh {
             n: self.n,
             shift: 0,
             passes: 0,
+            items: 0,
         };
         cmds.timestamp("start");
         if self.n > 0 {

@@ -886,6 +886,7 @@ impl GpuRenderer {
                 n,
                 shift: 0,
                 passes: 0,
+                items: 0,
             };
             let (x, y) = grid(n.div_ceil(WORKGROUP));
             let sets = [self.lbvh.set()?, sets[1]];
