@@ -198,6 +198,29 @@ fn scatter<K: SortKey, const I: u32>(lane: u32, p: &BuildParams, io: SortIo<K>, 
     sort::scatter_write_vals(lane, st, &at, io.vals_out);
 }
 
+/// A radix sort pass's entry point, lanes owning `$items` keys of type `$k`.
+macro_rules! scatter_kernel {
+    ($(#[$doc:meta])* $name:ident, $k:ty, $items:expr) => {
+        $(#[$doc])*
+        #[spirv(compute(threads(256)))]
+        #[allow(clippy::too_many_arguments)]
+        pub fn $name(
+            #[spirv(local_invocation_id)] lid: UVec3,
+            #[spirv(push_constant)] p: &BuildParams,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys_in: &[$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals_in: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
+            #[spirv(workgroup)] st: &mut ScatterState,
+        ) {
+            let io = SortIo { keys_in, vals_in, keys_out, vals_out, counts, totals };
+            scatter::<$k, { $items }>(lid.x, p, io, st);
+        }
+    };
+}
+
 /// The kernels that depend on the Morton key width, for `u32` (30-bit) and `u64` (63-bit).
 macro_rules! key_kernels {
     ($k:ty, $code:ident, $code_of:ident, $morton:ident, $morton_counted:ident, $scatter:ident, $scatter_many:ident, $runs:ident, $instance_runs:ident, $merge:ident, $build:ident, $ploc:ident) => {
@@ -223,55 +246,18 @@ macro_rules! key_kernels {
             sort::digits_store(lid.x, st, p, totals);
         }
 
-        /// A radix sort pass (see `shared::radix_sort`) whose lanes own `FEW` keys.
-        #[spirv(compute(threads(256)))]
-        #[allow(clippy::too_many_arguments)]
-        pub fn $scatter(
-            #[spirv(local_invocation_id)] lid: UVec3,
-            #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys_in: &[$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals_in: &[u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
-            #[spirv(workgroup)] st: &mut ScatterState,
-        ) {
-            let io = SortIo {
-                keys_in,
-                vals_in,
-                keys_out,
-                vals_out,
-                counts,
-                totals,
-            };
-            scatter::<$k, { sort::FEW }>(lid.x, p, io, st);
-        }
-
-        /// A radix sort pass whose lanes own `SORT_ITEMS` keys (large sorts).
-        #[spirv(compute(threads(256)))]
-        #[allow(clippy::too_many_arguments)]
-        pub fn $scatter_many(
-            #[spirv(local_invocation_id)] lid: UVec3,
-            #[spirv(push_constant)] p: &BuildParams,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] keys_in: &[$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] vals_in: &[u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] keys_out: &mut [$k],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] vals_out: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] counts: &mut [u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] totals: &mut [u32],
-            #[spirv(workgroup)] st: &mut ScatterState,
-        ) {
-            let io = SortIo {
-                keys_in,
-                vals_in,
-                keys_out,
-                vals_out,
-                counts,
-                totals,
-            };
-            scatter::<$k, SORT_ITEMS>(lid.x, p, io, st);
-        }
+        scatter_kernel!(
+            /// A radix sort pass (see `shared::radix_sort`) whose lanes own `FEW` keys.
+            $scatter,
+            $k,
+            { sort::FEW }
+        );
+        scatter_kernel!(
+            /// A radix sort pass whose lanes own `SORT_ITEMS` keys (large sorts).
+            $scatter_many,
+            $k,
+            SORT_ITEMS
+        );
 
         /// The merge sort's runs kernel (see `shared::merge_sort`), the build's Morton stage:
         /// workgroup g's codes, its run sorted into bindings 3 and 4, the codes into 5.
