@@ -522,6 +522,44 @@ pub fn transform(
     xform::transform(i, p, objects, prim_object, model_tris, model_spheres, tris, spheres);
 }
 
+/// `transform` in a frame that builds: the bounds' reduction on the way, as `bounds_reduce`'s
+/// (`shared::bounds::accumulate_transformed`), `items_per_lane` primitives a lane.
+#[spirv(compute(threads(256)))]
+#[allow(clippy::too_many_arguments)]
+pub fn transform_bounds(
+    #[spirv(local_invocation_id)] lid: UVec3,
+    #[spirv(workgroup_id)] gid: UVec3,
+    #[spirv(push_constant)] p: &BuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &mut [spirv_std::glam::UVec4],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &mut [Sphere],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut OrderedBounds,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] summaries: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 1)] model_tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 2)] model_spheres: &[Sphere],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
+    #[spirv(workgroup)] st: &mut BoundsState,
+) {
+    bounds::clear(lid.x, st);
+    barrier();
+    let group = flat_group(gid.x, gid.y);
+    bounds::accumulate_transformed(
+        lid.x,
+        group,
+        st,
+        p,
+        objects,
+        prim_object,
+        model_tris,
+        model_spheres,
+        tris,
+        spheres,
+        summaries,
+    );
+    barrier();
+    bounds::flush(lid.x, st, out);
+}
+
 /// The top level's inputs: each instance's world box (`shared::instance::instance_box`) into
 /// set 0's triangles, which the top level's build then reads.
 #[spirv(compute(threads(256)))]

@@ -3,7 +3,10 @@
 //! with six device atomics. Min and max are exact, so the result does not depend on order.
 //!
 //! The same pass stores each primitive's [`prim_summary`] (centroid and largest side) for the
-//! Morton stage, which then reads 16 bytes per primitive instead of the primitive.
+//! Morton stage, which then reads 16 bytes per primitive instead of the primitive. A frame
+//! that transforms its primitives and builds reduces in the transform stage
+//! ([`accumulate_transformed`]), a top level in the pass that makes its instances' boxes
+//! ([`accumulate_instances`]).
 //!
 //! Phases: [`clear`] | barrier | [`accumulate`] | barrier | [`flush`]. The bounds buffer holds
 //! two [`OrderedBounds`]: the reduction's, which starts as [`OrderedBounds::EMPTY`], and the
@@ -12,15 +15,42 @@
 //! build, so that no build starts with a fill (the host empties it once when it allocates it).
 use crate::instance::{instance_box, world_triangle, Instance};
 use crate::sync::{self, at, at_mut};
+use crate::transform::transformed;
 use crate::types::{
     f32_to_ordered, items_per_lane, prim_summary, tri_summary, BuildParams, Object, OrderedBounds, Sphere, Triangle,
     WORKGROUP,
 };
-use spirv_std::glam::Vec3;
+use spirv_std::glam::{UVec4, Vec3};
 
 /// Workgroup memory of the bounds reduction.
 pub struct BoundsState {
     pub b: OrderedBounds,
+}
+
+/// Stores the [`prim_summary`] of lane's primitives, `$summary` giving primitive `$i`'s, and
+/// folds their doubled centroids into the workgroup's bounds: `items_per_lane` primitives,
+/// every `WORKGROUP`-th of the group's, in order (the first's is where the fold starts). A
+/// macro, not a function taking a closure: a closure holding a kernel's buffers became a
+/// function-scope variable of storage-buffer pointers, whose pipeline crashed both lavapipe's
+/// and NVIDIA's compilers.
+macro_rules! reduce {
+    ($lane:expr, $group:expr, $st:expr, $p:expr, $summaries:expr, |$i:ident| $summary:expr) => {{
+        let items = items_per_lane($p.n);
+        let first = $group * items * WORKGROUP + $lane;
+        if first < $p.n {
+            let (mut lo, mut hi) = (Vec3::ZERO, Vec3::ZERO);
+            for k in 0..items {
+                let $i = first + k * WORKGROUP;
+                if $i < $p.n {
+                    let s = $summary;
+                    *at_mut($summaries, $i) = s;
+                    let c = Vec3::new(s[0], s[1], s[2]);
+                    (lo, hi) = if k == 0 { (c, c) } else { (lo.min(c), hi.max(c)) };
+                }
+            }
+            fold($st, lo, hi);
+        }
+    }};
 }
 
 pub fn clear(lane: u32, st: &mut BoundsState) {
@@ -41,23 +71,34 @@ pub fn accumulate(
     spheres: &[Sphere],
     summaries: &mut [[f32; 4]],
 ) {
-    let items = items_per_lane(p.n);
-    let first = group * items * WORKGROUP + lane;
-    if first >= p.n {
-        return;
-    }
-    let mut lo = summarise(first, p, tris, spheres, summaries);
-    let mut hi = lo;
-    // Grid-stride over the workgroup's primitives: lane takes every WORKGROUP-th.
-    for k in 1..items {
-        let i = first + k * WORKGROUP;
-        if i < p.n {
-            let c = summarise(i, p, tris, spheres, summaries);
-            lo = lo.min(c);
-            hi = hi.max(c);
-        }
-    }
-    fold(st, lo, hi);
+    reduce!(lane, group, st, p, summaries, |i| prim_summary(
+        i, p.n_tris, tris, spheres
+    ));
+}
+
+/// [`accumulate`] in the transform stage of a frame that builds (the `transform_bounds`
+/// kernel: the bounds' pass, which read every world primitive back, and a dispatch fewer):
+/// lane's primitives moved to world space by [`crate::transform::transformed`], their
+/// summaries stored and their centroids folded as [`accumulate`] folds them, in the same
+/// order. The CPU executor runs the two apart (the transform, then the build's [`accumulate`]
+/// over its output): the same bits, which the GPU = CPU tests of rendered scenes compare.
+#[allow(clippy::too_many_arguments)]
+pub fn accumulate_transformed(
+    lane: u32,
+    group: u32,
+    st: &mut BoundsState,
+    p: &BuildParams,
+    objects: &[Object],
+    prim_object: &[u32],
+    model_tris: &[Triangle],
+    model_spheres: &[Sphere],
+    tris: &mut [UVec4],
+    spheres: &mut [Sphere],
+    summaries: &mut [[f32; 4]],
+) {
+    reduce!(lane, group, st, p, summaries, |i| {
+        transformed(i, p, objects, prim_object, model_tris, model_spheres, tris, spheres)
+    });
 }
 
 /// Folds a lane's bounds into the workgroup's.
@@ -87,22 +128,10 @@ pub fn accumulate_instances(
     spheres: &[Sphere],
     summaries: &mut [[f32; 4]],
 ) {
-    let items = items_per_lane(p.n);
-    let first = group * items * WORKGROUP + lane;
-    if first >= p.n {
-        return;
-    }
-    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-    for k in 0..items {
-        let i = first + k * WORKGROUP;
-        if i < p.n {
-            instance_box(i, p.n, instances, objects, boxes);
-            let c = summarise(i, p, boxes, spheres, summaries);
-            lo = lo.min(c);
-            hi = hi.max(c);
-        }
-    }
-    fold(st, lo, hi);
+    reduce!(lane, group, st, p, summaries, |i| {
+        instance_box(i, p.n, instances, objects, boxes);
+        prim_summary(i, p.n_tris, boxes, spheres)
+    });
 }
 
 /// The top level's inputs for a build whose codes take the last build's bounds (the merge
@@ -128,13 +157,6 @@ pub fn instance_summary(
     let c = Vec3::new(s[0], s[1], s[2]);
     fold(st, c, c);
     s
-}
-
-/// Stores primitive `i`'s summary; returns twice its centroid.
-fn summarise(i: u32, p: &BuildParams, tris: &[Triangle], spheres: &[Sphere], summaries: &mut [[f32; 4]]) -> Vec3 {
-    let s = prim_summary(i, p.n_tris, tris, spheres);
-    *at_mut(summaries, i) = s;
-    Vec3::new(s[0], s[1], s[2])
 }
 
 pub fn flush(lane: u32, st: &BoundsState, out: &mut OrderedBounds) {

@@ -149,7 +149,6 @@ mod tests {
             n,
             shift: 0,
             passes: 0,
-            items: 0,
         };
         let k30 = [(1u32 << 30) - 1; WARM_WORDS as usize];
         let k63 = [(1u64 << 63) - 1; (WARM_WORDS / 2) as usize];

@@ -234,7 +234,6 @@ mod tests {
             n: 3,
             shift: 0,
             passes: 0,
-            items: 0,
         };
         let (mut k30, mut k63, mut vals) = ([0u32; 3], [0u64; 3], [0u32; 3]);
         for i in 0..3 {

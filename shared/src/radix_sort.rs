@@ -135,7 +135,7 @@ pub fn table_words(n: u32) -> u32 {
     passes(64) * RADIX * n.div_ceil(WORKGROUP * FEW).max(1)
 }
 
-/// Keys a lane of the scatter owns in a sort of `n` keys (`BuildParams::items`): `SORT_ITEMS`
+/// Keys a lane of the scatter owns in a sort of `n` keys ([`BuildParams::tile_keys`]): `SORT_ITEMS`
 /// from `MANY` keys, where they halve what each key pays of a tile's fixed work (its lanes'
 /// counter words, the block scan, the look-back); `FEW` below, where the GPU is not full and
 /// a tile's length is what a pass waits for. The scatter kernel is compiled for each (the

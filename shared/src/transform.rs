@@ -4,7 +4,7 @@
 //! and the GPU, so both backends build the same BVH from the same scene.
 use crate::math::{floor, fma};
 use crate::sync::{at, at_mut};
-use crate::types::{BuildParams, Object, Sphere, Triangle};
+use crate::types::{sphere_summary, tri_summary, BuildParams, Object, Sphere, Triangle};
 use spirv_std::glam::UVec4;
 
 /// `rows * [v, 1]`; `w` of the result is 0.
@@ -33,23 +33,44 @@ pub fn transform(
     tris: &mut [UVec4],
     spheres: &mut [Sphere],
 ) {
-    if i >= p.n {
-        return;
+    if i < p.n {
+        transformed(i, p, objects, prim_object, model_tris, model_spheres, tris, spheres);
     }
+}
+
+/// [`transform`] of primitive `i < p.n`, returning its [`prim_summary`](crate::types::prim_summary)
+/// (the same bits as the summary of the primitive stored): the transform stage of a frame
+/// that builds reduces the bounds on the way (`crate::bounds::accumulate_transformed`).
+#[allow(clippy::too_many_arguments)]
+pub fn transformed(
+    i: u32,
+    p: &BuildParams,
+    objects: &[Object],
+    prim_object: &[u32],
+    model_tris: &[Triangle],
+    model_spheres: &[Sphere],
+    tris: &mut [UVec4],
+    spheres: &mut [Sphere],
+) -> [f32; 4] {
     // By reference: a copy of the object would load all its 128 bytes.
     let o = at(objects, *at(prim_object, i));
     if i < p.n_tris {
         let t = at(model_tris, i);
-        let word = |v: [f32; 4]| {
-            let w = apply(o, waved(o, v));
-            UVec4::new(w[0].to_bits(), w[1].to_bits(), w[2].to_bits(), w[3].to_bits())
+        let world = Triangle {
+            v0: apply(o, waved(o, t.v0)),
+            v1: apply(o, waved(o, t.v1)),
+            v2: apply(o, waved(o, t.v2)),
         };
-        *at_mut(tris, 3 * i) = word(t.v0);
-        *at_mut(tris, 3 * i + 1) = word(t.v1);
-        *at_mut(tris, 3 * i + 2) = word(t.v2);
+        let word = |w: [f32; 4]| UVec4::new(w[0].to_bits(), w[1].to_bits(), w[2].to_bits(), w[3].to_bits());
+        *at_mut(tris, 3 * i) = word(world.v0);
+        *at_mut(tris, 3 * i + 1) = word(world.v1);
+        *at_mut(tris, 3 * i + 2) = word(world.v2);
+        tri_summary(&world)
     } else {
         let k = i - p.n_tris;
-        *at_mut(spheres, k) = world_sphere(o, at(model_spheres, k));
+        let world = world_sphere(o, at(model_spheres, k));
+        *at_mut(spheres, k) = world;
+        sphere_summary(&world)
     }
 }
 

@@ -129,14 +129,12 @@ pub struct BuildParams {
     pub shift: u32,
     /// Radix sort: number of digit passes (see [`crate::radix_sort::passes`]).
     pub passes: u32,
-    /// Radix sort: keys a lane of the scatter owns (see [`crate::radix_sort::items`]).
-    pub items: u32,
 }
 
 impl BuildParams {
-    /// Radix sort: keys per tile.
+    /// Radix sort: keys per tile (lanes own [`crate::radix_sort::items`] keys each).
     pub fn tile_keys(&self) -> u32 {
-        WORKGROUP * self.items
+        WORKGROUP * crate::radix_sort::items(self.n)
     }
     /// Radix sort: number of tiles.
     pub fn tiles(&self) -> u32 {
@@ -178,10 +176,15 @@ pub fn prim_box(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> (
     if i < n_tris {
         tri_box(crate::sync::at(tris, i))
     } else {
-        let s = crate::sync::at(spheres, i - n_tris).center_radius;
-        let r = Vec3::splat(s[3].abs());
-        (xyz(s) - r, xyz(s) + r)
+        sphere_box(crate::sync::at(spheres, i - n_tris))
     }
+}
+
+/// A sphere's axis-aligned box.
+pub fn sphere_box(s: &Sphere) -> (Vec3, Vec3) {
+    let r = Vec3::splat(s.center_radius[3].abs());
+    let c = xyz(s.center_radius);
+    (c - r, c + r)
 }
 
 /// What the Morton stage needs of primitive `i`: twice the centroid of its box and the
@@ -191,10 +194,16 @@ pub fn prim_box(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> (
 /// triangle is 48), so the Morton stage reads a third of the bytes.
 pub fn prim_summary(i: u32, n_tris: u32, tris: &[Triangle], spheres: &[Sphere]) -> [f32; 4] {
     if i < n_tris {
-        return tri_summary(crate::sync::at(tris, i));
+        tri_summary(crate::sync::at(tris, i))
+    } else {
+        sphere_summary(crate::sync::at(spheres, i - n_tris))
     }
-    let (lo, hi) = prim_box(i, n_tris, tris, spheres);
-    let c = xyz(crate::sync::at(spheres, i - n_tris).center_radius);
+}
+
+/// [`prim_summary`] of a sphere.
+pub fn sphere_summary(s: &Sphere) -> [f32; 4] {
+    let (lo, hi) = sphere_box(s);
+    let c = xyz(s.center_radius);
     summary(c + c, lo, hi)
 }
 
@@ -219,7 +228,7 @@ const _: () = assert!(size_of::<Triangle>() == 48);
 const _: () = assert!(size_of::<Sphere>() == 16);
 const _: () = assert!(size_of::<Node>() == 32);
 const _: () = assert!(size_of::<OrderedBounds>() == 32);
-const _: () = assert!(size_of::<BuildParams>() == 20);
+const _: () = assert!(size_of::<BuildParams>() == 16);
 
 /// Workgroups per dispatch row: dispatches larger than this use the y dimension.
 pub const GRID_X: u32 = 32768;

@@ -63,14 +63,12 @@ fn the_look_back_waits_for_unpublished_tiles_and_stops_at_a_prefix() {
     // tile 40; digit 7 has a prefix at tile 100 and nothing published below it.
     use shared::radix_sort::{self as sort, ScatterState, AGGREGATE, PREFIX, RADIX};
     use shared::scan::{BlockScan, RAKES};
-    use shared::types::SORT_ITEMS;
     let tiles = 200u32;
     let p = BuildParams {
         n_tris: 0,
-        n: tiles * TILE,
+        n: tiles * WORKGROUP * FEW,
         shift: 2 * sort::RADIX_BITS,
         passes: 6,
-        items: SORT_ITEMS,
     };
     let me = tiles - 1;
     let count = |t: u32, d: u32| (t * 7 + d * 3) % 50;

@@ -61,7 +61,6 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
         n,
         shift: 0,
         passes: sorting.passes(opts.bits),
-        items: sort::items(n),
     };
     let tiles = p.tiles();
     let mut times = Vec::new();
@@ -171,7 +170,7 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
             // tile before it published.
             for _ in 0..tiles {
                 let io = (&keys[..], &vals[..], &mut keys_b[..], &mut vals_b[..]);
-                if p.items == sort::FEW {
+                if sort::items(n) == sort::FEW {
                     scatter_tile::<K, { sort::FEW }>(&mut st, &p, io, &mut counts, &mut totals);
                 } else {
                     scatter_tile::<K, SORT_ITEMS>(&mut st, &p, io, &mut counts, &mut totals);
@@ -365,7 +364,6 @@ fn refit_with(
         n,
         shift: 0,
         passes: 0,
-        items: 0,
     };
     let prims = refit::Prims {
         order: &earlier.sorted_prims,

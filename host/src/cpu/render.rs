@@ -58,7 +58,6 @@ pub fn transformed(
         n: (n_tris + n_spheres) as u32,
         shift: 0,
         passes: 0,
-        items: 0,
     };
     let mut tris = vec![Triangle::default(); n_tris];
     let mut spheres = vec![Sphere::default(); n_spheres];

@@ -46,6 +46,7 @@ pub enum Kernel {
     RefitTreeletsRelaxed,
     RefitRestructured,
     Transform,
+    TransformBounds,
     InstanceBoxes,
     InstanceBounds,
     PathTrace,
@@ -77,7 +78,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 40] = [
+    pub const ALL: [Kernel; 41] = [
         Kernel::BoundsReduce,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
@@ -104,6 +105,7 @@ impl Kernel {
         Kernel::RefitTreeletsRelaxed,
         Kernel::RefitRestructured,
         Kernel::Transform,
+        Kernel::TransformBounds,
         Kernel::InstanceBoxes,
         Kernel::InstanceBounds,
         Kernel::PathTrace,
@@ -154,6 +156,7 @@ impl Kernel {
             Kernel::RefitTreeletsRelaxed => "refit_treelets_relaxed",
             Kernel::RefitRestructured => "refit_restructured",
             Kernel::Transform => "transform",
+            Kernel::TransformBounds => "transform_bounds",
             Kernel::InstanceBoxes => "instance_boxes",
             Kernel::InstanceBounds => "instance_bounds",
             Kernel::PathTrace => "path_trace",

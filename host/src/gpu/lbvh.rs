@@ -404,8 +404,9 @@ impl GpuLbvh {
     }
 
     /// [`Self::record`] of a build whose bounds a kernel of the caller's reduced, and whose
-    /// primitives' summaries it stored, as the bounds stage does (`instance_bounds`: the
-    /// top level of two levels); its stages from the Morton codes on.
+    /// primitives' summaries it stored, as the bounds stage does (`transform_bounds`: the
+    /// renderer's transform stage; `instance_bounds`: the top level of two levels); its
+    /// stages from the Morton codes on.
     pub fn record_bounded(&self, cmds: &mut Commands, opts: BuildOptions, stages: bool) -> Result<()> {
         self.record_stages(cmds, opts, false, stages, Inputs::Reduced)
     }
@@ -468,11 +469,10 @@ impl GpuLbvh {
             n,
             shift: 0,
             passes: sorting.passes(bits),
-            items: sort::items(n),
         };
         let tiles = p.tiles();
         let (set_ab, set_ba) = (b.sets.sets[0], b.sets.sets[1]);
-        let many = p.items != sort::FEW;
+        let many = sort::items(n) != sort::FEW;
         let (morton_counted, scatter, runs, instance_runs, merge, build) = match bits {
             MortonBits::B30 => (
                 Kernel::Morton30Counted,
@@ -679,7 +679,6 @@ impl GpuLbvh {
             n: self.n,
             shift: 0,
             passes: 0,
-            items: 0,
         };
         cmds.timestamp("start");
         if self.n > 0 {

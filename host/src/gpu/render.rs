@@ -14,9 +14,9 @@ use gpu_allocator::MemoryLocation;
 use shared::denoise::GUIDE_PLANES;
 use shared::envmap::EnvEntry;
 use shared::types::{
-    grid, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY, CAST_OBJECT,
-    CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FLAG_BVH, INVALID,
-    TILE_SIDE, VARIANT_NO_PAIRS, WORKGROUP,
+    grid, item_groups, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY,
+    CAST_OBJECT, CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FLAG_BVH,
+    INVALID, TILE_SIDE, VARIANT_NO_PAIRS, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -880,17 +880,23 @@ impl GpuRenderer {
             cmds.fill_range(&b.accum, 0, b.accum.size, 0);
             cmds.barrier();
         }
-        let transform = |cmds: &mut Commands, n_tris: u32, n: u32| -> Result<()> {
+        // The transform stage; before a build of the project's BVH it reduces the build's
+        // bounds too (`transform_bounds`), and the build starts from the Morton codes.
+        let transform = |cmds: &mut Commands, n_tris: u32, n: u32, builds: bool| -> Result<()> {
             let p = BuildParams {
                 n_tris,
                 n,
                 shift: 0,
                 passes: 0,
-                items: 0,
             };
-            let (x, y) = grid(n.div_ceil(WORKGROUP));
+            let (kernel, groups) = if builds {
+                (Kernel::TransformBounds, item_groups(n))
+            } else {
+                (Kernel::Transform, n.div_ceil(WORKGROUP))
+            };
+            let (x, y) = grid(groups);
             let sets = [self.lbvh.set()?, sets[1]];
-            cmds.dispatch_sets(k, &sets, Kernel::Transform, bytemuck::bytes_of(&p), x, y)?;
+            cmds.dispatch_sets(k, &sets, kernel, bytemuck::bytes_of(&p), x, y)?;
             cmds.barrier();
             cmds.timestamp("transform");
             Ok(())
@@ -898,8 +904,8 @@ impl GpuRenderer {
         if let Some(l) = self.levels.as_mut().filter(|_| rebuild || self.samples == 0) {
             // The world-space group, as a flattened scene's world, then the top level.
             if self.world_tris > 0 {
-                transform(cmds, self.world_tris, self.world_tris)?;
                 if self.driver.is_some() {
+                    transform(cmds, self.world_tris, self.world_tris, false)?;
                     l.record_world_tris(cmds, &self.lbvh, self.world_tris)?;
                     self.group_tree = None;
                 } else {
@@ -911,10 +917,12 @@ impl GpuRenderer {
                     // and built again every `group_refits_max + 1` frames.
                     let refit = self.group_tree == Some(build);
                     if refit && self.group_refits < self.group_refits_max {
+                        transform(cmds, self.world_tris, self.world_tris, false)?;
                         self.lbvh.record_refit(cmds, build, false)?;
                         self.group_refits += 1;
                     } else {
-                        self.lbvh.record(cmds, build, false, false)?;
+                        transform(cmds, self.world_tris, self.world_tris, true)?;
+                        self.lbvh.record_bounded(cmds, build, false)?;
                         (self.group_tree, self.group_refits) = (Some(build), 0);
                     }
                     l.record_world(cmds, &self.lbvh, self.world_tris)?;
@@ -925,10 +933,10 @@ impl GpuRenderer {
                 None => l.record_top(cmds)?,
             }
         } else if rebuild || self.samples == 0 {
-            transform(cmds, f.n_tris, f.n_prims)?;
+            transform(cmds, f.n_tris, f.n_prims, self.driver.is_none())?;
             match self.driver.as_mut() {
                 Some(d) => d.record_build(cmds, sets)?,
-                None => self.lbvh.record(cmds, self.build, false, false)?,
+                None => self.lbvh.record_bounded(cmds, self.build, false)?,
             }
         }
         let driver_features = self.kernels.tracer_constant(self.path_trace_constant());

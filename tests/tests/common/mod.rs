@@ -226,6 +226,13 @@ impl GpuWorld {
         if let Err(e) = raytrace::bvh::validate(&bvh.nodes, &bvh.parents, &tris, &spheres) {
             panic!("the GPU's BVH is invalid: {e}");
         }
+        // The frame's transform stage reduced the build's bounds (`transform_bounds`), the
+        // CPU executor's bounds stage its output: the same tree, bit for bit.
+        assert_eq!(
+            bvh.traced_nodes(),
+            w.nodes,
+            "the GPU's BVH (built by the renderer's frame) differs from the CPU executor's"
+        );
         if crate::WIDE {
             if let Err(e) = raytrace::bvh::validate_wide(&bvh.wide, &bvh.sorted_prims, &tris, &spheres) {
                 panic!("the GPU's wide BVH is invalid: {e}");
