@@ -387,14 +387,30 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
         } else {
             (*at(s.nodes, pairs + 2 * node), *at(s.nodes, pairs + 2 * node + 1))
         };
-        let (a, ta) = visit(s, &r, &ea, first_leaf, &mut limit, &mut best);
-        if ANY && best.prim != INVALID {
-            return best;
+        // Both boxes against the limit as the step found it; then the leaves hit, `a`'s
+        // first, through one call site, so that lanes with a leaf on either side test it
+        // together (two call sites, one per child, ran one after the other whenever a warp
+        // held both kinds). A box hit at the limit `l` is hit at any `l' <= l` exactly when
+        // its entry is at most `l'` (`intersect::slab`), so `b` is kept, and its leaf
+        // tested, as if its box had been tested after `a`'s leaf: the same visits in the
+        // same order, the same hits.
+        let (ta, tb) = (slab(s, &r, &ea, limit), slab(s, &r, &eb, limit));
+        let (a_leaf, b_leaf) = (ea.a >= first_leaf, eb.a >= first_leaf);
+        let (a_hit, b_hit) = (a_leaf && ta != f32::INFINITY, b_leaf && tb != f32::INFINITY);
+        if a_hit || b_hit {
+            test_leaf(s, &r, if a_hit { ea.b } else { eb.b }, &mut limit, &mut best);
+            if ANY && best.prim != INVALID {
+                return best;
+            }
+            if a_hit && b_hit && tb <= limit {
+                test_leaf(s, &r, eb.b, &mut limit, &mut best);
+                if ANY && best.prim != INVALID {
+                    return best;
+                }
+            }
         }
-        let (b, tb) = visit(s, &r, &eb, first_leaf, &mut limit, &mut best);
-        if ANY && best.prim != INVALID {
-            return best;
-        }
+        let (a, ta) = internal(ea.a, a_leaf, ta, f32::INFINITY);
+        let (b, tb) = internal(eb.a, b_leaf, tb, limit);
         let (near, far) = if tb < ta { (b, a) } else { (a, b) };
         if near != INVALID {
             if far != INVALID && sp < STACK {
@@ -423,24 +439,25 @@ fn child_entry(nodes: &[Node], c: u32, first_leaf: u32) -> Node {
     }
 }
 
-/// Tests a pair's entry `e` (a child, see [`write_pairs`]): a hit leaf's primitive is
-/// intersected at once (updating `limit` and `best`), a hit internal node is returned with
-/// its entry distance for the caller to descend into. Returns `(INVALID, INFINITY)`
-/// otherwise.
-fn visit(s: &Scene, r: &TriRay, e: &Node, first_leaf: u32, limit: &mut f32, best: &mut Hit) -> (u32, f32) {
-    let t_box = slab(s, r, e, *limit);
-    if t_box == f32::INFINITY {
-        return (INVALID, f32::INFINITY);
+/// A pair's child `c` (a pair's entry `a`, see [`write_pairs`]) to descend into, with its
+/// box's entry distance `t` (from a test at a limit of at least `limit`): `(INVALID,
+/// INFINITY)` for a leaf, a box missed, or one entered past `limit` (which a leaf tested
+/// since may have lowered).
+fn internal(c: u32, leaf: bool, t: f32, limit: f32) -> (u32, f32) {
+    if leaf || t == f32::INFINITY || t > limit {
+        (INVALID, f32::INFINITY)
+    } else {
+        (c, t)
     }
-    if e.a < first_leaf {
-        return (e.a, t_box);
-    }
-    let (t, u, v) = primitive(s, r, e.b, *limit);
+}
+
+/// Intersects a leaf's primitive `prim`, updating `limit` and `best` where it is hit closer.
+fn test_leaf(s: &Scene, r: &TriRay, prim: u32, limit: &mut f32, best: &mut Hit) {
+    let (t, u, v) = primitive(s, r, prim, *limit);
     if t < *limit {
         *limit = t;
-        *best = Hit { t, prim: e.b, u, v };
+        *best = Hit { t, prim, u, v };
     }
-    (INVALID, f32::INFINITY)
 }
 
 /// Closest hit in `(0, t_max)` of an instanced scene ([`FEATURE_INSTANCES`]) and the
@@ -642,7 +659,7 @@ struct Level<'m> {
 }
 
 impl Level<'_> {
-    /// [`visit`] at this level: a hit leaf of a mesh is intersected at once, a hit internal
+    /// Child `child` of a node at this level: a hit leaf of a mesh is intersected at once, a hit internal
     /// node or instance is returned with its entry distance.
     fn visit(
         &self,
