@@ -87,8 +87,8 @@ pub struct SceneArgs {
     /// level over the objects every frame; objects that wave or are marked instance = false
     /// form a world-space group refit or built every frame) or flattened into one BVH: auto takes two
     /// levels where the scene marks instance = true, where the rebuild it saves outweighs
-    /// tracing two levels (the copies saved exceed twice the samples a build serves: measured
-    /// on the H100), or where flattening would not fit.
+    /// tracing two levels (the copies saved are at least two thirds of the samples a build
+    /// serves: measured on the H200), or where flattening would not fit.
     #[arg(long, value_enum, default_value = "auto")]
     pub instancing: InstancingMode,
     /// What finds the rays' hits on the GPU: the project's own BVH (lbvh), or the Vulkan

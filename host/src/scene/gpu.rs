@@ -67,19 +67,20 @@ pub const MAX_FLATTENED: u64 = 200_000_000;
 pub const FLAT_BYTES: u64 = 293;
 
 /// Whether [`InstancingMode::Auto`] instances a scene of `flattened` primitives, `distinct`
-/// of them distinct, whose one build serves `samples` samples. Measured on the H100
-/// (bench/NOTES.md, session 33): the flattened rebuild costs about 0.5 ns a copy, and the
-/// sixteen bunnies (1.1M primitives) trace in two levels about 0.15 ns a sample slower than
-/// flattened at depth 4, 0.58 at depth 16, so instancing pays where the copies it saves are at
-/// least a third of the samples: their real-time frames (3.10 against 3.36 ms), not a still of
-/// 32 samples (102 against 90 ms of trace). The herd's flattened tree (10M primitives) traces
-/// slower than its two levels at any number of samples (real time 6.1 against 5.0 ms of
-/// trace, 32 samples 161 against 140 ms), so above [`AUTO_FLAT_SLOWER`] primitives two levels
-/// always. A scene must also repeat its meshes at least twice over, and save at least
-/// [`AUTO_MIN_SAVED`] copies.
+/// of them distinct, whose one build serves `samples` samples. Measured on the H200
+/// (bench/NOTES.md, session 49; `bench realtime --instancing on|off`, 1920x1080, depth 4):
+/// the sixteen bunnies' flattened rebuild costs 0.36 ms more than their top level, 0.35 ns a
+/// copy saved, and their two levels trace 0.45 ms slower a one-sample frame, 0.22 ns a
+/// sample, so instancing pays where the copies it saves are at least two thirds of the
+/// samples (0.63 measured): a frame of 1280x720 at one sample, not of 1920x1080 (flattened
+/// 2.89 against 2.99 ms) nor a still of 32 samples. The herd's flattened tree (10M
+/// primitives) traces slower than its two levels at any number of samples (a real-time
+/// frame 5.15 against 4.89 ms of trace, four samples 21.8 against 19.4), so above
+/// [`AUTO_FLAT_SLOWER`] primitives two levels always. A scene must also repeat its meshes at
+/// least twice over, and save at least [`AUTO_MIN_SAVED`] copies.
 pub fn auto_instances(flattened: u64, distinct: u64, samples: u64) -> bool {
     let saved = flattened.saturating_sub(distinct);
-    flattened >= 2 * distinct && saved >= AUTO_MIN_SAVED && (3 * saved >= samples || flattened >= AUTO_FLAT_SLOWER)
+    flattened >= 2 * distinct && saved >= AUTO_MIN_SAVED && (3 * saved >= 2 * samples || flattened >= AUTO_FLAT_SLOWER)
 }
 
 /// Flattened primitives from which [`auto_instances`] always takes two levels: between the
