@@ -229,13 +229,41 @@ struct Timed {
     wall: Vec<f64>,
 }
 
-/// Seconds of frames (at animation time 0) a scene renders before its warm-up frames: the
-/// GPU's clocks rise over its first fraction of a second of work, which a count of frames
-/// does not cover for a scene of fast frames (H200: the first scene of a run, the bunny at
-/// 1.6 ms a frame, read p90 6.7 ms after its 20 warm-up frames; bench/NOTES.md, session 42).
+/// Seconds of frames (at animation time 0) a scene renders at least before its warm-up
+/// frames: the GPU's clocks rise over its first fraction of a second of work, which a count
+/// of frames does not cover for a scene of fast frames (H200: the first scene of a run, the
+/// bunny at 1.6 ms a frame, read p90 6.7 ms after its 20 warm-up frames; bench/NOTES.md,
+/// session 42). From an idle GPU (a run's first scene after seconds of pipeline compilation)
+/// half a second was not enough either: the flattened sixteen bunnies read p50 2.92, p90
+/// 5.19 ms (session 49), so the frames go on until their GPU times settle
+/// ([`clocks_settled`]), for at most [`CLOCK_WARMUP_MAX_S`].
 const CLOCK_WARMUP_S: f64 = 0.5;
 
-/// Runs [`CLOCK_WARMUP_S`] of frames, then `o.warmup + o.frames` frames (the animation
+/// The longest the clocks' warm-up runs (a scene whose frame times never settle is then
+/// timed as it is).
+const CLOCK_WARMUP_MAX_S: f64 = 5.0;
+
+/// Frames of the clocks' warm-up compared at a time by [`clocks_settled`].
+const SETTLE_FRAMES: usize = 16;
+
+/// Whether the GPU times of the same frame, `times` in the order run, have settled: the
+/// median of the last [`SETTLE_FRAMES`] within 2% of the median of the ones before them.
+fn clocks_settled(times: &[f64]) -> bool {
+    if times.len() < 2 * SETTLE_FRAMES {
+        return false;
+    }
+    let median = |t: &[f64]| {
+        let mut t = t.to_vec();
+        t.sort_by(f64::total_cmp);
+        t[t.len() / 2]
+    };
+    let last = median(&times[times.len() - SETTLE_FRAMES..]);
+    let before = median(&times[times.len() - 2 * SETTLE_FRAMES..times.len() - SETTLE_FRAMES]);
+    (last - before).abs() <= 0.02 * before
+}
+
+/// Runs [`CLOCK_WARMUP_S`] of frames or more (until [`clocks_settled`]), then `o.warmup +
+/// o.frames` frames (the animation
 /// advancing 1/60 s a frame from time 0), timing the last `o.frames`; returns the times and
 /// the rays of the last frame.
 fn frames(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options) -> Result<(Timed, f64)> {
@@ -251,8 +279,14 @@ fn frames(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options
         cmds.submit_wait().context("rendering a frame")
     };
     let clocks = Instant::now();
-    while clocks.elapsed().as_secs_f64() < CLOCK_WARMUP_S {
+    let mut warm = Vec::new();
+    loop {
+        let elapsed = clocks.elapsed().as_secs_f64();
+        if elapsed >= CLOCK_WARMUP_MAX_S || (elapsed >= CLOCK_WARMUP_S && clocks_settled(&warm)) {
+            break;
+        }
         frame(r, live, &mut cmds, 0.0)?;
+        warm.push(frame_timings(&cmds)?.iter().map(|(_, s)| s).sum::<f64>());
     }
     for i in 0..o.warmup + o.frames {
         let start = Instant::now();
@@ -391,4 +425,30 @@ pub fn markdown(r: &Report) -> String {
         let _ = writeln!(s, "{}", row_line(row));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_clocks_have_settled_when_the_frame_times_stop_falling() {
+        let steady = vec![1.0; 2 * SETTLE_FRAMES];
+        assert!(clocks_settled(&steady));
+        assert!(!clocks_settled(&steady[1..]), "too few frames to compare");
+        // Clocks rising: each frame 1% faster than the last.
+        let rising: Vec<f64> = (0..4 * SETTLE_FRAMES).map(|i| 5.0 * 0.99f64.powi(i as i32)).collect();
+        assert!(!clocks_settled(&rising));
+        // A slow frame or two among settled ones leave the medians alone.
+        let mut noisy = steady.clone();
+        noisy[3] = 9.0;
+        noisy[2 * SETTLE_FRAMES - 1] = 0.1;
+        assert!(clocks_settled(&noisy));
+        // A ramp that ended: times fell, then held.
+        let ramp: Vec<f64> = (0..3 * SETTLE_FRAMES)
+            .map(|i| if i < SETTLE_FRAMES { 5.0 } else { 2.9 })
+            .collect();
+        assert!(clocks_settled(&ramp));
+        assert!(!clocks_settled(&ramp[..2 * SETTLE_FRAMES]));
+    }
 }
