@@ -175,3 +175,135 @@ pub fn publish(i: u32, b: &mut [OrderedBounds]) {
         *at_mut(b, 0) = OrderedBounds::EMPTY;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::transform::transform;
+    use crate::types::item_groups;
+
+    /// One build's bounds reduction on the CPU, workgroup by workgroup and lane by lane, as
+    /// the GPU runs it: `accumulate` over lane `l` of group `g` in `phase(l, g, st)`.
+    fn reduced(n: u32, mut phase: impl FnMut(u32, u32, &mut BoundsState)) -> OrderedBounds {
+        let mut out = OrderedBounds::EMPTY;
+        for g in 0..item_groups(n) {
+            let mut st = BoundsState {
+                b: OrderedBounds::EMPTY,
+            };
+            (0..WORKGROUP).for_each(|l| clear(l, &mut st));
+            (0..WORKGROUP).for_each(|l| phase(l, g, &mut st));
+            (0..WORKGROUP).for_each(|l| flush(l, &st, &mut out));
+        }
+        out
+    }
+
+    #[test]
+    fn the_transform_stage_reduces_the_bounds_of_the_primitives_it_writes() {
+        // Several primitives a lane and several workgroups (`items_per_lane` from 131,072),
+        // triangles and spheres, objects turned, scaled, moved and one waving: the fused
+        // stage must give the bits of the transform followed by the build's own reduction,
+        // which the CPU executor runs.
+        let (n_tris, n_spheres) = (200_000u32, 3_001u32);
+        let n = n_tris + n_spheres;
+        assert!(items_per_lane(n) > 1 && item_groups(n) > 1);
+        let mut seed = 0x2545_f491u32;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed as f32 / u32::MAX as f32 * 20.0 - 10.0
+        };
+        let vertex = |next: &mut dyn FnMut() -> f32| [next(), next(), next(), 0.0];
+        let model_tris: Vec<Triangle> = (0..n_tris)
+            .map(|_| Triangle {
+                v0: vertex(&mut next),
+                v1: vertex(&mut next),
+                v2: vertex(&mut next),
+            })
+            .collect();
+        let model_spheres: Vec<Sphere> = (0..n_spheres)
+            .map(|_| Sphere {
+                center_radius: [next(), next(), next(), next().abs() * 0.1],
+            })
+            .collect();
+        let objects = [
+            Object {
+                rows: [[0.0, -2.0, 0.0, 3.5], [1.5, 0.0, 0.0, -1.25], [0.0, 0.0, 0.5, 100.0]],
+                radius_scale: 2.0,
+                ..Default::default()
+            },
+            Object {
+                rows: [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]],
+                wave: [0.25, 0.5, 0.125, 0.3],
+                radius_scale: 1.0,
+                ..Default::default()
+            },
+        ];
+        let prim_object: Vec<u32> = (0..n).map(|i| (i * 7 / 5) % 2).collect();
+        let p = BuildParams {
+            n_tris,
+            n,
+            shift: 0,
+            passes: 0,
+        };
+
+        // Apart: the transform stage, then the build's reduction over what it wrote.
+        let mut words = vec![UVec4::ZERO; 3 * n_tris as usize];
+        let mut spheres = vec![Sphere::default(); n_spheres as usize];
+        (0..n).for_each(|i| {
+            transform(
+                i,
+                &p,
+                &objects,
+                &prim_object,
+                &model_tris,
+                &model_spheres,
+                &mut words,
+                &mut spheres,
+            )
+        });
+        let tris: Vec<Triangle> = words
+            .chunks(3)
+            .map(|w| {
+                let v = |w: UVec4| [w.x, w.y, w.z, w.w].map(f32::from_bits);
+                Triangle {
+                    v0: v(w[0]),
+                    v1: v(w[1]),
+                    v2: v(w[2]),
+                }
+            })
+            .collect();
+        let mut summaries = vec![[0f32; 4]; n as usize];
+        let apart = reduced(n, |l, g, st| accumulate(l, g, st, &p, &tris, &spheres, &mut summaries));
+
+        // Fused.
+        let mut fused_words = vec![UVec4::ZERO; 3 * n_tris as usize];
+        let mut fused_spheres = vec![Sphere::default(); n_spheres as usize];
+        let mut fused_summaries = vec![[0f32; 4]; n as usize];
+        let fused = reduced(n, |l, g, st| {
+            accumulate_transformed(
+                l,
+                g,
+                st,
+                &p,
+                &objects,
+                &prim_object,
+                &model_tris,
+                &model_spheres,
+                &mut fused_words,
+                &mut fused_spheres,
+                &mut fused_summaries,
+            )
+        });
+
+        assert_ne!(apart, OrderedBounds::EMPTY);
+        assert_eq!(fused, apart, "the bounds");
+        assert!(fused_words == words, "the world triangles differ");
+        assert!(fused_spheres == spheres, "the world spheres differ");
+        let bits = |s: &[[f32; 4]]| s.iter().flat_map(|v| v.map(f32::to_bits)).collect::<Vec<_>>();
+        assert!(bits(&fused_summaries) == bits(&summaries), "the summaries differ");
+        // The wave moved the second object's vertices off the model's.
+        let waving_tri = (0..n_tris).find(|&i| prim_object[i as usize] == 1).unwrap() as usize;
+        assert_ne!(tris[waving_tri].v0[1], model_tris[waving_tri].v0[1]);
+    }
+}
