@@ -263,9 +263,8 @@ fn clocks_settled(times: &[f64]) -> bool {
 }
 
 /// Runs [`CLOCK_WARMUP_S`] of frames or more (until [`clocks_settled`]), then `o.warmup +
-/// o.frames` frames (the animation
-/// advancing 1/60 s a frame from time 0), timing the last `o.frames`; returns the times and
-/// the rays of the last frame.
+/// o.frames` frames (the animation advancing 1/60 s a frame from time 0), timing the last
+/// `o.frames`; returns the times and the rays of the last frame.
 fn frames(gpu: &Arc<Gpu>, r: &mut GpuRenderer, live: &mut LiveScene, o: &Options) -> Result<(Timed, f64)> {
     let mut cmds = Commands::new(gpu)?;
     let mut timed = Timed::default();
