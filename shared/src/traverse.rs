@@ -292,11 +292,7 @@ fn leaf(s: &Scene, r: &TriRay, word: u32, limit: &mut f32, best: &mut Hit) {
     let mut k = 0;
     while k < count {
         let prim = if count == 1 { first } else { *at(s.order, first + k) };
-        let (t, u, v) = primitive(s, r, prim, *limit);
-        if t < *limit {
-            *limit = t;
-            *best = Hit { t, prim, u, v };
-        }
+        test_leaf(s, r, prim, limit, best);
         k += 1;
     }
 }
@@ -659,8 +655,8 @@ struct Level<'m> {
 }
 
 impl Level<'_> {
-    /// Child `child` of a node at this level: a hit leaf of a mesh is intersected at once, a hit internal
-    /// node or instance is returned with its entry distance.
+    /// Child `child` of a node at this level: a hit leaf of a mesh is intersected at once, a
+    /// hit internal node or instance is returned with its entry distance.
     fn visit(
         &self,
         s: &Scene,
