@@ -17,6 +17,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .capability(Capability::VulkanMemoryModelDeviceScope)
         .capability(Capability::Int64)
         .capability(Capability::Int64Atomics)
+        .capability(Capability::GroupNonUniformBallot)
         .multimodule(true);
     let names = build_modules(compute, &out_dir, "shader_modules.rs")?;
     // The ray-tracing pipeline's module: its own target folder, so that the two builds'

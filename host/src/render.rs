@@ -4,7 +4,9 @@
 //! executor. Both produce a [`Picture`] and per-stage times.
 use crate::bvh::BuildOptions;
 use crate::picture::Picture;
-use shared::types::{Frame, FLAG_BVH, VARIANT_NO_PAIRS, VARIANT_WIDE_BVH};
+use shared::types::{
+    Frame, FEATURE_INSTANCES, FEATURE_NEE, FLAG_BVH, VARIANT_NO_PAIRS, VARIANT_STEPPED, VARIANT_WIDE_BVH,
+};
 
 /// Where kernels run.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -114,18 +116,24 @@ pub fn with_bvh(mut frame: Frame, bvh: bool) -> Frame {
     frame
 }
 
-/// A frame's `features` with [`VARIANT_WIDE_BVH`] set where `build` collapses the tree into
-/// the wide BVH (the tracer then walks it), and [`VARIANT_NO_PAIRS`] where it writes a binary
-/// tree without its pairs (`BuildOptions::pairs`: the binary walk then reads the tree alone).
-pub fn tracer_features(features: u32, build: BuildOptions) -> u32 {
-    let features = features & !(VARIANT_WIDE_BVH | VARIANT_NO_PAIRS);
-    if build.wide {
+/// A frame's `features` for its tracers: with [`VARIANT_WIDE_BVH`] where `build` collapses
+/// the tree into the wide BVH (the tracer then walks it), [`VARIANT_NO_PAIRS`] where it writes
+/// a binary tree without its pairs (`BuildOptions::pairs`: the binary walk then reads the tree
+/// alone), and [`VARIANT_STEPPED`] where the path loop steps the walks itself
+/// (`path::stepped_pixels`): paths of more than one segment, without next-event estimation,
+/// in a flattened scene through the binary BVH. (Primary rays alone trace faster a segment at
+/// a time: bench/NOTES.md, session 51.)
+pub fn tracer_features(frame: &Frame, build: BuildOptions) -> u32 {
+    let features = frame.features & !(VARIANT_WIDE_BVH | VARIANT_NO_PAIRS | VARIANT_STEPPED);
+    let features = if build.wide {
         features | VARIANT_WIDE_BVH
     } else if !build.pairs {
         features | VARIANT_NO_PAIRS
     } else {
         features
-    }
+    };
+    let stepped = frame.max_depth > 1 && features & (FEATURE_NEE | FEATURE_INSTANCES | VARIANT_WIDE_BVH) == 0;
+    features | if stepped { VARIANT_STEPPED } else { 0 }
 }
 
 #[cfg(test)]

@@ -305,6 +305,47 @@ fn explain_says_which_tree_auto_builds() {
     }
 }
 
+/// `--explain` says which path loop the frame runs: the stepped loop for paths of more than
+/// one segment without next-event estimation, else a segment at a time.
+#[test]
+fn explain_says_which_path_loop_runs() {
+    let out = picture("explain-loop");
+    for (extra, stepped) in [
+        (&[][..], false),
+        (&["--no-nee"][..], true),
+        (&["--no-nee", "--depth", "1"][..], false),
+    ] {
+        let args = [
+            &[
+                "render",
+                "cornell",
+                "--backend",
+                "cpu",
+                "--size",
+                "8x8",
+                "--spp",
+                "1",
+                "--explain",
+                "--out",
+                &out,
+            ][..],
+            extra,
+        ]
+        .concat();
+        let (o, stdout, stderr) = run(&args);
+        assert!(o.status.success(), "{extra:?}:\n{stderr}");
+        let line = stdout
+            .lines()
+            .find(|l| l.starts_with("path loop"))
+            .unwrap_or_else(|| panic!("no path loop line in:\n{stdout}"));
+        assert_eq!(
+            line.contains("stepped in a loop of its own"),
+            stepped,
+            "{extra:?}: {line}"
+        );
+    }
+}
+
 /// `raytrace compare` checks the GPU's BVH against the CPU executor's build over the GPU's
 /// own world-space primitives: at 8 spp `--tree auto` builds by H-PLOC, whose merges follow
 /// the boxes' bits, which the backends' transforms may round differently.

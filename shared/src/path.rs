@@ -22,6 +22,7 @@ use crate::types::{
     xyz, Camera, Frame, Hit, Material, MaterialKind, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY,
     CAST_OBJECT, CAST_SPAWN, FEATURE_ENVMAP, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FEATURE_PUNCTUAL,
     FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
+    VARIANT_STEPPED, VARIANT_WIDE_BVH,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -72,6 +73,9 @@ impl Found {
 /// (`crate::driver`). The path loop is generic over it, so both tracers shade, sample and
 /// count rays with the same code.
 pub trait Trace {
+    /// Whether the path loop may walk its rays step by step itself ([`stepped_pixels`]):
+    /// the project's own walk only.
+    const STEPPED: bool = false;
     /// [`World::found`]: the closest hit in `(0, t_max)` and where its primitive is.
     fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found {
         w.found(origin, dir, t_max)
@@ -99,7 +103,9 @@ pub trait Trace {
 /// The project's own traversal: the BVH (or brute force without [`FLAG_BVH`]).
 pub struct Walk;
 
-impl Trace for Walk {}
+impl Trace for Walk {
+    const STEPPED: bool = true;
+}
 
 /// The path tracer of the shadow queue ([`queue_pixel`]): [`Walk`], but a segment's shadow ray
 /// is kept (`pending`) for `queue_pixel` to queue. (No slice of the queue in here: a struct
@@ -618,9 +624,25 @@ fn segment<T: Trace>(
     first: &mut Found,
     shadow: &mut LightSample,
 ) -> bool {
+    let found = tr.found(w, q.origin, q.dir, f32::INFINITY);
+    shade(w, tr, mode, q, rng, capture, first, shadow, found)
+}
+
+/// The rest of [`segment`] once its ray has found `found`: what it sees, and the scatter.
+#[allow(clippy::too_many_arguments)]
+fn shade<T: Trace>(
+    w: &World,
+    tr: &mut T,
+    mode: Mode,
+    q: &mut Path,
+    rng: &mut Rng,
+    capture: bool,
+    first: &mut Found,
+    shadow: &mut LightSample,
+    found: Found,
+) -> bool {
     let f = w.frame;
     let (o, d) = (q.origin, q.dir);
-    let found = tr.found(w, o, d, f32::INFINITY);
     let hit = found.hit;
     q.rays += 1;
     if hit.prim == INVALID {
@@ -734,6 +756,10 @@ fn segment<T: Trace>(
 /// of a warp that take numbers together trace neighbouring pixels, as in the 8x8 tiles of
 /// `path_trace`. Every pixel is rendered once, whichever invocation takes it.
 pub fn render_tiles<T: Trace>(p: &RenderPush, w: &World, tr: &mut T, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
+    if T::STEPPED && stepped(w) {
+        stepped_pixels(0, 0, true, p, w, accum, guides);
+        return;
+    }
     let f = w.frame;
     let tiles_x = f.width.div_ceil(8);
     let n = tiles_x * f.height.div_ceil(4) * 32;
@@ -955,6 +981,168 @@ fn add_resolved(
     }
 }
 
+/// Whether a kernel's paths go through [`stepped_pixels`]: where the host asks for it
+/// ([`VARIANT_STEPPED`]: frames of more than one segment a path) in a flattened scene traced
+/// through the binary BVH without next-event estimation (each segment one closest-hit walk).
+/// Decided by the kernel's features alone (a specialisation constant on the GPU), so that a
+/// kernel holds one path loop: each loop inlines a walk, and a kernel holding both was
+/// several times slower (H200, bench/NOTES.md session 50).
+fn stepped(w: &World) -> bool {
+    w.scene.features & VARIANT_STEPPED != 0
+        && w.scene.features & (FEATURE_NEE | FEATURE_INSTANCES | VARIANT_WIDE_BVH) == 0
+}
+
+/// Steps of [`stepped_pixels`]'s walks between two votes: a vote every step made its frames
+/// 5-9% slower than a vote every 8 on the H200 (every 2 and 4 in between).
+const STEPS_A_VOTE: u32 = 8;
+
+/// The path loop of [`pixel_samples_guided`] (`fetch` false: pixel `(x, y)`'s samples,
+/// returned) or of [`render_tiles`] (`fetch`: pixel after pixel from the counter, each added
+/// to `accum` and `guides` as [`render_pixel`] adds it; nothing returned), with the walk's
+/// steps in its own inner loop ([`traverse::Flat`]): lanes whose walks have ended wait until
+/// half of the subgroup's lanes have (voting every [`STEPS_A_VOTE`] steps), then shade what
+/// they found and start their next walks (the path's next segment, the pixel's next sample,
+/// the next pixel), while the lanes still walking go back to their steps. So a subgroup does
+/// not idle at every segment until its longest walk ends (CPU count, 8x4 lanes: 19-28% of the
+/// lanes of a segment-at-a-time loop walk in an average step of the bunny's or the closed
+/// box's diffuse bounces), nor run its shading for one or two lanes at a time (Aila & Laine
+/// 2009's persistent while-while with rays fetched as lanes finish). Each lane's paths are
+/// traced and shaded exactly as by [`segment_samples`], whichever lanes share its subgroup:
+/// the same image. On the H200 the bunny's and the closed box's frames of 4-16 segments trace
+/// 9-16% faster; primary rays alone 23% slower (their lanes walk alike, and shading half a
+/// subgroup at a time costs more than the waits it saves), hence frames of more than one
+/// segment only (bench/NOTES.md, session 51).
+#[allow(clippy::too_many_arguments)]
+fn stepped_pixels(
+    x: u32,
+    y: u32,
+    fetch: bool,
+    p: &RenderPush,
+    w: &World,
+    accum: &mut [[f32; 4]],
+    guides: &mut [[u32; 4]],
+) -> ([f32; 4], Guide) {
+    let f = w.frame;
+    let guided = w.scene.features & FEATURE_GUIDES != 0;
+    let mode = Mode::of(w);
+    let tiles_x = f.width.div_ceil(8);
+    let n = tiles_x * f.height.div_ceil(4) * 32;
+    let (mut x, mut y) = (x, y);
+    // The pixel's samples so far (`open`: a pixel is held), as in `pixel_samples_guided`.
+    let mut open = !fetch;
+    let (mut sum, mut emission, mut rays, mut started) = (Vec3::ZERO, Vec3::ZERO, 0, 0);
+    let mut first = Found::MISS;
+    // The path in flight (`live`) and its segment's walk (`walking`).
+    let mut q = Path::new(Vec3::ZERO, Vec3::Z, 0.0);
+    let mut rng = Rng::new(0, 0, f.seed);
+    let mut live = false;
+    let mut walk = traverse::Flat::new();
+    let mut walking = false;
+    loop {
+        // Steps until half of the subgroup's lanes wait: a tight loop that does not touch the
+        // path's state, voting every `STEPS_A_VOTE` steps (every lane in the loop takes part;
+        // the lanes in it do not change, so they are counted once before it).
+        let lanes = sync::count_waiting(true);
+        loop {
+            let mut k = 0;
+            while k < STEPS_A_VOTE {
+                if walking {
+                    walking = walk.step(&w.scene);
+                }
+                k += 1;
+            }
+            if 2 * sync::count_waiting(!walking) >= lanes {
+                break;
+            }
+        }
+        if walking {
+            continue;
+        }
+        if live {
+            let hit = walk.best;
+            let found = if hit.prim == INVALID {
+                Found::MISS
+            } else {
+                Found {
+                    hit,
+                    at: Placed::hit(w.scene.instances, w.prim_object, INVALID, hit.prim),
+                }
+            };
+            let capture = guided && started == 1 && q.depth == 0;
+            let mut shadow = LightSample::NONE;
+            live = shade(
+                w,
+                &mut Walk,
+                mode,
+                &mut q,
+                &mut rng,
+                capture,
+                &mut first,
+                &mut shadow,
+                found,
+            );
+            if !live {
+                let l = q.radiance(w);
+                if finite3(l) {
+                    sum += l;
+                    if guided {
+                        emission += q.emitted;
+                    }
+                }
+                rays += q.rays;
+            }
+        }
+        if !live {
+            if !open || started == p.samples {
+                if open {
+                    let (s, g) = pixel_result(x, y, p, w, &first, sum, emission, rays);
+                    if !fetch {
+                        return (s, g);
+                    }
+                    add_pixel(y * f.width + x, s, &g, p, w, accum, guides);
+                }
+                // The next pixel of the frame (numbered through tiles of 8x4, as
+                // `render_tiles` takes them), if any.
+                let last = guides.len() as u32 - 1;
+                let mut i = sync::atomic_add_device::<false>(&mut sync::at_mut(guides, last)[0], 1);
+                loop {
+                    let (tile, lane) = (i / 32, i % 32);
+                    (x, y) = ((tile % tiles_x) * 8 + lane % 8, (tile / tiles_x) * 4 + lane / 8);
+                    if i >= n || (x < f.width && y < f.height) {
+                        break;
+                    }
+                    i = sync::atomic_add_device::<false>(&mut sync::at_mut(guides, last)[0], 1);
+                }
+                if i >= n {
+                    return (Default::default(), Guide::NONE);
+                }
+                open = true;
+                (sum, emission, rays, started) = (Vec3::ZERO, Vec3::ZERO, 0, 0);
+                first = Found::MISS;
+                if p.samples == 0 {
+                    continue;
+                }
+            }
+            rng = Rng::new(y * f.width + x, p.sample_base + started, f.seed);
+            let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
+            q = Path::new(o, d, f.pixel_spread);
+            started += 1;
+            if f.max_depth == 0 {
+                // A sample of no segments adds nothing.
+                continue;
+            }
+            live = true;
+        }
+        // The walk, or without the BVH the brute force (`FLAG_BVH`) at once.
+        walking = if w.bvh() {
+            walk.start(&w.scene, q.origin, q.dir, f32::INFINITY)
+        } else {
+            walk.best = traverse::closest_brute(&w.scene, q.origin, q.dir, f32::INFINITY);
+            false
+        };
+    }
+}
+
 /// Adds `p.samples` samples of pixel `(x, y)` to `accum`: see [`pixel_samples`]. With
 /// [`FEATURE_GUIDES`] also the pixel's guide: written by the frame's first dispatch
 /// (`p.count == 0`, the samples the frame traced before), its sums added to by the rest.
@@ -971,8 +1159,41 @@ pub fn render_pixel<T: Trace>(
     if x >= f.width || y >= f.height {
         return;
     }
-    let pixel = y * f.width + x;
-    let (s, g) = pixel_samples_guided(x, y, p, w, tr);
+    let (s, g) = samples_of(x, y, p, w, tr, accum, guides);
+    add_pixel(y * f.width + x, s, &g, p, w, accum, guides);
+}
+
+/// Pixel `(x, y)`'s samples: [`stepped_pixels`] where the frame allows ([`stepped`]), else
+/// [`segment_samples`]. (`accum` and `guides` are not written: `stepped_pixels` does not
+/// fetch here.)
+fn samples_of<T: Trace>(
+    x: u32,
+    y: u32,
+    p: &RenderPush,
+    w: &World,
+    tr: &mut T,
+    accum: &mut [[f32; 4]],
+    guides: &mut [[u32; 4]],
+) -> ([f32; 4], Guide) {
+    if T::STEPPED && stepped(w) {
+        stepped_pixels(x, y, false, p, w, accum, guides)
+    } else {
+        segment_samples(x, y, p, w, tr)
+    }
+}
+
+/// Adds a pixel's samples `s` (and its guide `g`) to `accum` (and `guides`): see
+/// [`render_pixel`].
+fn add_pixel(
+    pixel: u32,
+    s: [f32; 4],
+    g: &Guide,
+    p: &RenderPush,
+    w: &World,
+    accum: &mut [[f32; 4]],
+    guides: &mut [[u32; 4]],
+) {
+    let f = w.frame;
     let a = sync::at_mut(accum, pixel);
     *a = [a[0] + s[0], a[1] + s[1], a[2] + s[2], a[3] + s[3]];
     if w.scene.features & FEATURE_GUIDES != 0 {
@@ -980,7 +1201,7 @@ pub fn render_pixel<T: Trace>(
         if p.count == 0 {
             g.store(guides, n, pixel);
         } else {
-            Guide::add_sums(&g, guides, n, pixel);
+            Guide::add_sums(g, guides, n, pixel);
         }
     }
 }
@@ -994,6 +1215,7 @@ pub fn render_pixel<T: Trace>(
 /// until each has finished all its samples, instead of idling at every sample until the
 /// subgroup's longest path ends. Each sample keeps its own random stream and samples are
 /// summed in order, so the result is the same as tracing them one after another.
+#[cfg(not(target_arch = "spirv"))]
 pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
     pixel_samples_guided(x, y, p, w, &mut Walk).0
 }
@@ -1001,7 +1223,14 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
 /// [`pixel_samples`], and with [`FEATURE_GUIDES`] the pixel's guide for the denoiser: the
 /// samples' radiance split into the first hits' emission and the rest, and the first
 /// sample's first hit (`crate::denoise`). Without the feature the guide is `Guide::NONE`.
+#[cfg(not(target_arch = "spirv"))]
 pub fn pixel_samples_guided<T: Trace>(x: u32, y: u32, p: &RenderPush, w: &World, tr: &mut T) -> ([f32; 4], Guide) {
+    samples_of(x, y, p, w, tr, &mut [], &mut [])
+}
+
+/// [`pixel_samples_guided`] a segment at a time: each segment's walk to its end, then its
+/// shading (the loop of frames [`stepped`] leaves out).
+fn segment_samples<T: Trace>(x: u32, y: u32, p: &RenderPush, w: &World, tr: &mut T) -> ([f32; 4], Guide) {
     let f = w.frame;
     let guides = w.scene.features & FEATURE_GUIDES != 0;
     // Only the first sample's first hit is kept in the loop; its guide is made after it.
@@ -1041,9 +1270,26 @@ pub fn pixel_samples_guided<T: Trace>(x: u32, y: u32, p: &RenderPush, w: &World,
             rays += q.rays;
         }
     }
+    pixel_result(x, y, p, w, &first, sum, emission, rays)
+}
+
+/// A pixel's samples as [`pixel_samples_guided`] returns them, from the sum of their
+/// radiance, its part the first hits emit, the rays traced and the first sample's first hit.
+#[allow(clippy::too_many_arguments)]
+fn pixel_result(
+    x: u32,
+    y: u32,
+    p: &RenderPush,
+    w: &World,
+    first: &Found,
+    sum: Vec3,
+    emission: Vec3,
+    rays: u32,
+) -> ([f32; 4], Guide) {
+    let guides = w.scene.features & FEATURE_GUIDES != 0;
     // Only the frame's first dispatch writes the geometry (`render_pixel`).
-    let mut guide = if guides && f.max_depth > 0 && p.count == 0 {
-        first_hit_guide(x, y, p, w, &first)
+    let mut guide = if guides && w.frame.max_depth > 0 && p.count == 0 {
+        first_hit_guide(x, y, p, w, first)
     } else {
         Guide::NONE
     };

@@ -19,6 +19,19 @@ const ACQ_REL: u32 = Semantics::ACQUIRE_RELEASE.bits() | Semantics::UNIFORM_MEMO
 #[cfg(target_arch = "spirv")]
 const WG_ACQ_REL: u32 = ACQ_REL | Semantics::WORKGROUP_MEMORY.bits();
 
+/// How many of the subgroup's active invocations have `waiting` (`GroupNonUniformBallot`);
+/// every active invocation must call it. On the CPU executor: `waiting` as 0 or 1.
+pub fn count_waiting(waiting: bool) -> u32 {
+    #[cfg(target_arch = "spirv")]
+    {
+        spirv_std::arch::subgroup_ballot_bit_count(spirv_std::arch::subgroup_ballot(waiting))
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        waiting as u32
+    }
+}
+
 /// Relaxed device-scope `min`; returns the old value.
 pub fn atomic_min(p: &mut u32, v: u32) -> u32 {
     #[cfg(target_arch = "spirv")]

@@ -345,8 +345,8 @@ pub fn write_pairs(i: u32, n: u32, words: &mut [UVec4]) {
 }
 
 /// Stack traversal of the binary tree through its pairs ([`write_pairs`]; with
-/// [`VARIANT_NO_PAIRS`] each node's links, then its children): a step reads the node's pair
-/// and tests both children's boxes; a hit leaf's primitive is tested at once,
+/// [`VARIANT_NO_PAIRS`] each node's links, then its children): a step ([`pair_step`]) reads
+/// the node's pair and tests both children's boxes; a hit leaf's primitive is tested at once,
 /// hit internal children are visited nearest first (the far one pushed).
 fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit {
     let mut best = Hit::MISS;
@@ -361,66 +361,149 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
         return best;
     }
     if n == 1 {
-        let (t, u, v) = primitive(s, &r, root.a, limit);
-        if t < limit {
-            best = Hit { t, prim: root.a, u, v };
-        }
+        test_leaf(s, &r, root.a, &mut limit, &mut best);
         return best;
     }
-    let first_leaf = n - 1;
-    let pairs = pairs_at(n);
-    let tree_only = s.features & VARIANT_NO_PAIRS != 0;
     let mut stack = [MaybeUninit::<u32>::uninit(); STACK];
     let mut sp = 0usize;
     let mut node = 0u32;
-    loop {
-        let (ea, eb) = if tree_only {
-            let inner = *at(s.nodes, node);
-            (
-                child_entry(s.nodes, inner.a, first_leaf),
-                child_entry(s.nodes, inner.b, first_leaf),
-            )
-        } else {
-            (*at(s.nodes, pairs + 2 * node), *at(s.nodes, pairs + 2 * node + 1))
-        };
-        // Both boxes against the limit as the step found it; then the leaves hit, `a`'s
-        // first, through one call site, so that lanes with a leaf on either side test it
-        // together (two call sites, one per child, ran one after the other whenever a warp
-        // held both kinds). A box hit at the limit `l` is hit at any `l' <= l` exactly when
-        // its entry is at most `l'` (`intersect::slab`), so `b` is kept, and its leaf
-        // tested, as if its box had been tested after `a`'s leaf: the same visits in the
-        // same order, the same hits.
-        let (ta, tb) = (slab(s, &r, &ea, limit), slab(s, &r, &eb, limit));
-        let (a_leaf, b_leaf) = (ea.a >= first_leaf, eb.a >= first_leaf);
-        let (a_hit, b_hit) = (a_leaf && ta != f32::INFINITY, b_leaf && tb != f32::INFINITY);
-        if a_hit || b_hit {
-            test_leaf(s, &r, if a_hit { ea.b } else { eb.b }, &mut limit, &mut best);
+    while pair_step::<ANY>(s, &r, &mut limit, &mut best, &mut stack, &mut sp, &mut node) {}
+    best
+}
+
+/// [`walk`] of closest hits stepped: started ([`Flat::start`]) and stepped ([`Flat::step`],
+/// a pair a step) until it ends, so that a kernel can go on with a lane whose walk has ended
+/// while the others walk (`path::stepped_pixels`). The same steps as [`walk`], in the same
+/// order: the same hits.
+pub struct Flat {
+    r: TriRay,
+    limit: f32,
+    /// The closest hit so far ([`Hit::MISS`] for none).
+    pub best: Hit,
+    stack: [MaybeUninit<u32>; STACK],
+    sp: usize,
+    /// The node the next step visits.
+    node: u32,
+}
+
+impl Flat {
+    pub fn new() -> Flat {
+        Flat {
+            r: TriRay::new(Vec3::ZERO, Vec3::X),
+            limit: 0.0,
+            best: Hit::MISS,
+            stack: [MaybeUninit::<u32>::uninit(); STACK],
+            sp: 0,
+            node: 0,
+        }
+    }
+
+    /// Starts the walk of `origin + t dir`, `t` in `(0, t_max)`; false if it has ended
+    /// already (a ray that can hit nothing, a root box missed, a scene of one primitive).
+    pub fn start(&mut self, s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+        self.best = Hit::MISS;
+        let n = s.n_prims;
+        if n == 0 || !usable(origin, dir, t_max) {
+            return false;
+        }
+        self.r = TriRay::new(origin, dir);
+        self.limit = t_max;
+        let root = *at(s.nodes, 0);
+        if slab(s, &self.r, &root, t_max) == f32::INFINITY {
+            return false;
+        }
+        if n == 1 {
+            test_leaf(s, &self.r, root.a, &mut self.limit, &mut self.best);
+            return false;
+        }
+        self.sp = 0;
+        self.node = 0;
+        true
+    }
+
+    /// Visits the next pair; false once the walk has ended.
+    pub fn step(&mut self, s: &Scene) -> bool {
+        pair_step::<false>(
+            s,
+            &self.r,
+            &mut self.limit,
+            &mut self.best,
+            &mut self.stack,
+            &mut self.sp,
+            &mut self.node,
+        )
+    }
+}
+
+impl Default for Flat {
+    fn default() -> Flat {
+        Flat::new()
+    }
+}
+
+/// One step of [`walk`] (of a tree of at least two primitives): visits pair `node`; false
+/// once the walk has ended (the stack empty, or an any-hit walk's first hit), else `node` is
+/// the next.
+#[allow(clippy::too_many_arguments)]
+fn pair_step<const ANY: bool>(
+    s: &Scene,
+    r: &TriRay,
+    limit: &mut f32,
+    best: &mut Hit,
+    stack: &mut [MaybeUninit<u32>; STACK],
+    sp: &mut usize,
+    node: &mut u32,
+) -> bool {
+    let first_leaf = s.n_prims - 1;
+    let (ea, eb) = if s.features & VARIANT_NO_PAIRS != 0 {
+        let inner = *at(s.nodes, *node);
+        (
+            child_entry(s.nodes, inner.a, first_leaf),
+            child_entry(s.nodes, inner.b, first_leaf),
+        )
+    } else {
+        let pairs = pairs_at(s.n_prims);
+        (*at(s.nodes, pairs + 2 * *node), *at(s.nodes, pairs + 2 * *node + 1))
+    };
+    // Both boxes against the limit as the step found it; then the leaves hit, `a`'s
+    // first, through one call site, so that lanes with a leaf on either side test it
+    // together (two call sites, one per child, ran one after the other whenever a warp
+    // held both kinds). A box hit at the limit `l` is hit at any `l' <= l` exactly when
+    // its entry is at most `l'` (`intersect::slab`), so `b` is kept, and its leaf
+    // tested, as if its box had been tested after `a`'s leaf: the same visits in the
+    // same order, the same hits.
+    let (ta, tb) = (slab(s, r, &ea, *limit), slab(s, r, &eb, *limit));
+    let (a_leaf, b_leaf) = (ea.a >= first_leaf, eb.a >= first_leaf);
+    let (a_hit, b_hit) = (a_leaf && ta != f32::INFINITY, b_leaf && tb != f32::INFINITY);
+    if a_hit || b_hit {
+        test_leaf(s, r, if a_hit { ea.b } else { eb.b }, limit, best);
+        if ANY && best.prim != INVALID {
+            return false;
+        }
+        if a_hit && b_hit && tb <= *limit {
+            test_leaf(s, r, eb.b, limit, best);
             if ANY && best.prim != INVALID {
-                return best;
-            }
-            if a_hit && b_hit && tb <= limit {
-                test_leaf(s, &r, eb.b, &mut limit, &mut best);
-                if ANY && best.prim != INVALID {
-                    return best;
-                }
+                return false;
             }
         }
-        let (a, ta) = internal(ea.a, a_leaf, ta, f32::INFINITY);
-        let (b, tb) = internal(eb.a, b_leaf, tb, limit);
-        let (near, far) = if tb < ta { (b, a) } else { (a, b) };
-        if near != INVALID {
-            if far != INVALID && sp < STACK {
-                elem_mut(&mut stack, sp as u32).write(far);
-                sp += 1;
-            }
-            node = near;
-        } else if sp > 0 {
-            sp -= 1;
-            // SAFETY: entry `sp` was written by its push.
-            node = unsafe { elem(&stack, sp as u32).assume_init() };
-        } else {
-            return best;
+    }
+    let (a, ta) = internal(ea.a, a_leaf, ta, f32::INFINITY);
+    let (b, tb) = internal(eb.a, b_leaf, tb, *limit);
+    let (near, far) = if tb < ta { (b, a) } else { (a, b) };
+    if near != INVALID {
+        if far != INVALID && *sp < STACK {
+            elem_mut(stack, *sp as u32).write(far);
+            *sp += 1;
         }
+        *node = near;
+        true
+    } else if *sp > 0 {
+        *sp -= 1;
+        // SAFETY: entry `sp` was written by its push.
+        *node = unsafe { elem(stack, *sp as u32).assume_init() };
+        true
+    } else {
+        false
     }
 }
 

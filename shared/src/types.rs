@@ -556,7 +556,7 @@ pub const FEATURE_GUIDES: u32 = 1 << 17;
 /// own BVH in model space (`traverse::Scene::top`). A layout the host sets where the scene
 /// is instanced, as [`VARIANT_WIDE_BVH`] is; not in [`FEATURES_ALL`].
 pub const FEATURE_INSTANCES: u32 = 1 << 18;
-/// Every feature: the kernel that runs any scene. Bits 6-9 and 19 are the `VARIANT_*` bits.
+/// Every feature: the kernel that runs any scene. Bits 6-9, 19 and 20 are the `VARIANT_*` bits.
 pub const FEATURES_ALL: u32 = ((1 << 6) - 1)
     | FEATURE_SHADING_NORMALS
     | FEATURE_TEXTURES
@@ -585,6 +585,11 @@ pub const VARIANT_WIDE_BVH: u32 = 1 << 9;
 /// 134 MB: a flattened scene of more than about a million primitives). The walk then reads each node's
 /// links and then its children, visiting them in the same order: the same hits.
 pub const VARIANT_NO_PAIRS: u32 = 1 << 19;
+
+/// The path loop steps each lane's walk itself (`path::stepped_pixels`) instead of tracing a
+/// segment at a time: set by the host for frames of more than one segment a path, flattened
+/// and through the binary BVH, without next-event estimation (`render::tracer_features`).
+pub const VARIANT_STEPPED: u32 = 1 << 20;
 
 /// Exact products without a fused multiply-add (`math::two_product_split`): set by the host
 /// where the device's `Fma` rounds twice (Vulkan allows it; llvmpipe's does), so the sphere

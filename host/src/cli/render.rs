@@ -8,7 +8,7 @@ use crate::render::{self, Accel, AccelChoice, Backend};
 use crate::shard::{self, Shard};
 use anyhow::{anyhow, ensure, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use shared::types::{Frame, FLAG_DENOISE};
+use shared::types::{Frame, FLAG_DENOISE, VARIANT_STEPPED};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
@@ -763,6 +763,14 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
                 "tracer (--accel auto, a scene in two levels): {driver} where the device has ray-tracing pipelines, elsewhere {tree}; the summary line names the one taken"
             ),
             AccelChoice::Auto => println!("BVH traced (--accel auto, a flattened scene): {tree}"),
+        }
+        let stepped = p.accel != AccelChoice::Driver
+            && p.data.instancing.is_none()
+            && crate::render::tracer_features(&p.frame, b) & VARIANT_STEPPED != 0;
+        if stepped {
+            println!("path loop: each lane's walk stepped in a loop of its own; lanes whose walks have ended shade together once half of their subgroup waits (VARIANT_STEPPED: paths of more than one segment, flattened, through the binary BVH, without next-event estimation)");
+        } else {
+            println!("path loop: a segment at a time, each lane's walk to its end before the subgroup shades (VARIANT_STEPPED only for paths of more than one segment, flattened, through the binary BVH, without next-event estimation)");
         }
     }
     let name = &p.scene.name;

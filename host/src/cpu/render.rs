@@ -203,7 +203,7 @@ pub fn render_cpu_samples(
     let lights = scene.light_words();
 
     let t = Instant::now();
-    let features = crate::render::tracer_features(frame.features, build);
+    let features = crate::render::tracer_features(frame, build);
     let traced = match &levels {
         Some(l) => Scene {
             coverage: scene.coverage(),
@@ -283,7 +283,7 @@ pub fn render_cpu_samples(
 mod tests {
     use super::*;
     use crate::cli::SceneArgs;
-    use shared::types::{FEATURE_INSTANCES, FEATURE_NEE};
+    use shared::types::{FEATURE_INSTANCES, FEATURE_NEE, VARIANT_STEPPED};
 
     /// The shadow queue's passes run on the CPU over one band of a scene in two levels: the
     /// persistent resolve (one invocation taking every pixel, its next ray started as its walk
@@ -303,7 +303,7 @@ mod tests {
                 &scene.objects,
                 build,
             );
-            let features = crate::render::tracer_features(frame.features, build) & !FEATURE_GUIDES;
+            let features = crate::render::tracer_features(frame, build) & !FEATURE_GUIDES;
             assert!(features & FEATURE_INSTANCES != 0 && features & FEATURE_NEE != 0);
             let objects = [scene.objects.as_slice(), &scene.objects].concat();
             let lights = scene.light_words();
@@ -364,6 +364,89 @@ mod tests {
                 "{scene_name}: {queued} queued, {lit} lit of {band}"
             );
             assert!(slots.iter().all(|&s| s < frame.max_depth), "{scene_name}");
+        }
+    }
+
+    /// The path loop as the project's walk runs it without next-event estimation
+    /// (`path::stepped_pixels`: the walks stepped in a loop of their own, lanes waiting for
+    /// half their subgroup before they shade) traces each pixel's samples exactly as the loop of a
+    /// segment at a time does (a tracer other than the project's walk runs that one), both
+    /// for one pixel (the tiles kernel, and the CPU executor) and pixel after pixel from the
+    /// counter (the persistent kernel, which runs off lavapipe only): samples, rays and guides
+    /// bit for bit, also without the BVH and at depth 0.
+    #[test]
+    fn the_stepped_path_loop_traces_what_a_segment_at_a_time_traces() {
+        struct Segments;
+        impl path::Trace for Segments {}
+        let cases: [&[&str]; 4] = [
+            &["cornell", "--spp", "3", "--no-nee"],
+            &["spheres", "--spp", "2", "--no-nee", "--no-roulette"],
+            &["bunny", "--spp", "2", "--no-nee", "--depth", "6"],
+            &["cornell", "--spp", "2", "--no-nee", "--no-bvh"],
+        ];
+        for (case, extra) in cases.iter().enumerate() {
+            let args = [&["raytrace", "--size", "24x18"][..], extra].concat();
+            let p = <SceneArgs as clap::Parser>::parse_from(args).prepare().expect("scene");
+            let (scene, frame) = (&p.data, &p.frame);
+            for depth in [frame.max_depth, 0] {
+                let mut frame = *frame;
+                frame.max_depth = depth;
+                // The denoiser's guides too in one case (the first hits it captures).
+                if case == 2 {
+                    frame.features |= FEATURE_GUIDES;
+                }
+                assert_eq!(frame.features & (FEATURE_NEE | FEATURE_INSTANCES), 0, "{extra:?}");
+                let build = p.build(1);
+                let (tris, spheres) = world_primitives(scene);
+                let (bvh, _) = crate::cpu::build(&tris, &spheres, build);
+                let nodes = bvh.traced_nodes();
+                let traced = Scene {
+                    tris: &tris,
+                    spheres: &spheres,
+                    nodes: &nodes,
+                    wide: &bvh.wide,
+                    order: &bvh.sorted_prims,
+                    n_tris: frame.n_tris,
+                    n_prims: frame.n_prims,
+                    top: 0,
+                    instances: &[],
+                    n_instances: 0,
+                    coverage: scene.coverage(),
+                    // The stepped loop also at depth 0 (where the host leaves it out).
+                    features: crate::render::tracer_features(&frame, build) | VARIANT_STEPPED,
+                };
+                let lights = scene.light_words();
+                let world = world(scene, traced, &scene.objects, &lights, &frame);
+                let push = RenderPush {
+                    samples: 2,
+                    sample_base: 5,
+                    ..Default::default()
+                };
+                let (w, h) = (frame.width, frame.height);
+                // The persistent loop: accumulation, guides (the counter in the last entry).
+                let mut accum = vec![[0.0f32; 4]; (w * h) as usize];
+                let mut guides = vec![[0u32; 4]; (w * h * 4 + 1) as usize];
+                path::render_tiles(&push, &world, &mut path::Walk, &mut accum, &mut guides);
+                assert_eq!(guides[(w * h * 4) as usize][0], w.div_ceil(8) * h.div_ceil(4) * 32 + 1);
+                let mut rays = 0.0;
+                for y in 0..h {
+                    for x in 0..w {
+                        let (stepped, g1) = path::pixel_samples_guided(x, y, &push, &world, &mut path::Walk);
+                        let (segments, g2) = path::pixel_samples_guided(x, y, &push, &world, &mut Segments);
+                        let bits = |a: [f32; 4]| a.map(f32::to_bits);
+                        let at = format!("{extra:?} depth {depth} pixel ({x}, {y})");
+                        assert_eq!(bits(stepped), bits(segments), "{at}");
+                        assert_eq!(bytemuck::bytes_of(&g1), bytemuck::bytes_of(&g2), "{at}");
+                        assert_eq!(bits(accum[(y * w + x) as usize]), bits(stepped), "{at}");
+                        rays += stepped[3];
+                    }
+                }
+                if depth > 0 {
+                    assert!(rays >= (w * h * 2) as f32, "{extra:?}: {rays} rays");
+                } else {
+                    assert_eq!(rays, 0.0, "{extra:?}");
+                }
+            }
         }
     }
 }

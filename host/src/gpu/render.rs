@@ -576,7 +576,7 @@ impl GpuRenderer {
     /// flattened scene's binary walk without pairs where the device could not hold them
     /// (`GpuLbvh::has_pairs`).
     fn tracer_constant(&self) -> u32 {
-        let features = crate::render::tracer_features(self.frame.features, self.build) & !FEATURE_GUIDES;
+        let features = crate::render::tracer_features(&self.frame, self.build) & !FEATURE_GUIDES;
         let tree_only = self.levels.is_none() && !self.build.wide && !self.lbvh.has_pairs();
         features | if tree_only { VARIANT_NO_PAIRS } else { 0 }
     }
