@@ -143,7 +143,7 @@ fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<H
             instances: &[],
             n_instances: 0,
             coverage: p.data.coverage(),
-            features: raytrace::render::tracer_features(frame.features, p.build(1)),
+            features: raytrace::render::tracer_features(frame, p.build(1)),
         },
         objects: &p.data.objects,
         prim_object: &p.data.prim_object,
@@ -455,6 +455,38 @@ fn samples_in_one_dispatch_equal_samples_one_at_a_time() {
         assert!(together.accum.iter().any(|a| a[0] > 0.0), "{scene}: black image");
         assert_eq!(bits(&together), bits(&apart), "{scene}: accumulation images differ");
     }
+    assert_no_validation_errors(&gpu);
+}
+
+/// The stepped path loop (`path::stepped_pixels`, which the renderer runs off lavapipe only)
+/// renders the segment loop's bits on the GPU: frames of several segments without next-event
+/// estimation, through the BVH and by brute force.
+#[test]
+fn the_stepped_path_loop_renders_the_segment_loops_bits() {
+    let Some((gpu, mut r)) = renderer("the_stepped_path_loop_renders_the_segment_loops_bits") else {
+        return;
+    };
+    // One scene's kernels (their compiles are most of the time on lavapipe): the CPU
+    // executor's unit test runs the loop on more scenes.
+    let cases: [(&str, &[&str]); 2] = [("cornell", &["--no-nee"]), ("cornell", &["--no-nee", "--no-bvh"])];
+    for (scene, extra) in cases {
+        let p = prepared(scene, 24, 4, extra);
+        let mut images = Vec::new();
+        for stepped in [false, true] {
+            r.set_stepped(Some(stepped));
+            r.load(&p.data, &p.frame).expect("load");
+            assert_eq!(r.stepped(), stepped, "{scene} {extra:?}");
+            r.render(4, true).expect("render");
+            let picture = r.picture().expect("picture");
+            assert!(
+                picture.accum.iter().any(|a| a[0] > 0.0),
+                "{scene} {extra:?}: black image"
+            );
+            images.push(picture.accum.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>());
+        }
+        assert!(images[0] == images[1], "{scene} {extra:?}: the loops' images differ");
+    }
+    r.set_stepped(None);
     assert_no_validation_errors(&gpu);
 }
 

@@ -768,7 +768,7 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
             && p.data.instancing.is_none()
             && crate::render::tracer_features(&p.frame, b) & VARIANT_STEPPED != 0;
         if stepped {
-            println!("path loop: each lane's walk stepped in a loop of its own; lanes whose walks have ended shade together once half of their subgroup waits (VARIANT_STEPPED: paths of more than one segment, flattened, through the binary BVH, without next-event estimation)");
+            println!("path loop on a GPU: each lane's walk stepped in a loop of its own; lanes whose walks have ended shade together once half of their subgroup waits (VARIANT_STEPPED: paths of more than one segment, flattened, through the binary BVH, without next-event estimation; the CPU executor and lavapipe run a segment at a time)");
         } else {
             println!("path loop: a segment at a time, each lane's walk to its end before the subgroup shades (VARIANT_STEPPED only for paths of more than one segment, flattened, through the binary BVH, without next-event estimation)");
         }

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use shared::denoise::Guide;
 use shared::path::{self, World};
 use shared::traverse::Scene;
-use shared::types::{BuildParams, Frame, Object, RenderPush, Sphere, Triangle, FEATURE_GUIDES};
+use shared::types::{BuildParams, Frame, Object, RenderPush, Sphere, Triangle, FEATURE_GUIDES, VARIANT_STEPPED};
 use std::time::Instant;
 
 /// A CPU render: the picture, stage times in seconds, and the BVH it traced through.
@@ -203,7 +203,9 @@ pub fn render_cpu_samples(
     let lights = scene.light_words();
 
     let t = Instant::now();
-    let features = crate::render::tracer_features(frame, build);
+    // A segment at a time: the CPU executor runs a subgroup of one lane, so the stepped loop
+    // would keep no other lanes walking (the unit test below runs it).
+    let features = crate::render::tracer_features(frame, build) & !VARIANT_STEPPED;
     let traced = match &levels {
         Some(l) => Scene {
             coverage: scene.coverage(),
@@ -283,7 +285,7 @@ pub fn render_cpu_samples(
 mod tests {
     use super::*;
     use crate::cli::SceneArgs;
-    use shared::types::{FEATURE_INSTANCES, FEATURE_NEE, VARIANT_STEPPED};
+    use shared::types::{FEATURE_INSTANCES, FEATURE_NEE};
 
     /// The shadow queue's passes run on the CPU over one band of a scene in two levels: the
     /// persistent resolve (one invocation taking every pixel, its next ray started as its walk

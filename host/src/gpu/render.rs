@@ -16,7 +16,7 @@ use shared::envmap::EnvEntry;
 use shared::types::{
     grid, item_groups, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY,
     CAST_OBJECT, CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FLAG_BVH,
-    INVALID, TILE_SIDE, VARIANT_NO_PAIRS, WORKGROUP,
+    INVALID, TILE_SIDE, VARIANT_NO_PAIRS, VARIANT_STEPPED, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -175,6 +175,9 @@ pub struct GpuRenderer {
     /// Whether the path tracer runs persistent (see [`Self::path_kernel`]); `None`: as the
     /// scene and device ask.
     persistent: Option<bool>,
+    /// Whether the path tracer may run the stepped loop where the frame allows it (see
+    /// [`Self::tracer_constant`]); `None`: off lavapipe.
+    stepped: Option<bool>,
     /// Whether shadow rays of scenes in two levels are queued (see [`Self::shadow_queue`]);
     /// `None`: where the scene has them. And the rows of a band of the queue, `None`: as
     /// many as [`QUEUE_BYTES`] holds.
@@ -237,6 +240,7 @@ impl GpuRenderer {
             driver: None,
             driver_build: DriverBuild::default(),
             persistent: None,
+            stepped: None,
             queue_shadows: None,
             queue_rows: None,
         })
@@ -246,6 +250,18 @@ impl GpuRenderer {
     /// [`Self::path_kernel`] decides (`None`): tests compare the two kernels.
     pub fn set_persistent(&mut self, persistent: Option<bool>) {
         self.persistent = persistent;
+    }
+
+    /// Lets the path tracer step its walks itself where the frame allows (`Some(true)`: see
+    /// `render::tracer_features`), never (`Some(false)`), or off lavapipe (`None`): tests
+    /// compare the two loops on lavapipe.
+    pub fn set_stepped(&mut self, stepped: Option<bool>) {
+        self.stepped = stepped;
+    }
+
+    /// Whether the path tracer's frames run the stepped loop (`path::stepped_pixels`).
+    pub fn stepped(&self) -> bool {
+        self.tracer_constant() & VARIANT_STEPPED != 0
     }
 
     /// Queues next-event estimation's shadow rays (`Some(true)`), casts them in place
@@ -578,6 +594,11 @@ impl GpuRenderer {
     fn tracer_constant(&self) -> u32 {
         let features = crate::render::tracer_features(&self.frame, self.build) & !FEATURE_GUIDES;
         let tree_only = self.levels.is_none() && !self.build.wide && !self.lbvh.has_pairs();
+        // Not on lavapipe unless asked: it runs a subgroup as one thread's SIMD vector, and
+        // the test suite there took up to twice as long through the stepped loop (the accuracy
+        // test 213 -> 493 s: bench/NOTES.md, session 51).
+        let stepped = self.stepped.unwrap_or(!self.gpu.is_lavapipe());
+        let features = if stepped { features } else { features & !VARIANT_STEPPED };
         features | if tree_only { VARIANT_NO_PAIRS } else { 0 }
     }
 

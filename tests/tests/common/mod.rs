@@ -11,7 +11,7 @@ pub use raytrace::inputs::hard_cases::{cube, icosphere, octahedron, rays_at_vert
 use shared::glam::Vec3;
 use shared::rng::Rng;
 use shared::traverse::Scene;
-use shared::types::{Hit, Node, Ray, Sphere, Triangle, FEATURES_ALL, FLAG_BVH, INVALID};
+use shared::types::{Frame, Hit, Node, Ray, Sphere, Triangle, FEATURES_ALL, FLAG_BVH, INVALID};
 use shared::wide::WideNode;
 
 /// Primitives and the 30-bit LBVH over them, collapsed into the wide BVH where the suite
@@ -73,7 +73,13 @@ impl World {
             instances: &[],
             n_instances: 0,
             coverage: shared::alpha::Coverage::NONE,
-            features: raytrace::render::tracer_features(FEATURES_ALL, World::build()),
+            features: raytrace::render::tracer_features(
+                &Frame {
+                    features: FEATURES_ALL,
+                    ..Default::default()
+                },
+                World::build(),
+            ),
         }
     }
 }
