@@ -671,6 +671,25 @@ scene_kernel! {
     }
 }
 
+// The stepped path loop (`path::stepped_pixels`: frames the host marks `VARIANT_STEPPED`), in
+// entry points of their own, so that the segment loop's modules hold one loop.
+
+scene_kernel! {
+    /// `path_trace` through the stepped loop (`path::stepped_pixel`).
+    #[spirv(compute(threads(8, 8)))]
+    path_stepped(#[spirv(global_invocation_id)] id: UVec3) |p, w, accum, guides| {
+        path::stepped_pixel(id.x, id.y, p, &w, accum, guides);
+    }
+}
+
+scene_kernel! {
+    /// `path_trace_persistent` through the stepped loop (`path::stepped_tiles`).
+    #[spirv(compute(threads(1024)))]
+    path_stepped_persistent() |p, w, accum, guides| {
+        path::stepped_tiles(p, &w, accum, guides);
+    }
+}
+
 // The shadow queue (a scene in two levels with next-event estimation): the path tracer of one
 // sample a pixel of a band of rows queues its shadow rays in binding 9 (the ray casts' rays:
 // a binding more would pass lavapipe's 32 storage buffers a kernel), `shadow_resolve` casts

@@ -22,7 +22,6 @@ use crate::types::{
     xyz, Camera, Frame, Hit, Material, MaterialKind, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY,
     CAST_OBJECT, CAST_SPAWN, FEATURE_ENVMAP, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FEATURE_PUNCTUAL,
     FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
-    VARIANT_STEPPED, VARIANT_WIDE_BVH,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -73,9 +72,6 @@ impl Found {
 /// (`crate::driver`). The path loop is generic over it, so both tracers shade, sample and
 /// count rays with the same code.
 pub trait Trace {
-    /// Whether the path loop may walk its rays step by step itself ([`stepped_pixels`]):
-    /// the project's own walk only.
-    const STEPPED: bool = false;
     /// [`World::found`]: the closest hit in `(0, t_max)` and where its primitive is.
     fn found(&mut self, w: &World, origin: Vec3, dir: Vec3, t_max: f32) -> Found {
         w.found(origin, dir, t_max)
@@ -103,9 +99,7 @@ pub trait Trace {
 /// The project's own traversal: the BVH (or brute force without [`FLAG_BVH`]).
 pub struct Walk;
 
-impl Trace for Walk {
-    const STEPPED: bool = true;
-}
+impl Trace for Walk {}
 
 /// The path tracer of the shadow queue ([`queue_pixel`]): [`Walk`], but a segment's shadow ray
 /// is kept (`pending`) for `queue_pixel` to queue. (No slice of the queue in here: a struct
@@ -756,10 +750,6 @@ fn shade<T: Trace>(
 /// of a warp that take numbers together trace neighbouring pixels, as in the 8x8 tiles of
 /// `path_trace`. Every pixel is rendered once, whichever invocation takes it.
 pub fn render_tiles<T: Trace>(p: &RenderPush, w: &World, tr: &mut T, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
-    if T::STEPPED && stepped(w) {
-        stepped_pixels(0, 0, true, p, w, accum, guides);
-        return;
-    }
     let f = w.frame;
     let tiles_x = f.width.div_ceil(8);
     let n = tiles_x * f.height.div_ceil(4) * 32;
@@ -981,24 +971,14 @@ fn add_resolved(
     }
 }
 
-/// Whether a kernel's paths go through [`stepped_pixels`]: where the host asks for it
-/// ([`VARIANT_STEPPED`]: frames of more than one segment a path) in a flattened scene traced
-/// through the binary BVH without next-event estimation (each segment one closest-hit walk).
-/// Decided by the kernel's features alone (a specialisation constant on the GPU), so that a
-/// kernel holds one path loop: each loop inlines a walk, and a kernel holding both was
-/// several times slower (H200, bench/NOTES.md session 50).
-fn stepped(w: &World) -> bool {
-    w.scene.features & VARIANT_STEPPED != 0
-        && w.scene.features & (FEATURE_NEE | FEATURE_INSTANCES | VARIANT_WIDE_BVH) == 0
-}
-
 /// Steps of [`stepped_pixels`]'s walks between two votes: a vote every step made its frames
 /// 5-9% slower than a vote every 8 on the H200 (every 2 and 4 in between).
 const STEPS_A_VOTE: u32 = 8;
 
-/// The path loop of [`pixel_samples_guided`] (`fetch` false: pixel `(x, y)`'s samples,
-/// returned) or of [`render_tiles`] (`fetch`: pixel after pixel from the counter, each added
-/// to `accum` and `guides` as [`render_pixel`] adds it; nothing returned), with the walk's
+/// The stepped path loop (the host's `Kernel::PathStepped`: `fetch` false, pixel `(x, y)`'s
+/// samples returned; `Kernel::PathSteppedPersistent`: `fetch`, pixel after pixel from the
+/// counter as [`render_tiles`] takes them, each added to `accum` and `guides` as
+/// [`render_pixel`] adds it, nothing returned), with the walk's
 /// steps in its own inner loop ([`traverse::Flat`]): lanes whose walks have ended wait until
 /// half of the subgroup's lanes have (voting every [`STEPS_A_VOTE`] steps), then shade what
 /// they found and start their next walks (the path's next segment, the pixel's next sample,
@@ -1011,7 +991,11 @@ const STEPS_A_VOTE: u32 = 8;
 /// the same image. On the H200 the bunny's and the closed box's frames of 4-16 segments trace
 /// 9-16% faster; primary rays alone 23% slower (their lanes walk alike, and shading half a
 /// subgroup at a time costs more than the waits it saves), hence frames of more than one
-/// segment only (bench/NOTES.md, session 51).
+/// segment only (bench/NOTES.md, session 51). For what the host marks
+/// [`crate::types::VARIANT_STEPPED`]: a flattened scene through the binary BVH (or by brute
+/// force) without next-event estimation, each segment one closest-hit walk. Kernels of their
+/// own, so that the segment loop's kernels hold one loop (lavapipe compiles a module's dead
+/// branches too: bench/NOTES.md, session 52).
 #[allow(clippy::too_many_arguments)]
 fn stepped_pixels(
     x: u32,
@@ -1159,27 +1143,32 @@ pub fn render_pixel<T: Trace>(
     if x >= f.width || y >= f.height {
         return;
     }
-    let (s, g) = samples_of(x, y, p, w, tr, accum, guides);
+    let (s, g) = segment_samples(x, y, p, w, tr);
     add_pixel(y * f.width + x, s, &g, p, w, accum, guides);
 }
 
-/// Pixel `(x, y)`'s samples: [`stepped_pixels`] where the frame allows ([`stepped`]), else
-/// [`segment_samples`]. (`accum` and `guides` are not written: `stepped_pixels` does not
-/// fetch here.)
-fn samples_of<T: Trace>(
-    x: u32,
-    y: u32,
-    p: &RenderPush,
-    w: &World,
-    tr: &mut T,
-    accum: &mut [[f32; 4]],
-    guides: &mut [[u32; 4]],
-) -> ([f32; 4], Guide) {
-    if T::STEPPED && stepped(w) {
-        stepped_pixels(x, y, false, p, w, accum, guides)
-    } else {
-        segment_samples(x, y, p, w, tr)
+/// [`render_pixel`] through the stepped loop ([`stepped_pixels`]): the host's
+/// `Kernel::PathStepped`, 8x8 tiles of an invocation a pixel.
+pub fn stepped_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
+    let f = w.frame;
+    if x >= f.width || y >= f.height {
+        return;
     }
+    let (s, g) = stepped_pixels(x, y, false, p, w, accum, guides);
+    add_pixel(y * f.width + x, s, &g, p, w, accum, guides);
+}
+
+/// [`render_tiles`] through the stepped loop ([`stepped_pixels`]): the host's
+/// `Kernel::PathSteppedPersistent`.
+pub fn stepped_tiles(p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
+    stepped_pixels(0, 0, true, p, w, accum, guides);
+}
+
+/// [`pixel_samples_guided`] through the stepped loop, on the CPU (one lane a subgroup: the
+/// tests compare the two loops' bits).
+#[cfg(not(target_arch = "spirv"))]
+pub fn stepped_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32; 4], Guide) {
+    stepped_pixels(x, y, false, p, w, &mut [], &mut [])
 }
 
 /// Adds a pixel's samples `s` (and its guide `g`) to `accum` (and `guides`): see
@@ -1225,11 +1214,11 @@ pub fn pixel_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> [f32; 4] {
 /// sample's first hit (`crate::denoise`). Without the feature the guide is `Guide::NONE`.
 #[cfg(not(target_arch = "spirv"))]
 pub fn pixel_samples_guided<T: Trace>(x: u32, y: u32, p: &RenderPush, w: &World, tr: &mut T) -> ([f32; 4], Guide) {
-    samples_of(x, y, p, w, tr, &mut [], &mut [])
+    segment_samples(x, y, p, w, tr)
 }
 
 /// [`pixel_samples_guided`] a segment at a time: each segment's walk to its end, then its
-/// shading (the loop of frames [`stepped`] leaves out).
+/// shading (the loop of every frame but those [`stepped_pixels`] traces).
 fn segment_samples<T: Trace>(x: u32, y: u32, p: &RenderPush, w: &World, tr: &mut T) -> ([f32; 4], Guide) {
     let f = w.frame;
     let guides = w.scene.features & FEATURE_GUIDES != 0;

@@ -588,7 +588,9 @@ pub const VARIANT_NO_PAIRS: u32 = 1 << 19;
 
 /// The path loop steps each lane's walk itself (`path::stepped_pixels`) instead of tracing a
 /// segment at a time: set by the host for frames of more than one segment a path, flattened
-/// and through the binary BVH, without next-event estimation (`render::tracer_features`).
+/// and through the binary BVH, without next-event estimation (`render::tracer_features`),
+/// which the GPU renderer then traces with the stepped loop's kernels (off lavapipe unless
+/// asked: `GpuRenderer::set_stepped`; the kernels themselves do not read the bit).
 pub const VARIANT_STEPPED: u32 = 1 << 20;
 
 /// Exact products without a fused multiply-add (`math::two_product_split`): set by the host

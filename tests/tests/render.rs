@@ -460,7 +460,7 @@ fn samples_in_one_dispatch_equal_samples_one_at_a_time() {
 
 /// The stepped path loop (`path::stepped_pixels`, which the renderer runs off lavapipe only)
 /// renders the segment loop's bits on the GPU: frames of several segments without next-event
-/// estimation, through the BVH and by brute force.
+/// estimation, through the BVH and by brute force, through a kernel of its own.
 #[test]
 fn the_stepped_path_loop_renders_the_segment_loops_bits() {
     let Some((gpu, mut r)) = renderer("the_stepped_path_loop_renders_the_segment_loops_bits") else {
@@ -469,7 +469,7 @@ fn the_stepped_path_loop_renders_the_segment_loops_bits() {
     // One scene's kernels (their compiles are most of the time on lavapipe): the CPU
     // executor's unit test runs the loop on more scenes.
     let cases: [(&str, &[&str]); 2] = [("cornell", &["--no-nee"]), ("cornell", &["--no-nee", "--no-bvh"])];
-    for (scene, extra) in cases {
+    for (case, (scene, extra)) in cases.into_iter().enumerate() {
         let p = prepared(scene, 24, 4, extra);
         let mut images = Vec::new();
         for stepped in [false, true] {
@@ -483,6 +483,14 @@ fn the_stepped_path_loop_renders_the_segment_loops_bits() {
                 "{scene} {extra:?}: black image"
             );
             images.push(picture.accum.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>());
+            // The stepped loop's own kernel (the segment loop's kernels hold no other loop),
+            // made by the first case's stepped render and kept.
+            let made = r
+                .kernels()
+                .made_log()
+                .iter()
+                .any(|(k, _)| *k == raytrace::gpu::Kernel::PathStepped);
+            assert_eq!(made, stepped || case > 0, "{scene} {extra:?}: path_stepped made");
         }
         assert!(images[0] == images[1], "{scene} {extra:?}: the loops' images differ");
     }

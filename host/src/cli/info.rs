@@ -113,7 +113,14 @@ pub fn kernels_command(opts: &GpuOptions) -> Result<()> {
                 } else {
                     &[]
                 };
-                for &kernel in [Kernel::PathTrace, Kernel::PathTracePersistent].iter().chain(queue) {
+                // Flattened without NEE: the stepped loop's too (frames of more than one segment).
+                let stepped: &[Kernel] = if !nee && instancing == "off" {
+                    &[Kernel::PathStepped, Kernel::PathSteppedPersistent]
+                } else {
+                    &[]
+                };
+                let path = [Kernel::PathTrace, Kernel::PathTracePersistent];
+                for &kernel in path.iter().chain(stepped).chain(queue) {
                     let lines = k.specialised_statistics(kernel, p.frame.features)?;
                     println!("{} for {scene}{nee_name}{levels}: {}", kernel.entry(), lines.join(", "));
                 }

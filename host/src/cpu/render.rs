@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use shared::denoise::Guide;
 use shared::path::{self, World};
 use shared::traverse::Scene;
-use shared::types::{BuildParams, Frame, Object, RenderPush, Sphere, Triangle, FEATURE_GUIDES, VARIANT_STEPPED};
+use shared::types::{BuildParams, Frame, Object, RenderPush, Sphere, Triangle, FEATURE_GUIDES};
 use std::time::Instant;
 
 /// A CPU render: the picture, stage times in seconds, and the BVH it traced through.
@@ -203,9 +203,10 @@ pub fn render_cpu_samples(
     let lights = scene.light_words();
 
     let t = Instant::now();
-    // A segment at a time: the CPU executor runs a subgroup of one lane, so the stepped loop
-    // would keep no other lanes walking (the unit test below runs it).
-    let features = crate::render::tracer_features(frame, build) & !VARIANT_STEPPED;
+    // A segment at a time (`path::pixel_samples_guided`): the CPU executor runs a subgroup of
+    // one lane, so the stepped loop would keep no other lanes walking (the unit test below
+    // runs it).
+    let features = crate::render::tracer_features(frame, build);
     let traced = match &levels {
         Some(l) => Scene {
             coverage: scene.coverage(),
@@ -369,17 +370,14 @@ mod tests {
         }
     }
 
-    /// The path loop as the project's walk runs it without next-event estimation
-    /// (`path::stepped_pixels`: the walks stepped in a loop of their own, lanes waiting for
-    /// half their subgroup before they shade) traces each pixel's samples exactly as the loop of a
-    /// segment at a time does (a tracer other than the project's walk runs that one), both
-    /// for one pixel (the tiles kernel, and the CPU executor) and pixel after pixel from the
-    /// counter (the persistent kernel, which runs off lavapipe only): samples, rays and guides
-    /// bit for bit, also without the BVH and at depth 0.
+    /// The stepped path loop (`path::stepped_pixels`: the walks stepped in a loop of their
+    /// own, lanes waiting for half their subgroup before they shade) traces each pixel's
+    /// samples exactly as the loop of a segment at a time does, both for one pixel (the
+    /// `path_stepped` kernel) and pixel after pixel from the counter (`path_stepped_persistent`,
+    /// which runs off lavapipe only): samples, rays and guides bit for bit, also without the
+    /// BVH and at depth 0 (where the host leaves the loop out).
     #[test]
     fn the_stepped_path_loop_traces_what_a_segment_at_a_time_traces() {
-        struct Segments;
-        impl path::Trace for Segments {}
         let cases: [&[&str]; 4] = [
             &["cornell", "--spp", "3", "--no-nee"],
             &["spheres", "--spp", "2", "--no-nee", "--no-roulette"],
@@ -414,8 +412,7 @@ mod tests {
                     instances: &[],
                     n_instances: 0,
                     coverage: scene.coverage(),
-                    // The stepped loop also at depth 0 (where the host leaves it out).
-                    features: crate::render::tracer_features(&frame, build) | VARIANT_STEPPED,
+                    features: crate::render::tracer_features(&frame, build),
                 };
                 let lights = scene.light_words();
                 let world = world(scene, traced, &scene.objects, &lights, &frame);
@@ -428,13 +425,13 @@ mod tests {
                 // The persistent loop: accumulation, guides (the counter in the last entry).
                 let mut accum = vec![[0.0f32; 4]; (w * h) as usize];
                 let mut guides = vec![[0u32; 4]; (w * h * 4 + 1) as usize];
-                path::render_tiles(&push, &world, &mut path::Walk, &mut accum, &mut guides);
+                path::stepped_tiles(&push, &world, &mut accum, &mut guides);
                 assert_eq!(guides[(w * h * 4) as usize][0], w.div_ceil(8) * h.div_ceil(4) * 32 + 1);
                 let mut rays = 0.0;
                 for y in 0..h {
                     for x in 0..w {
-                        let (stepped, g1) = path::pixel_samples_guided(x, y, &push, &world, &mut path::Walk);
-                        let (segments, g2) = path::pixel_samples_guided(x, y, &push, &world, &mut Segments);
+                        let (stepped, g1) = path::stepped_samples(x, y, &push, &world);
+                        let (segments, g2) = path::pixel_samples_guided(x, y, &push, &world, &mut path::Walk);
                         let bits = |a: [f32; 4]| a.map(f32::to_bits);
                         let at = format!("{extra:?} depth {depth} pixel ({x}, {y})");
                         assert_eq!(bits(stepped), bits(segments), "{at}");

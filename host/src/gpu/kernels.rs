@@ -51,6 +51,8 @@ pub enum Kernel {
     InstanceBounds,
     PathTrace,
     PathTracePersistent,
+    PathStepped,
+    PathSteppedPersistent,
     PathQueue,
     PathQueuePersistent,
     ShadowResolve,
@@ -70,6 +72,8 @@ impl Kernel {
             self,
             Kernel::PathTrace
                 | Kernel::PathTracePersistent
+                | Kernel::PathStepped
+                | Kernel::PathSteppedPersistent
                 | Kernel::PathQueue
                 | Kernel::PathQueuePersistent
                 | Kernel::ShadowResolve
@@ -78,7 +82,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 41] = [
+    pub const ALL: [Kernel; 43] = [
         Kernel::BoundsReduce,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
@@ -110,6 +114,8 @@ impl Kernel {
         Kernel::InstanceBounds,
         Kernel::PathTrace,
         Kernel::PathTracePersistent,
+        Kernel::PathStepped,
+        Kernel::PathSteppedPersistent,
         Kernel::PathQueue,
         Kernel::PathQueuePersistent,
         Kernel::ShadowResolve,
@@ -161,6 +167,8 @@ impl Kernel {
             Kernel::InstanceBounds => "instance_bounds",
             Kernel::PathTrace => "path_trace",
             Kernel::PathTracePersistent => "path_trace_persistent",
+            Kernel::PathStepped => "path_stepped",
+            Kernel::PathSteppedPersistent => "path_stepped_persistent",
             Kernel::PathQueue => "path_queue",
             Kernel::PathQueuePersistent => "path_queue_persistent",
             Kernel::ShadowResolve => "shadow_resolve",

@@ -330,18 +330,21 @@ impl GpuRenderer {
     /// lavapipe: llvmpipe runs a workgroup's subgroups one after another, so its first ones
     /// take most of the pixels, and its loop limiter (65,535 iterations of a loop an
     /// invocation, counted across the loop's entries) then ends their paths early. Where
-    /// frames queue their shadow rays ([`Self::shadow_queue`]), the queue's kernels of both kinds.
+    /// frames queue their shadow rays ([`Self::shadow_queue`]), the queue's kernels of both
+    /// kinds; where they run the stepped loop ([`Self::stepped`]), its kernels of both kinds.
     fn path_kernel(&self, samples: u32) -> Kernel {
         let two_levels = self.tracer_constant() & FEATURE_INSTANCES != 0;
         let persistent = match self.persistent {
             Some(p) => p,
             None => (two_levels || samples == 1) && !self.gpu.is_lavapipe(),
         };
-        match (self.shadow_queue(), persistent) {
-            (false, true) => Kernel::PathTracePersistent,
-            (false, false) => Kernel::PathTrace,
-            (true, true) => Kernel::PathQueuePersistent,
-            (true, false) => Kernel::PathQueue,
+        match (self.shadow_queue(), self.stepped(), persistent) {
+            (true, _, true) => Kernel::PathQueuePersistent,
+            (true, _, false) => Kernel::PathQueue,
+            (false, true, true) => Kernel::PathSteppedPersistent,
+            (false, true, false) => Kernel::PathStepped,
+            (false, false, true) => Kernel::PathTracePersistent,
+            (false, false, false) => Kernel::PathTrace,
         }
     }
 
@@ -965,7 +968,10 @@ impl GpuRenderer {
             Some(_) => ash::vk::Pipeline::null(),
             None => self.kernels.specialised(path_kernel, self.path_trace_constant())?,
         };
-        let persistent = matches!(path_kernel, Kernel::PathTracePersistent | Kernel::PathQueuePersistent);
+        let persistent = matches!(
+            path_kernel,
+            Kernel::PathTracePersistent | Kernel::PathSteppedPersistent | Kernel::PathQueuePersistent
+        );
         // A persistent kernel's workgroups for `pixels`, its pixel counter (the guides' last
         // entry, `path::render_tiles`) zeroed first.
         let guides = &self.bufs.as_ref().context("no scene loaded")?.guides;
