@@ -173,7 +173,7 @@ pub struct GpuRenderer {
     driver: Option<DriverTracer>,
     driver_build: DriverBuild,
     /// Whether the path tracer runs persistent (see [`Self::path_kernel`]); `None`: as the
-    /// scene and device ask.
+    /// device asks.
     persistent: Option<bool>,
     /// Whether the path tracer may run the stepped loop where the frame allows it (see
     /// [`Self::tracer_constant`]); `None`: off lavapipe.
@@ -317,27 +317,24 @@ impl GpuRenderer {
         Ok(())
     }
 
-    /// The path tracer's kernel for a frame of `samples` samples per pixel: persistent
-    /// ([`Kernel::PathTracePersistent`]) for scenes in two levels and for frames of one sample
-    /// per pixel, else 8x8 tiles. Persistent: workgroups of 1,024 invocations, which NVIDIA's
-    /// compiler must fit in an SM's 65,536 registers, 64 each (its 8x8 tiles take 96 for the
-    /// two-level walk, 128 with next-event estimation), every invocation taking its next pixel
-    /// from a counter, so no workgroup holds an SM while a few of its invocations finish.
-    /// H100 (bench/NOTES.md, session 29): two-level real-time frames 8-12% faster (37-51% with
-    /// NEE), their frames of 32 samples 43-54%; flattened scenes' frames of one sample 2-8%
-    /// faster from 800x800 to 4K, but their frames of several samples up to 44% slower (the
-    /// bunny at 800x800, 32 spp; 10% at 1080p and 8 spp), so those keep the tiles. Not on
-    /// lavapipe: llvmpipe runs a workgroup's subgroups one after another, so its first ones
-    /// take most of the pixels, and its loop limiter (65,535 iterations of a loop an
-    /// invocation, counted across the loop's entries) then ends their paths early. Where
-    /// frames queue their shadow rays ([`Self::shadow_queue`]), the queue's kernels of both
-    /// kinds; where they run the stepped loop ([`Self::stepped`]), its kernels of both kinds.
-    fn path_kernel(&self, samples: u32) -> Kernel {
-        let two_levels = self.tracer_constant() & FEATURE_INSTANCES != 0;
-        let persistent = match self.persistent {
-            Some(p) => p,
-            None => (two_levels || samples == 1) && !self.gpu.is_lavapipe(),
-        };
+    /// The path tracer's kernel: persistent ([`Kernel::PathTracePersistent`]) off lavapipe,
+    /// else 8x8 tiles. Persistent: workgroups of 1,024 invocations, which NVIDIA's compiler
+    /// must fit in an SM's 65,536 registers, 64 each (its 8x8 tiles take 96 for the two-level
+    /// walk, 128 with next-event estimation), every invocation taking its next pixel from a
+    /// counter, so no workgroup holds an SM while a few of its invocations finish. H100
+    /// (bench/NOTES.md, session 29): two-level real-time frames 8-12% faster (37-51% with
+    /// NEE), their frames of 32 samples 43-54%, flattened frames of one sample 2-8%; flattened
+    /// frames of several samples then lost up to 44%, but since the stepped loop they gain too
+    /// (H200, session 52: the bunny's diffuse frames 7-13% faster, 4K 11%, primary rays and
+    /// next-event estimation 0-3%; one frame lost 2%, the closed box at 800x800 and 32
+    /// samples). Not on lavapipe: llvmpipe runs a workgroup's subgroups one after another, so
+    /// its first ones take most of the pixels, and its loop limiter (65,535 iterations of a
+    /// loop an invocation, counted across the loop's entries) then ends their paths early.
+    /// Where frames queue their shadow rays ([`Self::shadow_queue`]), the queue's kernels of
+    /// both kinds; where they run the stepped loop ([`Self::stepped`]), its kernels of both
+    /// kinds.
+    fn path_kernel(&self) -> Kernel {
+        let persistent = self.persistent.unwrap_or(!self.gpu.is_lavapipe());
         match (self.shadow_queue(), self.stepped(), persistent) {
             (true, _, true) => Kernel::PathQueuePersistent,
             (true, _, false) => Kernel::PathQueue,
@@ -890,7 +887,7 @@ impl GpuRenderer {
         };
         // The path tracer's pipeline (the driver's tens of milliseconds the first time) is
         // made while the build is recorded.
-        let path_kernel = self.path_kernel(samples);
+        let path_kernel = self.path_kernel();
         self.reserve_queue()?;
         if self.driver.is_none() {
             self.kernels.make_soon(path_kernel, self.path_trace_constant());
