@@ -663,8 +663,8 @@ scene_kernel! {
 }
 
 scene_kernel! {
-    /// `path_trace` persistent (`path::render_tiles`): for scenes in two levels, whose walk
-    /// NVIDIA's compiler then fits in 64 registers, and frames of one sample.
+    /// `path_trace` persistent (`path::render_tiles`): what every frame runs off lavapipe
+    /// (`GpuRenderer::path_kernel`).
     #[spirv(compute(threads(1024)))]
     path_trace_persistent() |p, w, accum, guides| {
         path::render_tiles(p, &w, &mut path::Walk, accum, guides);

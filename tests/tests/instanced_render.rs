@@ -396,8 +396,8 @@ fn adding_and_removing_objects_keeps_the_meshes_bvhs() {
     assert_no_validation_errors(&gpu);
 }
 
-/// The persistent path tracer (`path::render_tiles`, what scenes in two levels and frames of
-/// one sample run on GPUs other than lavapipe) renders every pixel as the 8x8 tiles do, bit
+/// The persistent path tracer (`path::render_tiles`, what every frame runs on GPUs other than
+/// lavapipe) renders every pixel as the 8x8 tiles do, bit
 /// for bit: the Cornell box in two levels (an instanced light, next-event estimation), the pond
 /// (its world-space group) and Suzanne flattened, with and without the denoiser's guides
 /// (whose buffer's last entry holds the counter), at 64x64 (an invocation takes at most one
