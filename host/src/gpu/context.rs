@@ -126,6 +126,10 @@ pub struct Gpu {
     pub offset_alignment: u64,
     /// Pipelines capture driver statistics (see `Kernels::statistics`).
     pub kernel_stats: bool,
+    /// The device was opened with VK_EXT_pipeline_robustness, so that pipelines can ask for
+    /// storage and uniform buffer accesses without bounds checks (see
+    /// `Kernels::create_pipeline`).
+    pub pipeline_robustness: bool,
     /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
     pub swapchain: bool,
     /// The device was opened with acceleration structures, ray-tracing pipelines and buffer
@@ -246,7 +250,7 @@ impl Gpu {
     /// an instance: made once, and the driver loaded once).
     pub fn on(shared: &Arc<Instance>, opts: &GpuOptions) -> Result<Arc<Gpu>> {
         let instance = shared.instance.clone();
-        let (chosen, device, kernel_stats, ray_tracing) = Self::open_device(&instance, opts)?;
+        let (chosen, device, kernel_stats, pipeline_robustness, ray_tracing) = Self::open_device(&instance, opts)?;
         let DeviceInfo {
             physical,
             queue_family,
@@ -294,6 +298,7 @@ impl Gpu {
             max_binding,
             offset_alignment,
             kernel_stats,
+            pipeline_robustness,
             swapchain: !opts.window_extensions.is_empty(),
             ray_tracing,
             allocator: Mutex::new(Some(allocator)),
@@ -385,7 +390,7 @@ impl Gpu {
     fn open_device(
         instance: &ash::Instance,
         opts: &GpuOptions,
-    ) -> Result<(DeviceInfo, ash::Device, bool, std::result::Result<(), String>)> {
+    ) -> Result<(DeviceInfo, ash::Device, bool, bool, std::result::Result<(), String>)> {
         // SAFETY: plain enumeration call on a live instance.
         let all = unsafe { instance.enumerate_physical_devices() }.context("enumerating Vulkan devices")?;
         if all.is_empty() {
@@ -416,10 +421,12 @@ impl Gpu {
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
         let mut f_as = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
         let mut f_rt = vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default();
+        let mut f_robust = vk::PhysicalDevicePipelineRobustnessFeaturesEXT::default();
         let mut f2 = vk::PhysicalDeviceFeatures2::default()
             .push_next(&mut f12)
             .push_next(&mut f_as)
-            .push_next(&mut f_rt);
+            .push_next(&mut f_rt)
+            .push_next(&mut f_robust);
         // SAFETY: `pd` comes from this instance.
         unsafe { instance.get_physical_device_features2(pd, &mut f2) };
         let base = f2.features;
@@ -444,6 +451,15 @@ impl Gpu {
                 .iter()
                 .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == stats_ext));
         let mut ext_ptrs = if stats { vec![stats_ext.as_ptr()] } else { vec![] };
+        let robust_ext = ash::ext::pipeline_robustness::NAME;
+        let robustness = f_robust.pipeline_robustness != 0
+            && exts
+                .iter()
+                .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == robust_ext));
+        if robustness {
+            ext_ptrs.push(robust_ext.as_ptr());
+        }
+        let mut want_robust = vk::PhysicalDevicePipelineRobustnessFeaturesEXT::default().pipeline_robustness(true);
         if !opts.window_extensions.is_empty() {
             let sc = ash::khr::swapchain::NAME;
             if !exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == sc)) {
@@ -486,13 +502,16 @@ impl Gpu {
         if stats {
             info = info.push_next(&mut want_stats);
         }
+        if robustness {
+            info = info.push_next(&mut want_robust);
+        }
         if ray_tracing.is_ok() {
             info = info.push_next(&mut want_as).push_next(&mut want_rt);
         }
         // SAFETY: the create info points at live data; the features were checked above.
         let device = unsafe { instance.create_device(pd, &info, None) }
             .with_context(|| format!("creating the Vulkan device on {name}"))?;
-        Ok((chosen.clone(), device, stats, ray_tracing))
+        Ok((chosen.clone(), device, stats, robustness, ray_tracing))
     }
 
     /// The instance the device was opened from, for opening others beside it
@@ -504,6 +523,22 @@ impl Gpu {
     /// Validation errors reported so far (empty when validation is off).
     pub fn validation_errors(&self) -> Vec<String> {
         self.shared.log.errors.lock().map(|e| e.clone()).unwrap_or_default()
+    }
+
+    /// What a pipeline chains to its create info so that its storage and uniform buffer
+    /// accesses go unchecked (VK_EXT_pipeline_robustness), where the device was opened with
+    /// it. NVIDIA's driver bounds-checks every buffer access by default even where
+    /// robustBufferAccess is off: an address, a compare and a predicated load per 4-byte word
+    /// (the pair walk's 64-byte read: sixteen of each). Without the checks the H200 traced
+    /// every frame 6-12% faster (bench/NOTES.md, session 53). The kernels index within their
+    /// buffers by construction (`shared::sync::at`; the CPU executor runs the same code with
+    /// its indices checked).
+    pub fn unchecked_buffers(&self) -> Option<vk::PipelineRobustnessCreateInfoEXT<'static>> {
+        self.pipeline_robustness.then(|| {
+            vk::PipelineRobustnessCreateInfoEXT::default()
+                .storage_buffers(vk::PipelineRobustnessBufferBehaviorEXT::DISABLED)
+                .uniform_buffers(vk::PipelineRobustnessBufferBehaviorEXT::DISABLED)
+        })
     }
 
     /// Whether the device runs the kernels on the CPU (lavapipe, SwiftShader): the CPU

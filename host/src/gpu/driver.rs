@@ -261,7 +261,12 @@ impl DriverTracer {
             .stage(vk::ShaderStageFlags::COMPUTE)
             .module(t.module)
             .name(&name);
-        let info = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(t.layout)];
+        let mut unchecked = gpu.unchecked_buffers();
+        let mut one = vk::ComputePipelineCreateInfo::default().stage(stage).layout(t.layout);
+        if let Some(u) = unchecked.as_mut() {
+            one = one.push_next(u);
+        }
+        let info = [one];
         t.boxes_pipeline = unsafe { d.create_compute_pipelines(vk::PipelineCache::null(), &info, None) }
             .map_err(|(_, e)| e)
             .context("creating the sphere-box pipeline")?[0];
@@ -330,11 +335,16 @@ impl DriverTracer {
                 .any_hit_shader(vk::SHADER_UNUSED_KHR)
                 .intersection_shader(4),
         ];
-        let info = [vk::RayTracingPipelineCreateInfoKHR::default()
+        let mut unchecked = self.gpu.unchecked_buffers();
+        let mut one = vk::RayTracingPipelineCreateInfoKHR::default()
             .stages(&stages)
             .groups(&groups)
             .max_pipeline_ray_recursion_depth(1)
-            .layout(self.layout)];
+            .layout(self.layout);
+        if let Some(u) = unchecked.as_mut() {
+            one = one.push_next(u);
+        }
+        let info = [one];
         // SAFETY: valid create info on a device with ray-tracing pipelines.
         let raw = unsafe {
             self.rt.create_ray_tracing_pipelines(

@@ -315,10 +315,15 @@ impl Kernels {
         } else {
             vk::PipelineCreateFlags::empty()
         };
-        let info = [vk::ComputePipelineCreateInfo::default()
+        let mut unchecked = self.gpu.unchecked_buffers();
+        let mut one = vk::ComputePipelineCreateInfo::default()
             .stage(stage)
             .layout(self.layout)
-            .flags(flags)];
+            .flags(flags);
+        if let Some(u) = unchecked.as_mut() {
+            one = one.push_next(u);
+        }
+        let info = [one];
         // SAFETY: valid create info on a live device; the caller owns the pipeline.
         let p = unsafe {
             self.gpu
