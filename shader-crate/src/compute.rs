@@ -14,8 +14,8 @@ use shared::refit::{FitState, RefitState};
 use shared::scan;
 use shared::texture::TextureInfo;
 use shared::types::{
-    flat_group, flat_index, BuildParams, Frame, Hit, Material, Node, Object, OrderedBounds, PunctualLight, Ray,
-    RenderPush, Sphere, Triangle, VertexAttrs, FEATURES_ALL, SORT_ITEMS,
+    flat_group, flat_index, BuildParams, Frame, Hit, Material, Object, OrderedBounds, PunctualLight, Ray, RenderPush,
+    Sphere, Triangle, VertexAttrs, FEATURES_ALL, SORT_ITEMS,
 };
 use shared::wide::{self, WideNode};
 
@@ -25,7 +25,7 @@ use shared::sync::{at, at_mut};
 use shared::{display, karras, morton, refit, transform as xform};
 use spirv_std::arch::all_memory_barrier_with_group_sync as all_barrier;
 use spirv_std::arch::workgroup_memory_barrier_with_group_sync as barrier;
-use spirv_std::glam::UVec3;
+use spirv_std::glam::{UVec3, UVec4};
 use spirv_std::spirv;
 
 #[spirv(compute(threads(256)))]
@@ -610,10 +610,10 @@ macro_rules! scene_kernel {
         pub fn $name(
             $($(#[$pattr])* $param: $ty,)*
             #[spirv(push_constant)] $p: &RenderPush,
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[UVec4],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[UVec4],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
             #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
             #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],

@@ -8,11 +8,10 @@ use shared::instance::Instance;
 use shared::path;
 use shared::texture::TextureInfo;
 use shared::types::{
-    flat_index, Frame, Hit, Material, Node, Object, PunctualLight, Ray, RenderPush, Sphere, Triangle, VertexAttrs,
-    INVALID,
+    flat_index, Frame, Hit, Material, Object, PunctualLight, Ray, RenderPush, Sphere, VertexAttrs, INVALID,
 };
 use shared::wide::WideNode;
-use spirv_std::glam::{UVec3, Vec2, Vec3};
+use spirv_std::glam::{UVec3, UVec4, Vec2, Vec3};
 use spirv_std::ray_tracing::AccelerationStructure;
 use spirv_std::spirv;
 
@@ -23,10 +22,10 @@ use spirv_std::spirv;
 pub fn path_trace_driver(
     #[spirv(launch_id)] id: UVec3,
     #[spirv(push_constant)] p: &RenderPush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[UVec4],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[UVec4],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
@@ -75,10 +74,10 @@ pub fn path_trace_driver(
 pub fn cast_rays_driver(
     #[spirv(launch_id)] id: UVec3,
     #[spirv(push_constant)] p: &RenderPush,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[Triangle],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] tris: &[UVec4],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[Node],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[UVec4],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],

@@ -1,6 +1,7 @@
 //! The seam between kernels and GPU-only intrinsics. On SPIR-V these are real atomics; on the
 //! CPU executor, which runs one invocation at a time, plain reads and writes have the same
 //! meaning. Also unchecked indexing ([`at`], [`at_mut`], [`elem`], [`elem_mut`]), checked on the CPU.
+use spirv_std::glam::UVec4;
 #[cfg(target_arch = "spirv")]
 use spirv_std::memory::{Scope, Semantics};
 
@@ -315,6 +316,33 @@ pub fn at<T>(v: &[T], i: u32) -> &T {
     #[cfg(not(target_arch = "spirv"))]
     {
         &v[i as usize]
+    }
+}
+
+/// Element `i` of a buffer of 16-byte words, read whole: one `OpLoad` of the vector, which
+/// NVIDIA's compiler makes one 16-byte load. (`*at(v, i)` whose components are used one by
+/// one becomes a load per component in rustc's MIR, and the driver keeps them apart: four
+/// loads, each with its own address register.)
+#[inline(always)]
+pub fn word_at(v: &[UVec4], i: u32) -> UVec4 {
+    #[cfg(target_arch = "spirv")]
+    {
+        let p = at(v, i);
+        let mut w = UVec4::ZERO;
+        // SAFETY: the instruction reads the vector `p` points at and writes it to `w`.
+        unsafe {
+            core::arch::asm! {
+                "%w = OpLoad _ {p}",
+                "OpStore {w} %w",
+                p = in(reg) p,
+                w = in(reg) &mut w,
+            }
+        }
+        w
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        *at(v, i)
     }
 }
 

@@ -9,7 +9,7 @@ use crate::alpha::{self, Coverage};
 use crate::instance::{Instance, MeshRef, Placed};
 use crate::intersect::{self, TriRay};
 use crate::math::finite3;
-use crate::sync::{at, at_mut, elem, elem_mut};
+use crate::sync::{at, at_mut, elem, elem_mut, word_at};
 use crate::transform;
 use crate::types::{
     xyz, Hit, Node, Object, Sphere, Triangle, FEATURE_ALPHA, FEATURE_INSTANCES, FEATURE_SPHERES, FEATURE_TRIANGLES,
@@ -29,11 +29,14 @@ pub const STACK: usize = 96;
 
 /// The primitives of a scene and its BVH (`nodes` empty for brute force). A flattened
 /// scene's binary walk reads `nodes` as [`traced_nodes`] of them: the tree, then its pairs.
+/// Triangles and nodes are read as 16-byte words ([`triangle_of`], [`node_of`]: three words
+/// a triangle, two a node), which NVIDIA's compiler loads as vectors, where it splits a
+/// `Triangle` or `Node` read into a load per scalar.
 #[derive(Copy, Clone)]
 pub struct Scene<'a> {
-    pub tris: &'a [Triangle],
+    pub tris: &'a [UVec4],
     pub spheres: &'a [Sphere],
-    pub nodes: &'a [Node],
+    pub nodes: &'a [UVec4],
     /// The wide BVH (traversed instead of `nodes` with [`VARIANT_WIDE_BVH`]; may be empty
     /// otherwise) and the sorted primitive order its leaves index.
     pub wide: &'a [WideNode],
@@ -56,6 +59,37 @@ pub struct Scene<'a> {
     /// constant on the GPU, so their code is gone). Must include every kind present. And
     /// `VARIANT_*` bits: the less robust tests to use instead.
     pub features: u32,
+}
+
+/// Node `i` of a node buffer read as 16-byte words (see [`Scene`]).
+#[inline(always)]
+pub fn node_of(words: &[UVec4], i: u32) -> Node {
+    let (lo, hi) = (word_at(words, 2 * i), word_at(words, 2 * i + 1));
+    Node {
+        min: [f32::from_bits(lo.x), f32::from_bits(lo.y), f32::from_bits(lo.z)],
+        a: lo.w,
+        max: [f32::from_bits(hi.x), f32::from_bits(hi.y), f32::from_bits(hi.z)],
+        b: hi.w,
+    }
+}
+
+/// Triangle `i` of a triangle buffer read as 16-byte words (see [`Scene`]).
+#[inline(always)]
+pub fn triangle_of(words: &[UVec4], i: u32) -> Triangle {
+    let v = |k: u32| {
+        let w = word_at(words, 3 * i + k);
+        [
+            f32::from_bits(w.x),
+            f32::from_bits(w.y),
+            f32::from_bits(w.z),
+            f32::from_bits(w.w),
+        ]
+    };
+    Triangle {
+        v0: v(0),
+        v1: v(1),
+        v2: v(2),
+    }
 }
 
 impl Scene<'_> {
@@ -85,7 +119,7 @@ fn primitive_of(s: &Scene, r: &TriRay, prim: u32, object: u32, t_max: f32) -> (f
         if s.features & FEATURE_TRIANGLES == 0 {
             return (f32::INFINITY, 0.0, 0.0);
         }
-        let tri = at(s.tris, prim);
+        let tri = &triangle_of(s.tris, prim);
         let hit = if s.features & VARIANT_MOLLER_TRUMBORE != 0 {
             intersect::triangle_moller_trumbore(r, tri, t_max)
         } else {
@@ -356,7 +390,7 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
     }
     let r = TriRay::new(origin, dir);
     let mut limit = t_max;
-    let root = s.nodes[0];
+    let root = node_of(s.nodes, 0);
     if slab(s, &r, &root, limit) == f32::INFINITY {
         return best;
     }
@@ -408,7 +442,7 @@ impl Flat {
         }
         self.r = TriRay::new(origin, dir);
         self.limit = t_max;
-        let root = *at(s.nodes, 0);
+        let root = node_of(s.nodes, 0);
         if slab(s, &self.r, &root, t_max) == f32::INFINITY {
             return false;
         }
@@ -456,14 +490,17 @@ fn pair_step<const ANY: bool>(
 ) -> bool {
     let first_leaf = s.n_prims - 1;
     let (ea, eb) = if s.features & VARIANT_NO_PAIRS != 0 {
-        let inner = *at(s.nodes, *node);
+        let inner = node_of(s.nodes, *node);
         (
             child_entry(s.nodes, inner.a, first_leaf),
             child_entry(s.nodes, inner.b, first_leaf),
         )
     } else {
         let pairs = pairs_at(s.n_prims);
-        (*at(s.nodes, pairs + 2 * *node), *at(s.nodes, pairs + 2 * *node + 1))
+        (
+            node_of(s.nodes, pairs + 2 * *node),
+            node_of(s.nodes, pairs + 2 * *node + 1),
+        )
     };
     // Both boxes against the limit as the step found it; then the leaves hit, `a`'s
     // first, through one call site, so that lanes with a leaf on either side test it
@@ -509,8 +546,8 @@ fn pair_step<const ANY: bool>(
 
 /// Child `c`'s entry as its parent's pair holds it ([`write_pairs`]), read from the tree
 /// itself (with [`VARIANT_NO_PAIRS`]).
-fn child_entry(nodes: &[Node], c: u32, first_leaf: u32) -> Node {
-    let child = *at(nodes, c);
+fn child_entry(nodes: &[UVec4], c: u32, first_leaf: u32) -> Node {
+    let child = node_of(nodes, c);
     Node {
         a: c,
         b: if c >= first_leaf { child.a } else { INVALID },
@@ -626,7 +663,7 @@ impl Levels {
         self.base = 0;
         // Top-level node 0, the root (for one instance, its leaf).
         self.node = 0;
-        slab(s, &self.r, at(s.nodes, s.top), t_max) != f32::INFINITY
+        slab(s, &self.r, &node_of(s.nodes, s.top), t_max) != f32::INFINITY
     }
 
     /// Visits the next node; false once the walk has ended (an any-hit walk, `ANY`, at its
@@ -636,7 +673,7 @@ impl Levels {
         let mut next = INVALID;
         if self.current == INVALID && self.node >= top_leaves {
             // Enter the instance.
-            self.current = at(s.nodes, s.top + self.node).a;
+            self.current = node_of(s.nodes, s.top + self.node).a;
             let instance = at(s.instances, self.current);
             self.mesh = instance.mesh();
             self.base = self.sp;
@@ -660,7 +697,7 @@ impl Levels {
             } else {
                 (self.mesh.prims() - 1, self.mesh.nodes)
             };
-            let inner = *at(s.nodes, offset + self.node);
+            let inner = node_of(s.nodes, offset + self.node);
             let at_level = Level {
                 top,
                 offset,
@@ -749,7 +786,7 @@ impl Level<'_> {
         best: &mut Hit,
         best_instance: &mut u32,
     ) -> (u32, f32) {
-        let c = *at(s.nodes, self.offset + child);
+        let c = node_of(s.nodes, self.offset + child);
         let t_box = slab(s, r, &c, *limit);
         if t_box == f32::INFINITY {
             return (INVALID, f32::INFINITY);
@@ -787,7 +824,7 @@ fn box_entry(s: &Scene, r: &TriRay, lo: Vec3, hi: Vec3, limit: f32) -> f32 {
 /// [`intersect::offset_origin`].
 pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, Vec3, f32) {
     if s.is_triangle(prim) {
-        triangle_surface(at(s.tris, prim), h)
+        triangle_surface(&triangle_of(s.tris, prim), h)
     } else {
         sphere_surface(at(s.spheres, prim - s.n_tris), origin, dir, h)
     }
@@ -797,7 +834,7 @@ pub fn surface(s: &Scene, prim: u32, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3,
 /// space by the object's transform (the transform stage's arithmetic: the same bits a
 /// flattened scene holds).
 pub fn triangle_at(s: &Scene, objects: &[Object], p: Placed) -> Triangle {
-    let t = at(s.tris, p.prim);
+    let t = &triangle_of(s.tris, p.prim);
     // The feature test first: without instances (a specialisation constant) the kernel has
     // no code for model-space primitives.
     if s.features & FEATURE_INSTANCES != 0 && p.model {
@@ -847,4 +884,47 @@ fn sphere_surface(sphere: &Sphere, origin: Vec3, dir: Vec3, h: &Hit) -> (Vec3, V
     let n = (origin + h.t * dir - c).normalize();
     // Re-projected onto the surface: the hit point's error no longer grows with t.
     (c + n * sp[3].abs(), n, intersect::sphere_scale(sphere))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nodes_and_triangles_read_as_words_are_the_structs_bit_for_bit() {
+        let nodes = [
+            Node {
+                min: [-1.5, 0.0, f32::MIN_POSITIVE],
+                a: 7,
+                max: [2.0, -0.0, f32::INFINITY],
+                b: INVALID,
+            },
+            Node {
+                min: [f32::NAN, 1e-30, -3.25],
+                a: 0,
+                max: [1e30, 4.0, 5.5],
+                b: 12,
+            },
+        ];
+        let words: &[UVec4] = bytemuck::cast_slice(&nodes);
+        for (i, n) in nodes.iter().enumerate() {
+            assert_eq!(bytemuck::bytes_of(&node_of(words, i as u32)), bytemuck::bytes_of(n));
+        }
+        let tris = [
+            Triangle {
+                v0: [0.0, 1.0, 2.0, 0.0],
+                v1: [-0.0, f32::NAN, 3.0, 1.0],
+                v2: [1e-40, -1e38, 0.5, 2.0],
+            },
+            Triangle {
+                v0: [9.0, 8.0, 7.0, 6.0],
+                v1: [5.0, 4.0, 3.0, 2.0],
+                v2: [1.0, 0.0, -1.0, -2.0],
+            },
+        ];
+        let words: &[UVec4] = bytemuck::cast_slice(&tris);
+        for (i, t) in tris.iter().enumerate() {
+            assert_eq!(bytemuck::bytes_of(&triangle_of(words, i as u32)), bytemuck::bytes_of(t));
+        }
+    }
 }

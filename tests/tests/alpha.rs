@@ -112,10 +112,11 @@ fn grid(lo: (f32, f32), hi: (f32, f32), n: usize) -> Vec<Ray> {
 fn cpu_queries(data: &SceneGpu, frame: &Frame, rays: &[Ray]) -> (Vec<bool>, Vec<bool>) {
     let (tris, spheres) = raytrace::cpu::world_primitives(data);
     let (bvh, _) = raytrace::cpu::build(&tris, &spheres, BuildOptions::lbvh(MortonBits::B30));
+    let nodes = bvh.traced_nodes();
     let s = traverse::Scene {
-        tris: &tris,
+        tris: bytemuck::cast_slice(&tris),
         spheres: &spheres,
-        nodes: &bvh.traced_nodes(),
+        nodes: bytemuck::cast_slice(&nodes),
         wide: &bvh.wide,
         order: &bvh.sorted_prims,
         n_tris: frame.n_tris,

@@ -77,7 +77,7 @@ fn flatten(meshes: &[MeshPrims], placements: &[Placement], scales: &[f32]) -> (V
 
 fn flat_scene<'a>(tris: &'a [Triangle], spheres: &'a [Sphere]) -> Scene<'a> {
     Scene {
-        tris,
+        tris: bytemuck::cast_slice(tris),
         spheres,
         nodes: &[],
         wide: &[],

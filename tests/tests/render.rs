@@ -130,11 +130,12 @@ fn an_image_past_the_devices_binding_limit_is_refused_by_name() {
 
 /// Closest hits of `rays` on the CPU, through the BVH or by brute force as `frame` says.
 fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<Hit> {
+    let nodes = cpu.bvh.traced_nodes();
     let w = World {
         scene: Prims {
-            tris: &cpu.tris,
+            tris: bytemuck::cast_slice(&cpu.tris),
             spheres: &cpu.spheres,
-            nodes: &cpu.bvh.traced_nodes(),
+            nodes: bytemuck::cast_slice(&nodes),
             wide: &cpu.bvh.wide,
             order: &cpu.bvh.sorted_prims,
             n_tris: p.frame.n_tris,

@@ -1608,8 +1608,9 @@ fn lbvh_edge_cases_trace_like_brute_force() {
             wrong.push(format!("{name}: CPU BVH with treelets invalid: {e}"));
             continue;
         }
+        let treelet_nodes = restructured.traced_nodes();
         let treelet_scene = traverse::Scene {
-            nodes: &restructured.traced_nodes(),
+            nodes: bytemuck::cast_slice(&treelet_nodes),
             features: scene.features & !shared::types::VARIANT_WIDE_BVH,
             ..scene
         };
@@ -1631,7 +1632,7 @@ fn lbvh_edge_cases_trace_like_brute_force() {
         // the same nodes in the same order: the same hits, any-hit answers included.
         if world.spheres.len() + world.tris.len() > 1 && scene.features & shared::types::VARIANT_WIDE_BVH == 0 {
             let tree_only = traverse::Scene {
-                nodes: &bvh.nodes,
+                nodes: bytemuck::cast_slice(&bvh.nodes),
                 features: scene.features | shared::types::VARIANT_NO_PAIRS,
                 ..scene
             };

@@ -67,9 +67,9 @@ impl Levels {
     /// The scene the traversal walks, with `features` (plus [`FEATURE_INSTANCES`]).
     pub fn scene(&self, features: u32) -> Scene<'_> {
         Scene {
-            tris: &self.tris,
+            tris: bytemuck::cast_slice(&self.tris),
             spheres: &self.spheres,
-            nodes: &self.nodes,
+            nodes: bytemuck::cast_slice(&self.nodes),
             wide: &[],
             order: &[],
             n_tris: self.tris.len() as u32,

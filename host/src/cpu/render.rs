@@ -213,9 +213,9 @@ pub fn render_cpu_samples(
             ..l.scene(features)
         },
         None => Scene {
-            tris: &tris,
+            tris: bytemuck::cast_slice(&tris),
             spheres: &spheres,
-            nodes: &nodes,
+            nodes: bytemuck::cast_slice(&nodes),
             wide: &bvh.wide,
             order: &bvh.sorted_prims,
             n_tris: frame.n_tris,
@@ -401,9 +401,9 @@ mod tests {
                 let (bvh, _) = crate::cpu::build(&tris, &spheres, build);
                 let nodes = bvh.traced_nodes();
                 let traced = Scene {
-                    tris: &tris,
+                    tris: bytemuck::cast_slice(&tris),
                     spheres: &spheres,
-                    nodes: &nodes,
+                    nodes: bytemuck::cast_slice(&nodes),
                     wide: &bvh.wide,
                     order: &bvh.sorted_prims,
                     n_tris: frame.n_tris,

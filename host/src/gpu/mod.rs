@@ -76,6 +76,33 @@ mod tests {
         }
     }
 
+    /// The tracers read the BVH's nodes and the triangles as whole 16-byte words
+    /// (`shared::sync::word_at`: an `OpLoad` of a `uvec4`, which NVIDIA's compiler makes one
+    /// 16-byte load), not a load per component (the tracers' frames 15-25% slower on the
+    /// H200, bench/NOTES.md session 53).
+    #[test]
+    fn the_tracers_read_nodes_and_triangles_as_whole_words() {
+        for k in super::Kernel::ALL.into_iter().filter(|k| k.is_tracer()) {
+            let symbol = k.symbol();
+            let inst = instructions(super::shader_module(&symbol).expect("module"));
+            // OpTypeInt (21): id, width, signedness; OpTypeVector (23): id, component, count.
+            let uint: Vec<u32> = inst
+                .iter()
+                .filter(|(op, w)| *op == 21 && w[1] == 32 && w[2] == 0)
+                .map(|(_, w)| w[0])
+                .collect();
+            let uvec4: Vec<u32> = inst
+                .iter()
+                .filter(|(op, w)| *op == 23 && uint.contains(&w[1]) && w[2] == 4)
+                .map(|(_, w)| w[0])
+                .collect();
+            // OpLoad (61): result type, result, pointer.
+            let loads = inst.iter().filter(|(op, w)| *op == 61 && uvec4.contains(&w[0])).count();
+            // A node pair is four words, a triangle three.
+            assert!(loads >= 7, "{symbol} loads {loads} whole uvec4 words");
+        }
+    }
+
     #[test]
     fn every_kernel_is_an_entry_point_of_the_module() {
         for k in super::Kernel::ALL {

@@ -62,9 +62,9 @@ impl World {
     /// The scene traversed through the BVH (the wide one where the suite runs through it).
     pub fn scene(&self) -> Scene<'_> {
         Scene {
-            tris: &self.tris,
+            tris: bytemuck::cast_slice(&self.tris),
             spheres: &self.spheres,
-            nodes: &self.nodes,
+            nodes: bytemuck::cast_slice(&self.nodes),
             wide: &self.wide,
             order: &self.order,
             n_tris: self.tris.len() as u32,
