@@ -11,7 +11,7 @@
 //!   ch. 6, and by at least a few ulps of the primitive's own scale, so they never re-hit the
 //!   surface they start on.
 use crate::math::{
-    difference_of_products, difference_of_products_exact, exact_product, fma, max3, nmax, nmin, sqrt, two_sum,
+    difference_of_products, difference_of_products_exact, exact_product, fma, max3, nmax, nmin, select, sqrt, two_sum,
     SLAB_WIDEN,
 };
 use crate::types::{xyz, Sphere, Triangle};
@@ -29,13 +29,15 @@ pub struct TriRay {
     shear: Vec3,
 }
 
-/// `v` permuted so that component `kz` comes last: `(x, y, z)` cyclically rotated.
+/// `v` permuted so that component `kz` comes last: `(x, y, z)` cyclically rotated. By
+/// selects ([`select`]): a `match` compiled to branches per vertex.
 fn permute(v: Vec3, kz: u32) -> Vec3 {
-    match kz {
-        0 => Vec3::new(v.y, v.z, v.x),
-        1 => Vec3::new(v.z, v.x, v.y),
-        _ => v,
-    }
+    let (a, b) = (kz == 0, kz == 1);
+    Vec3::new(
+        select(a, v.y, select(b, v.z, v.x)),
+        select(a, v.z, select(b, v.x, v.y)),
+        select(a, v.x, select(b, v.y, v.z)),
+    )
 }
 
 impl TriRay {
@@ -312,5 +314,21 @@ fn offset_axis(p: f32, n: f32, step: f32) -> f32 {
         moved.max(scaled)
     } else {
         moved.min(scaled)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn permute_puts_component_kz_last_rotating_the_others() {
+        let v = Vec3::new(1.0, -0.0, f32::NAN);
+        let bits = |v: Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
+        assert_eq!(bits(permute(v, 0)), bits(Vec3::new(v.y, v.z, v.x)));
+        assert_eq!(bits(permute(v, 1)), bits(Vec3::new(v.z, v.x, v.y)));
+        assert_eq!(bits(permute(v, 2)), bits(v));
+        assert_eq!(select(true, 1.0, 2.0), 1.0);
+        assert_eq!(select(false, 1.0, 2.0), 2.0);
     }
 }

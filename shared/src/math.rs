@@ -219,6 +219,39 @@ fn gl_binary<const OP: u32>(a: f32, b: f32) -> f32 {
     r
 }
 
+/// `if c { a } else { b }` as one `OpSelect`: NVIDIA's compiler keeps a branch where a
+/// choice between values is written as `if` or `match` in more than one place (the triangle
+/// test's `permute` compiled to branches around moves, which lanes of different rays take
+/// apart: SASS, bench/NOTES.md session 53).
+#[inline(always)]
+pub fn select(c: bool, a: f32, b: f32) -> f32 {
+    #[cfg(target_arch = "spirv")]
+    {
+        let mut r = 0.0f32;
+        // SAFETY: the instructions read a bool and two floats and write a float.
+        unsafe {
+            core::arch::asm! {
+                "%c = OpLoad _ {c}",
+                "%r = OpSelect typeof*{r} %c {a} {b}",
+                "OpStore {r} %r",
+                c = in(reg) &c,
+                a = in(reg) a,
+                b = in(reg) b,
+                r = in(reg) &mut r,
+            }
+        }
+        r
+    }
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        if c {
+            a
+        } else {
+            b
+        }
+    }
+}
+
 /// Largest component.
 pub fn max3(v: Vec3) -> f32 {
     v.x.max(v.y).max(v.z)
