@@ -17,7 +17,7 @@ use shared::types::{
     flat_group, flat_index, BuildParams, Frame, Hit, Material, Object, OrderedBounds, PunctualLight, Ray, RenderPush,
     Sphere, Triangle, VertexAttrs, FEATURES_ALL, SORT_ITEMS,
 };
-use shared::wide::{self, WideNode};
+use shared::wide;
 
 // The default of `path_trace`'s and `cast_rays`' specialisation constant: every feature.
 const _: () = assert!(FEATURES_ALL == 130111);
@@ -614,7 +614,7 @@ macro_rules! scene_kernel {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[UVec4],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[UVec4],
             #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
             #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
             #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],

@@ -10,7 +10,6 @@ use shared::texture::TextureInfo;
 use shared::types::{
     flat_index, Frame, Hit, Material, Object, PunctualLight, Ray, RenderPush, Sphere, VertexAttrs, INVALID,
 };
-use shared::wide::WideNode;
 use spirv_std::glam::{UVec3, UVec4, Vec2, Vec3};
 use spirv_std::ray_tracing::AccelerationStructure;
 use spirv_std::spirv;
@@ -26,7 +25,7 @@ pub fn path_trace_driver(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[UVec4],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[UVec4],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],
@@ -78,7 +77,7 @@ pub fn cast_rays_driver(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] spheres: &[Sphere],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] order: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] nodes: &[UVec4],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[WideNode],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] wide: &[UVec4],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 0)] objects: &[Object],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 3)] prim_object: &[u32],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 4)] materials: &[Material],

@@ -39,7 +39,7 @@ pub struct Scene<'a> {
     pub nodes: &'a [UVec4],
     /// The wide BVH (traversed instead of `nodes` with [`VARIANT_WIDE_BVH`]; may be empty
     /// otherwise) and the sorted primitive order its leaves index.
-    pub wide: &'a [WideNode],
+    pub wide: &'a [UVec4],
     pub order: &'a [u32],
     pub n_tris: u32,
     pub n_prims: u32,
@@ -70,6 +70,28 @@ pub fn node_of(words: &[UVec4], i: u32) -> Node {
         a: lo.w,
         max: [f32::from_bits(hi.x), f32::from_bits(hi.y), f32::from_bits(hi.z)],
         b: hi.w,
+    }
+}
+
+/// Wide node `i` of a wide BVH read as 16-byte words (see [`Scene`]; eight a node, the
+/// padding word not read).
+#[inline(always)]
+pub fn wide_of(words: &[UVec4], i: u32) -> WideNode {
+    let row = |k: u32| {
+        let w = word_at(words, 8 * i + k);
+        [
+            f32::from_bits(w.x),
+            f32::from_bits(w.y),
+            f32::from_bits(w.z),
+            f32::from_bits(w.w),
+        ]
+    };
+    let c = word_at(words, 8 * i + 6);
+    WideNode {
+        lo: [row(0), row(1), row(2)],
+        hi: [row(3), row(4), row(5)],
+        child: [c.x, c.y, c.z, c.w],
+        _pad: [0; 4],
     }
 }
 
@@ -239,7 +261,7 @@ fn walk_wide<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) ->
                 return best;
             }
         } else {
-            let w = at(s.wide, item);
+            let w = wide_of(s.wide, item);
             seq!(K in 0..4 {
                 let c~K = w.child[K];
                 let t~K = box_entry(s, &r, Vec3::new(w.lo[0][K], w.lo[1][K], w.lo[2][K]),

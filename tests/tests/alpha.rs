@@ -117,7 +117,7 @@ fn cpu_queries(data: &SceneGpu, frame: &Frame, rays: &[Ray]) -> (Vec<bool>, Vec<
         tris: bytemuck::cast_slice(&tris),
         spheres: &spheres,
         nodes: bytemuck::cast_slice(&nodes),
-        wide: &bvh.wide,
+        wide: bytemuck::cast_slice(&bvh.wide),
         order: &bvh.sorted_prims,
         n_tris: frame.n_tris,
         n_prims: frame.n_prims,

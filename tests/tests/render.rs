@@ -136,7 +136,7 @@ fn cpu_hits(p: &Prepared, cpu: &CpuRender, frame: &Frame, rays: &[Ray]) -> Vec<H
             tris: bytemuck::cast_slice(&cpu.tris),
             spheres: &cpu.spheres,
             nodes: bytemuck::cast_slice(&nodes),
-            wide: &cpu.bvh.wide,
+            wide: bytemuck::cast_slice(&cpu.bvh.wide),
             order: &cpu.bvh.sorted_prims,
             n_tris: p.frame.n_tris,
             n_prims: p.frame.n_prims,

@@ -65,7 +65,7 @@ impl World {
             tris: bytemuck::cast_slice(&self.tris),
             spheres: &self.spheres,
             nodes: bytemuck::cast_slice(&self.nodes),
-            wide: &self.wide,
+            wide: bytemuck::cast_slice(&self.wide),
             order: &self.order,
             n_tris: self.tris.len() as u32,
             n_prims: (self.tris.len() + self.spheres.len()) as u32,
