@@ -29,9 +29,9 @@ pub const STACK: usize = 96;
 
 /// The primitives of a scene and its BVH (`nodes` empty for brute force). A flattened
 /// scene's binary walk reads `nodes` as [`traced_nodes`] of them: the tree, then its pairs.
-/// Triangles and nodes are read as 16-byte words ([`triangle_of`], [`node_of`]: three words
-/// a triangle, two a node), which NVIDIA's compiler loads as vectors, where it splits a
-/// `Triangle` or `Node` read into a load per scalar.
+/// Triangles and nodes are read as 16-byte words ([`triangle_of`], [`node_of`], [`wide_of`]:
+/// three words a triangle, two a node, eight a wide node), which NVIDIA's compiler loads as
+/// vectors, where it splits a `Triangle` or `Node` read into a load per scalar.
 #[derive(Copy, Clone)]
 pub struct Scene<'a> {
     pub tris: &'a [UVec4],
