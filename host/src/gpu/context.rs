@@ -128,7 +128,7 @@ pub struct Gpu {
     pub kernel_stats: bool,
     /// The device was opened with VK_EXT_pipeline_robustness, so that pipelines can ask for
     /// storage and uniform buffer accesses without bounds checks (see
-    /// `Kernels::create_pipeline`).
+    /// [`Gpu::unchecked_buffers`]).
     pub pipeline_robustness: bool,
     /// The device was opened with VK_KHR_swapchain (see `GpuOptions::window_extensions`).
     pub swapchain: bool,
