@@ -76,28 +76,24 @@ pub fn triangle(r: &TriRay, tri: &Triangle, t_max: f32) -> (f32, f32, f32) {
     let e0 = difference_of_products(x1, y2, y1, x2);
     let e1 = difference_of_products(x2, y0, y2, x0);
     let e2 = difference_of_products(x0, y1, y0, x1);
-    if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0) {
-        return MISS;
-    }
+    // Every test computed and their verdicts combined without a branch (`&`, `|`), so that
+    // the lanes of a subgroup testing triangles run them together whichever test each fails.
+    let outside = ((e0 < 0.0) | (e1 < 0.0) | (e2 < 0.0)) & ((e0 > 0.0) | (e1 > 0.0) | (e2 > 0.0));
     let det = e0 + e1 + e2;
-    if det == 0.0 {
-        return MISS;
-    }
     let t_scaled = e0 * (s.z * p0.z) + e1 * (s.z * p1.z) + e2 * (s.z * p2.z);
-    if det < 0.0 && (t_scaled >= 0.0 || t_scaled < t_max * det) {
-        return MISS;
-    }
-    if det > 0.0 && (t_scaled <= 0.0 || t_scaled > t_max * det) {
-        return MISS;
-    }
+    // `t_scaled / det` in `(0, t_max]` for either sign of `det` (neither for 0 or NaN).
+    let bound = t_max * det;
+    let in_range =
+        ((det < 0.0) & (t_scaled < 0.0) & (t_scaled >= bound)) | ((det > 0.0) & (t_scaled > 0.0) & (t_scaled <= bound));
     let inv = 1.0 / det;
     let t = t_scaled * inv;
     // Written so that a NaN (non-finite vertex or ray, overflowing shear) is a miss too.
-    if t > 0.0 && t < t_max {
-        (t, e1 * inv, e2 * inv)
-    } else {
-        MISS
-    }
+    let hit = !outside & in_range & (t > 0.0) & (t < t_max);
+    (
+        select(hit, t, MISS.0),
+        select(hit, e1 * inv, 0.0),
+        select(hit, e2 * inv, 0.0),
+    )
 }
 
 /// Moller & Trumbore's ray-triangle test (JGT 1997), the common fast one, kept to measure
