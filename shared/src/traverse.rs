@@ -412,12 +412,8 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
     }
     let r = TriRay::new(origin, dir);
     let mut limit = t_max;
-    let root = node_of(s.nodes, 0);
-    if slab(s, &r, &root, limit) == f32::INFINITY {
-        return best;
-    }
     if n == 1 {
-        test_leaf(s, &r, root.a, &mut limit, &mut best);
+        one_leaf(s, &r, &mut limit, &mut best);
         return best;
     }
     let mut stack = [MaybeUninit::<u32>::uninit(); STACK];
@@ -425,6 +421,16 @@ fn walk<const ANY: bool>(s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> Hit 
     let mut node = 0u32;
     while pair_step::<ANY>(s, &r, &mut limit, &mut best, &mut stack, &mut sp, &mut node) {}
     best
+}
+
+/// The walk of a tree of one primitive, a leaf at the root: its box, then its primitive. (A
+/// larger tree's walk does not test the root's box: its first step tests its children's,
+/// which a ray missing it misses too.)
+fn one_leaf(s: &Scene, r: &TriRay, limit: &mut f32, best: &mut Hit) {
+    let root = node_of(s.nodes, 0);
+    if slab(s, r, &root, *limit) != f32::INFINITY {
+        test_leaf(s, r, root.a, limit, best);
+    }
 }
 
 /// [`walk`] of closest hits stepped: started ([`Flat::start`]) and stepped ([`Flat::step`],
@@ -455,7 +461,7 @@ impl Flat {
     }
 
     /// Starts the walk of `origin + t dir`, `t` in `(0, t_max)`; false if it has ended
-    /// already (a ray that can hit nothing, a root box missed, a scene of one primitive).
+    /// already (a ray that can hit nothing, a scene of one primitive).
     pub fn start(&mut self, s: &Scene, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
         self.best = Hit::MISS;
         let n = s.n_prims;
@@ -464,12 +470,8 @@ impl Flat {
         }
         self.r = TriRay::new(origin, dir);
         self.limit = t_max;
-        let root = node_of(s.nodes, 0);
-        if slab(s, &self.r, &root, t_max) == f32::INFINITY {
-            return false;
-        }
         if n == 1 {
-            test_leaf(s, &self.r, root.a, &mut self.limit, &mut self.best);
+            one_leaf(s, &self.r, &mut self.limit, &mut self.best);
             return false;
         }
         self.sp = 0;
