@@ -1025,15 +1025,21 @@ fn stepped_pixels(
     loop {
         // Steps until half of the subgroup's lanes wait: a tight loop that does not touch the
         // path's state, voting every `STEPS_A_VOTE` steps (every lane in the loop takes part;
-        // the lanes in it do not change, so they are counted once before it).
+        // the lanes in it do not change, so they are counted once before it). The steps'
+        // count is tested at the end of the loop, not as a `while` at its top: there NVIDIA's
+        // compiler copied the walk's state through a second set of registers every step
+        // (H200: the closed box 86.8 -> 79.7 ms; bench/NOTES.md, session 54).
         let lanes = sync::count_waiting(true);
         loop {
             let mut k = 0;
-            while k < STEPS_A_VOTE {
+            loop {
                 if walking {
                     walking = walk.step(&w.scene);
                 }
                 k += 1;
+                if k == STEPS_A_VOTE {
+                    break;
+                }
             }
             if 2 * sync::count_waiting(!walking) >= lanes {
                 break;
