@@ -175,8 +175,10 @@ const OP_EXT_INST_IMPORT: u32 = 11;
 const OP_EXT_INST: u32 = 12;
 const OP_DECORATE: u32 = 71;
 const ANNOTATIONS: [u32; 8] = [71, 72, 73, 74, 75, 332, 5632, 5633];
-/// OpFNegate, OpFAdd, OpFSub, OpFMul, OpFDiv, OpFRem, OpFMod, OpVectorTimesScalar, OpDot.
-const FLOAT_ARITHMETIC: [u32; 9] = [127, 129, 131, 133, 136, 140, 141, 142, 148];
+/// OpFAdd, OpFSub, OpFMul, OpFDiv, OpFRem, OpFMod, OpVectorTimesScalar, OpDot. Not OpFNegate:
+/// a negation is exact, and marked it stayed an instruction of its own in NVIDIA's code where
+/// the multiply-add that reads it can negate its operand for free.
+const FLOAT_ARITHMETIC: [u32; 8] = [129, 131, 133, 136, 140, 141, 142, 148];
 const NO_CONTRACTION: u32 = 42;
 const GLSL_FMA: u32 = 50;
 
