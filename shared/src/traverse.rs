@@ -77,15 +77,7 @@ pub fn node_of(words: &[UVec4], i: u32) -> Node {
 /// padding word not read).
 #[inline(always)]
 pub fn wide_of(words: &[UVec4], i: u32) -> WideNode {
-    let row = |k: u32| {
-        let w = word_at(words, 8 * i + k);
-        [
-            f32::from_bits(w.x),
-            f32::from_bits(w.y),
-            f32::from_bits(w.z),
-            f32::from_bits(w.w),
-        ]
-    };
+    let row = |k: u32| floats(word_at(words, 8 * i + k));
     let c = word_at(words, 8 * i + 6);
     WideNode {
         lo: [row(0), row(1), row(2)],
@@ -98,20 +90,23 @@ pub fn wide_of(words: &[UVec4], i: u32) -> WideNode {
 /// Triangle `i` of a triangle buffer read as 16-byte words (see [`Scene`]).
 #[inline(always)]
 pub fn triangle_of(words: &[UVec4], i: u32) -> Triangle {
-    let v = |k: u32| {
-        let w = word_at(words, 3 * i + k);
-        [
-            f32::from_bits(w.x),
-            f32::from_bits(w.y),
-            f32::from_bits(w.z),
-            f32::from_bits(w.w),
-        ]
-    };
+    let v = |k: u32| floats(word_at(words, 3 * i + k));
     Triangle {
         v0: v(0),
         v1: v(1),
         v2: v(2),
     }
+}
+
+/// A 16-byte word's four floats, bit for bit.
+#[inline(always)]
+fn floats(w: UVec4) -> [f32; 4] {
+    [
+        f32::from_bits(w.x),
+        f32::from_bits(w.y),
+        f32::from_bits(w.z),
+        f32::from_bits(w.w),
+    ]
 }
 
 impl Scene<'_> {
