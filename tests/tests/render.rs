@@ -66,7 +66,7 @@ fn closest_hit_through_the_bvh_equals_brute_force() {
     r.load(&p.data, &bvh_frame).expect("load");
     r.render(0, true).expect("build");
     check_gpu_hits("bunny, GPU BVH", &r.cast(&rays).expect("cast"), &brute);
-    // Built without the pairs (`--pairs off`, what `auto` does for large scenes), the walk
+    // Built without the pairs (`--pairs off`, or a binding too small for them), the walk
     // reads the tree alone: the same hits on both backends.
     let np = prepared("bunny", 4, 1, &["--treelets", "on", "--pairs", "off"]);
     assert!(p.build(1).pairs && !np.build(1).pairs, "--pairs auto/off");

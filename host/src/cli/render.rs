@@ -737,14 +737,9 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
             tree
         } else {
             let auto = if p.pairs == Pairs::Auto {
-                format!(
-                    " (--pairs auto: {} primitives, {per_prim} path segments per primitive; pairs up to {} primitives, or from {} segments per primitive)",
-                    p.frame.n_prims,
-                    Pairs::AUTO_MAX_PRIMS,
-                    Pairs::AUTO_SEGMENTS_PER_PRIM
-                )
+                " (--pairs auto: at every size)"
             } else {
-                String::new()
+                ""
             };
             if b.pairs {
                 format!("{tree}; each node's children read as one 64-byte pair{auto} (the tree alone, VARIANT_NO_PAIRS, where a device's storage-buffer binding cannot hold both)")

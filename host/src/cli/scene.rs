@@ -76,11 +76,9 @@ pub struct SceneArgs {
     pub treelets: Treelets,
     /// Whether every build copies each node's children as one 64-byte pair after the tree,
     /// which the binary walk reads a step instead of the node and then each child: a pass
-    /// over the tree and twice its bytes. `auto` writes them for scenes of up to 262,144
-    /// primitives, where they make the walk faster (H200: the bunny's real-time frame 5%),
-    /// and above where the frame traces at least 32 path segments per primitive (pixels x
-    /// spp x depth, twice with NEE): the herd's 800x800 frame at 32 spp traces 7% faster with
-    /// them, its real-time frame 6% slower.
+    /// over the tree and twice its bytes. `auto` writes them at every size, where a storage-
+    /// buffer binding holds them: they make every frame measured faster (H200, real-time
+    /// frames: the bunny 8%, the sixteen bunnies 9%, the herd's 10M primitives 10%).
     #[arg(long, value_enum, default_value = "auto")]
     pub pairs: Pairs,
     /// Objects as instances of their meshes (two-level BVH: each mesh built once, the top
@@ -230,31 +228,19 @@ pub enum Pairs {
 }
 
 impl Pairs {
-    /// Primitives up to which `auto` writes the pairs whatever the frame: there the binary
-    /// walk's steps are faster by them. Above, they pay only where the frame traces many
-    /// rays per primitive ([`Self::AUTO_SEGMENTS_PER_PRIM`]), else their pass and bytes are
-    /// paid for nothing. H200, `bench realtime --instancing off` (1920x1080, depth 4), GPU
-    /// frame p50 with and without: the Cornell box 0.768 against 0.789 ms, the bunny
-    /// (69,678) 1.61 against 1.70; the sixteen bunnies (1,114,659) 3.40 against 3.28 (trace
-    /// 2.79 against 2.71), at 4 spp (30 segments a primitive) 12.02 against 11.98; the herd
-    /// (10,031,907) 9.74 against 9.16, at 4 spp 28.0 against 27.5; but the herd at 800x800,
-    /// 32 spp, depth 16 with NEE (65 segments a primitive) traces in 120.6 against 129.5 ms
-    /// (bench/NOTES.md, session 42). The tree and its pairs take 128 bytes a primitive: 32 MB
-    /// at this count, within the H100's and the H200's 50 MB L2 cache.
-    pub const AUTO_MAX_PRIMS: u64 = 1 << 18;
-
-    /// Path segments a frame traces per primitive ([`segments`]) from which `auto` writes
-    /// the pairs at any primitive count (see [`Self::AUTO_MAX_PRIMS`]).
-    pub const AUTO_SEGMENTS_PER_PRIM: u64 = 32;
-
-    /// Whether frames tracing `segments` path segments (at most: [`segments`]) over `prims`
-    /// primitives write the pairs.
-    pub fn resolve(self, segments: u64, prims: u64) -> bool {
+    /// Whether builds write the pairs: `auto` does at every size, where one storage-buffer
+    /// binding holds them (`GpuLbvh::has_pairs`; else the walk reads the tree alone). The
+    /// walk through them is faster at every size and sample count measured since the walk
+    /// loads whole words and steps in its own loop. H200, `bench realtime --instancing off
+    /// --no-denoise` (1920x1080, depth 4), GPU frame p50 with and without: the bunny
+    /// (69,678 primitives) 0.900 against 0.976 ms, the sixteen bunnies (1,114,659) 2.087
+    /// against 2.290 (rebuild 0.434 against 0.378, trace 1.637 against 1.896), the herd
+    /// (10,031,907) 6.617 against 7.339 (2.7 GB of GPU memory); at 4 spp 3.28 against 3.54,
+    /// 7.15 against 8.19, 18.8 against 24.6 (bench/NOTES.md, session 56; session 42 had
+    /// found large trees no faster with them).
+    pub fn resolve(self) -> bool {
         match self {
-            Pairs::Auto => {
-                prims <= Self::AUTO_MAX_PRIMS || segments >= Self::AUTO_SEGMENTS_PER_PRIM.saturating_mul(prims)
-            }
-            Pairs::On => true,
+            Pairs::Auto | Pairs::On => true,
             Pairs::Off => false,
         }
     }
@@ -468,7 +454,7 @@ impl Prepared {
             wide: self.layout == Layout::Wide,
             rounds: 1,
             ploc: self.tree.builds_ploc(self.treelets, spp, self.segments(spp), prims),
-            pairs: self.pairs.resolve(self.segments(spp), prims),
+            pairs: self.pairs.resolve(),
         }
     }
 
@@ -495,23 +481,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn auto_pairs_for_scenes_whose_tree_and_pairs_fit_the_cache() {
-        // Real-time frames (1920x1080, 1 spp, depth 4): the bunny and the Cornell box write
-        // them, the sixteen bunnies and the herd do not.
-        let frame = 1920 * 1080 * 4;
-        for (prims, pairs) in [
-            (36, true),
-            (69_678, true),
-            (1 << 18, true),
-            ((1 << 18) + 1, false),
-            (1_114_659, false),
-        ] {
-            assert_eq!(Pairs::Auto.resolve(frame, prims), pairs, "{prims} primitives");
-        }
-        // The herd at 800x800, 32 spp, depth 16 with NEE (65 segments a primitive) does.
-        assert!(Pairs::Auto.resolve(800 * 800 * 32 * 16 * 2, 10_031_907));
-        assert!(!Pairs::Auto.resolve(800 * 800 * 32 * 16 * 2, 30_000_000));
-        assert!(Pairs::On.resolve(0, u64::MAX) && !Pairs::Off.resolve(u64::MAX, 2));
+    fn auto_pairs_at_every_size() {
+        assert!(Pairs::Auto.resolve() && Pairs::On.resolve() && !Pairs::Off.resolve());
     }
 
     #[test]
