@@ -276,32 +276,43 @@ fn accel_auto_takes_the_drivers_structures_only_for_two_levels_on_a_device_with_
 }
 
 /// `--explain` says which tree `--tree auto` builds for the frame and why: the radix tree
-/// for one sample per pixel, H-PLOC from four (the Cornell box at 16x16: 28 samples per
-/// primitive).
+/// below 100 million path segments a frame, H-PLOC from there (the spheres with NEE at
+/// 1024x1024 and depth 64: 134 million) and for scenes of at most 64 primitives (the Cornell
+/// box's 36).
 #[test]
 fn explain_says_which_tree_auto_builds() {
     let out = picture("explain-tree");
-    for (spp, ploc) in [("1", false), ("4", true)] {
+    for (scene, prims, w, depth, ploc) in [
+        ("spheres", 485u64, 16u64, 16u64, false),
+        ("spheres", 485, 1024, 64, true),
+        ("cornell", 36, 16, 16, true),
+    ] {
+        let (size, depth_arg) = (format!("{w}x{w}"), depth.to_string());
         let (o, stdout, stderr) = run(&[
             "render",
-            "cornell",
+            scene,
             "--backend",
             "cpu",
             "--size",
-            "16x16",
+            &size,
             "--spp",
-            spp,
+            "1",
+            "--depth",
+            &depth_arg,
             "--explain",
             "--out",
             &out,
         ]);
-        assert!(o.status.success(), "--spp {spp}:\n{stderr}");
+        assert!(o.status.success(), "{scene} {size}:\n{stderr}");
         let line = stdout
             .lines()
             .find(|l| l.starts_with("BVH traced"))
             .unwrap_or_else(|| panic!("no BVH line in:\n{stdout}"));
-        assert_eq!(line.contains("built by H-PLOC"), ploc, "--spp {spp}: {line}");
-        assert!(line.contains(&format!("--tree auto: {spp} spp a frame")), "{line}");
+        assert_eq!(line.contains("built by H-PLOC"), ploc, "{scene} {size}: {line}");
+        // Pixels x samples x depth, twice with next-event estimation (on by default).
+        let segments = w * w * depth * 2;
+        let why = format!("--tree auto: {segments} path segments a frame, {prims} primitives; H-PLOC from 100000000 segments or up to 64 primitives");
+        assert!(line.contains(&why), "{line}");
     }
 }
 

@@ -711,13 +711,13 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
     if args.explain {
         println!("kernel features for {}:\n{}", p.scene.name, p.features.explain());
         let b = p.build(p.spp);
-        let per_prim = p.segments(p.spp) / (p.frame.n_prims as u64).max(1);
         let why = if p.tree == Tree::Auto && p.treelets == Treelets::Auto && !b.wide {
             format!(
-                " (--tree auto: {} spp a frame, {per_prim} path segments per primitive; H-PLOC from {} and {})",
-                p.spp,
-                Tree::AUTO_FROM_SPP,
-                Tree::AUTO_SEGMENTS_PER_PRIM
+                " (--tree auto: {} path segments a frame, {} primitives; H-PLOC from {} segments or up to {} primitives)",
+                p.segments(p.spp),
+                p.frame.n_prims,
+                Tree::AUTO_SEGMENTS,
+                Tree::AUTO_PRIMS
             )
         } else {
             String::new()

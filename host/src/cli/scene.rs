@@ -61,11 +61,12 @@ pub struct SceneArgs {
     /// How the binary BVH's tree is built: the radix tree over the Morton codes (Karras 2012)
     /// with a bottom-up fit, or H-PLOC (agglomerative clustering within the radix tree's
     /// subtrees: a cheaper tree to trace, a slower build; never restructured by treelets).
-    /// `auto` builds by H-PLOC from 4 samples per pixel a frame where the frame traces at
-    /// least 32 path segments per primitive (pixels x spp x depth, twice with NEE; with
-    /// --treelets auto; always with on, never with off), else by Karras: H-PLOC's trees
-    /// match the treelets' for a quarter of their build (H100, 800x800 at 32 spp: every
-    /// built-in frame 2-3% faster).
+    /// `auto` builds by H-PLOC where the frame traces at least 100 million path segments
+    /// (pixels x spp x depth, twice with NEE) or the scene has at most 64 primitives (with
+    /// --treelets auto; always with on, never with off), else by Karras: H-PLOC's build costs more (0.24 ms more for the bunny, 0.83
+    /// for 1.1M primitives) and its tree traces 1-10% faster, by scene (H200: the real-time
+    /// bunny at 1920x1080, depth 4, pays from 16 samples a frame; 800x800 at 32 spp, depth 16:
+    /// every built-in frame 4-9% faster).
     #[arg(long, value_enum, default_value = "auto")]
     pub tree: Tree,
     /// Build a better binary tree than the radix tree (a slower build, a faster trace): by
@@ -177,34 +178,40 @@ pub enum Tree {
 }
 
 impl Tree {
-    /// Samples per pixel in one frame from which `auto` builds by H-PLOC (with `--treelets
-    /// auto`), where the frame also traces at least [`Self::AUTO_SEGMENTS_PER_PRIM`] path
-    /// segments per primitive ([`segments`]). H-PLOC's build costs ~0.2 ms more than the
-    /// radix tree's at any size (its climb's chain at the top) plus ~0.5-0.7 ns a primitive,
-    /// and saves 1 to 10% of every segment's trace, by scene. H200, 1920x1080, depth 4, no
-    /// NEE (`bench realtime --spf`), frames by H-PLOC against the radix tree: the bunny even
-    /// at 2 spp, 3.7% faster at 4, 5.8% at 8; the Cornell box 5%, 7%, 7.5%; Suzanne 5.7%,
-    /// 2.5%, 0.9% slower (its radix tree traces almost as fast); the sixteen bunnies
-    /// flattened (1.1M primitives) 1.3% slower at 4 spp (30 segments a primitive), 3.1%
-    /// faster at 16. 800x800, 32 spp, depth 16, NEE (`render`): the sixteen bunnies 4.6%
-    /// faster (590 segments a primitive), the herd (10M) 6.7% (65) (bench/NOTES.md, session
-    /// 40).
-    pub const AUTO_FROM_SPP: u32 = 4;
+    /// Path segments a frame traces (at most: [`segments`]) from which `auto` builds by
+    /// H-PLOC (with `--treelets auto`). Its build costs more than the radix tree's (H200:
+    /// 0.04 ms more for the Cornell box's 36 primitives, 0.19 for Suzanne, 0.24 for the
+    /// bunny, 0.83 for the sixteen bunnies' 1.1M, 5.5 ms for the herd's 10M) and its tree
+    /// saves a part of every segment's trace that grows with the scene, so that the frames
+    /// where it pays begin at about the same amount of tracing at every size: H200,
+    /// `bench realtime --spf K` (1920x1080, depth 4, no NEE, 8.3M segments a sample), H-PLOC
+    /// against the radix tree: the bunny 4.5% slower at 4 spf, 1% at 8, 0.9% faster at 16;
+    /// the sixteen bunnies 3.4% slower at 8, even at 16; the spheres 1.7% slower at 4, even
+    /// at 8, 0.4% faster at 16; the herd's frame of 16 samples even (`render`). 800x800, 32
+    /// spp, depth 16 with NEE (655M segments): every built-in frame faster, by 4-9%, the
+    /// herd's by 5.5%. Where it errs: Suzanne never pays at depth 4 (3% slower at 16
+    /// samples), and the closed box of the driver comparison traces 4.5% slower by H-PLOC
+    /// than by the radix tree (bench/NOTES.md, session 57). The rule until session 57 (from
+    /// 4 samples a frame where the frame traces 32 segments a primitive) was measured when
+    /// the walk took about twice as long.
+    pub const AUTO_SEGMENTS: u64 = 100_000_000;
 
-    /// See [`Self::AUTO_FROM_SPP`].
-    pub const AUTO_SEGMENTS_PER_PRIM: u64 = 32;
+    /// Primitives up to which `auto` builds by H-PLOC at any amount of tracing: its build is
+    /// then one or two workgroups, 0.04 ms more than the radix tree's, and the Cornell box's
+    /// tree by H-PLOC (36 primitives) traces 9-11% faster at every sample count (H200,
+    /// `bench realtime --spf 1|2|4|8|16`: 0.624 against 0.643 ms at one sample, 2.374
+    /// against 2.601 at 4; the only scene this small measured).
+    pub const AUTO_PRIMS: u64 = 64;
 
-    /// Whether frames of `spp` samples per pixel tracing `segments` path segments (at most:
-    /// [`segments`]) in a scene of `prims` primitives build by H-PLOC: `auto` where
-    /// [`Self::AUTO_FROM_SPP`] says with `--treelets auto`, always with `--treelets on`, never
-    /// with `off`.
-    pub fn builds_ploc(self, treelets: Treelets, spp: u32, segments: u64, prims: u64) -> bool {
+    /// Whether frames tracing `segments` path segments (at most: [`segments`]) in a scene of
+    /// `prims` primitives build by H-PLOC: `auto` from [`Self::AUTO_SEGMENTS`] or up to
+    /// [`Self::AUTO_PRIMS`] with `--treelets auto`, always with `--treelets on`, never with
+    /// `off`.
+    pub fn builds_ploc(self, treelets: Treelets, segments: u64, prims: u64) -> bool {
         match (self, treelets) {
             (Tree::Ploc, _) => true,
             (Tree::Karras, _) => false,
-            (Tree::Auto, Treelets::Auto) => {
-                spp >= Self::AUTO_FROM_SPP && segments >= Self::AUTO_SEGMENTS_PER_PRIM.saturating_mul(prims)
-            }
+            (Tree::Auto, Treelets::Auto) => segments >= Self::AUTO_SEGMENTS || prims <= Self::AUTO_PRIMS,
             (Tree::Auto, treelets) => treelets == Treelets::On,
         }
     }
@@ -453,7 +460,7 @@ impl Prepared {
             treelets: self.treelets.resolve(spp, self.pixels(), prims),
             wide: self.layout == Layout::Wide,
             rounds: 1,
-            ploc: self.tree.builds_ploc(self.treelets, spp, self.segments(spp), prims),
+            ploc: self.tree.builds_ploc(self.treelets, self.segments(spp), prims),
             pairs: self.pairs.resolve(),
         }
     }
@@ -499,7 +506,7 @@ mod tests {
     }
 
     #[test]
-    fn auto_trees_by_h_ploc_from_a_few_samples_and_enough_segments_per_primitive() {
+    fn auto_trees_by_h_ploc_from_a_hundred_million_segments() {
         let frame = |depth, flags| Frame {
             max_depth: depth,
             flags,
@@ -507,19 +514,23 @@ mod tests {
         };
         let hd = |spp| segments(&frame(4, 0), 1920 * 1080, spp);
         let table2 = segments(&frame(16, FLAG_NEE), 800 * 800, 32);
+        let closed_box = segments(&frame(16, 0), 800 * 800, 32);
         assert_eq!(table2, 800 * 800 * 32 * 16 * 2);
         assert_eq!(segments(&frame(64, FLAG_NEE), 16384 * 16384, u32::MAX), u64::MAX);
-        let auto = |spp, segments, prims| Tree::Auto.builds_ploc(Treelets::Auto, spp, segments, prims);
-        // Real-time frames of one sample never; the bunny from 4 spp, the sixteen bunnies
-        // flattened from 8 (at 4: 30 segments a primitive); the herd at table 2's frame.
-        assert!(!auto(1, hd(1), 36) && !auto(2, hd(2), 69_678) && auto(4, hd(4), 69_678));
-        assert!(!auto(4, hd(4), 1_114_659) && auto(8, hd(8), 1_114_659));
-        assert!(auto(32, table2, 10_031_907) && !auto(4, hd(4), 10_031_907));
+        let auto = |segments, prims| Tree::Auto.builds_ploc(Treelets::Auto, segments, prims);
+        // Real-time frames of the bunny at 1920x1080, depth 4: the radix tree up to 12
+        // samples a frame, H-PLOC from 13; table 2's frame and the closed box's by H-PLOC,
+        // the herd's too; the Cornell box's 36 primitives at any sample count.
+        let bunny = 69_678;
+        assert!(!auto(hd(1), bunny) && !auto(hd(8), bunny) && !auto(hd(12), bunny));
+        assert!(auto(hd(13), bunny) && auto(hd(16), bunny) && !auto(hd(8), 10_031_907));
+        assert!(auto(table2, bunny) && auto(closed_box, bunny) && auto(table2, 10_031_907));
+        assert!(auto(hd(1), 36) && auto(1, 64) && !auto(hd(1), 65));
         // --treelets on and off decide for `auto`; karras and ploc decide alone.
-        assert!(Tree::Auto.builds_ploc(Treelets::On, 1, 1, u64::MAX / 64));
-        assert!(!Tree::Auto.builds_ploc(Treelets::Off, 64, u64::MAX, 1));
-        assert!(Tree::Ploc.builds_ploc(Treelets::Off, 1, 1, 1));
-        assert!(!Tree::Karras.builds_ploc(Treelets::On, 64, u64::MAX, 1));
+        assert!(Tree::Auto.builds_ploc(Treelets::On, 1, u64::MAX));
+        assert!(!Tree::Auto.builds_ploc(Treelets::Off, u64::MAX, 1));
+        assert!(Tree::Ploc.builds_ploc(Treelets::Off, 1, u64::MAX));
+        assert!(!Tree::Karras.builds_ploc(Treelets::On, u64::MAX, 1));
     }
 
     #[test]
