@@ -63,10 +63,10 @@ pub struct SceneArgs {
     /// subtrees: a cheaper tree to trace, a slower build; never restructured by treelets).
     /// `auto` builds by H-PLOC where the frame traces at least 100 million path segments
     /// (pixels x spp x depth, twice with NEE) or the scene has at most 64 primitives (with
-    /// --treelets auto; always with on, never with off), else by Karras: H-PLOC's build costs more (0.24 ms more for the bunny, 0.83
-    /// for 1.1M primitives) and its tree traces 1-10% faster, by scene (H200: the real-time
-    /// bunny at 1920x1080, depth 4, pays from 16 samples a frame; 800x800 at 32 spp, depth 16:
-    /// every built-in frame 4-9% faster).
+    /// --treelets auto; always with on, never with off), else by Karras: H-PLOC's build
+    /// costs more (0.24 ms more for the bunny, 0.83 for 1.1M primitives) and its tree traces
+    /// 1-10% faster, by scene (H200: the real-time bunny at 1920x1080, depth 4, pays from 16
+    /// samples a frame; 800x800 at 32 spp, depth 16: every built-in frame 4-9% faster).
     #[arg(long, value_enum, default_value = "auto")]
     pub tree: Tree,
     /// Build a better binary tree than the radix tree (a slower build, a faster trace): by
@@ -506,7 +506,7 @@ mod tests {
     }
 
     #[test]
-    fn auto_trees_by_h_ploc_from_a_hundred_million_segments() {
+    fn auto_trees_by_h_ploc_from_a_hundred_million_segments_or_up_to_64_primitives() {
         let frame = |depth, flags| Frame {
             max_depth: depth,
             flags,
