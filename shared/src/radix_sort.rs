@@ -151,8 +151,9 @@ pub fn items(n: u32) -> u32 {
 /// Keys a lane of the scatter owns in a small sort.
 pub const FEW: u32 = 8;
 /// The smallest sort whose lanes own `SORT_ITEMS` keys: above the sixteen bunnies (1.1M,
-/// slower with them, though 1M random keys were faster) and below lavapipe's largest binary
-/// tree (2^21 primitives in a 128 MiB binding), so that CI builds with both kernels.
+/// slower with them; 1.2M random keys too, 151 -> 174 us on the H200: bench/NOTES.md, session
+/// 58) and below lavapipe's largest binary tree (2^21 primitives in a 128 MiB binding), so
+/// that CI builds with both kernels.
 pub const MANY: u32 = 3 << 19;
 
 /// The `totals` buffer: every pass's digit totals (`pass * RADIX + d`), then every pass's
