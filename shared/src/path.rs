@@ -1049,7 +1049,7 @@ fn stepped_pixels(
             continue;
         }
         if live {
-            let hit = walk.best;
+            let hit = walk.hit();
             let found = if hit.prim == INVALID {
                 Found::MISS
             } else {
@@ -1127,7 +1127,7 @@ fn stepped_pixels(
         walking = if w.bvh() {
             walk.start(&w.scene, q.origin, q.dir, f32::INFINITY)
         } else {
-            walk.best = traverse::closest_brute(&w.scene, q.origin, q.dir, f32::INFINITY);
+            walk.set_hit(traverse::closest_brute(&w.scene, q.origin, q.dir, f32::INFINITY));
             false
         };
     }
