@@ -17,8 +17,8 @@ use crate::instance::{instance_box, world_triangle, Instance};
 use crate::sync::{self, at, at_mut};
 use crate::transform::transformed;
 use crate::types::{
-    f32_to_ordered, items_per_lane, prim_summary, tri_summary, BuildParams, Object, OrderedBounds, Sphere, Triangle,
-    WORKGROUP,
+    f32_to_ordered, items_per_lane, prim_summary, transform_items, tri_summary, BuildParams, Object, OrderedBounds,
+    Sphere, Triangle, WORKGROUP,
 };
 use spirv_std::glam::{UVec4, Vec3};
 
@@ -28,14 +28,17 @@ pub struct BoundsState {
 }
 
 /// Stores the [`prim_summary`] of lane's primitives, `$summary` giving primitive `$i`'s, and
-/// folds their doubled centroids into the workgroup's bounds: `items_per_lane` primitives,
-/// every `WORKGROUP`-th of the group's, in order (the first's is where the fold starts). A
+/// folds their doubled centroids into the workgroup's bounds: `items_per_lane` primitives
+/// (or `$items`), every `WORKGROUP`-th of the group's, in order (the first's is where the fold starts). A
 /// macro, not a function taking a closure: a closure holding a kernel's buffers became a
 /// function-scope variable of storage-buffer pointers, whose pipeline crashed both lavapipe's
 /// and NVIDIA's compilers.
 macro_rules! reduce {
     ($lane:expr, $group:expr, $st:expr, $p:expr, $summaries:expr, |$i:ident| $summary:expr) => {{
-        let items = items_per_lane($p.n);
+        reduce!($lane, $group, $st, $p, $summaries, items_per_lane($p.n), |$i| $summary)
+    }};
+    ($lane:expr, $group:expr, $st:expr, $p:expr, $summaries:expr, $items:expr, |$i:ident| $summary:expr) => {{
+        let items = $items;
         let first = $group * items * WORKGROUP + $lane;
         if first < $p.n {
             let (mut lo, mut hi) = (Vec3::ZERO, Vec3::ZERO);
@@ -96,7 +99,7 @@ pub fn accumulate_transformed(
     spheres: &mut [Sphere],
     summaries: &mut [[f32; 4]],
 ) {
-    reduce!(lane, group, st, p, summaries, |i| {
+    reduce!(lane, group, st, p, summaries, transform_items(p.n), |i| {
         transformed(i, p, objects, prim_object, model_tris, model_spheres, tris, spheres)
     });
 }
@@ -180,13 +183,13 @@ pub fn publish(i: u32, b: &mut [OrderedBounds]) {
 mod tests {
     use super::*;
     use crate::transform::transform;
-    use crate::types::item_groups;
+    use crate::types::{item_groups, transform_groups};
 
     /// One build's bounds reduction on the CPU, workgroup by workgroup and lane by lane, as
-    /// the GPU runs it: `accumulate` over lane `l` of group `g` in `phase(l, g, st)`.
-    fn reduced(n: u32, mut phase: impl FnMut(u32, u32, &mut BoundsState)) -> OrderedBounds {
+    /// the GPU runs it: `accumulate` over lane `l` of group `g < groups` in `phase(l, g, st)`.
+    fn reduced(groups: u32, mut phase: impl FnMut(u32, u32, &mut BoundsState)) -> OrderedBounds {
         let mut out = OrderedBounds::EMPTY;
-        for g in 0..item_groups(n) {
+        for g in 0..groups {
             let mut st = BoundsState {
                 b: OrderedBounds::EMPTY,
             };
@@ -205,7 +208,7 @@ mod tests {
         // which the CPU executor runs.
         let (n_tris, n_spheres) = (200_000u32, 3_001u32);
         let n = n_tris + n_spheres;
-        assert!(items_per_lane(n) > 1 && item_groups(n) > 1);
+        assert!(items_per_lane(n) > transform_items(n) && transform_items(n) > 1 && item_groups(n) > 1);
         let mut seed = 0x2545_f491u32;
         let mut next = || {
             seed ^= seed << 13;
@@ -274,13 +277,15 @@ mod tests {
             })
             .collect();
         let mut summaries = vec![[0f32; 4]; n as usize];
-        let apart = reduced(n, |l, g, st| accumulate(l, g, st, &p, &tris, &spheres, &mut summaries));
+        let apart = reduced(item_groups(n), |l, g, st| {
+            accumulate(l, g, st, &p, &tris, &spheres, &mut summaries)
+        });
 
         // Fused.
         let mut fused_words = vec![UVec4::ZERO; 3 * n_tris as usize];
         let mut fused_spheres = vec![Sphere::default(); n_spheres as usize];
         let mut fused_summaries = vec![[0f32; 4]; n as usize];
-        let fused = reduced(n, |l, g, st| {
+        let fused = reduced(transform_groups(n), |l, g, st| {
             accumulate_transformed(
                 l,
                 g,

@@ -14,7 +14,7 @@ use gpu_allocator::MemoryLocation;
 use shared::denoise::GUIDE_PLANES;
 use shared::envmap::EnvEntry;
 use shared::types::{
-    grid, item_groups, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY,
+    grid, transform_groups, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY,
     CAST_OBJECT, CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FLAG_BVH,
     INVALID, TILE_SIDE, VARIANT_NO_PAIRS, VARIANT_STEPPED, WORKGROUP,
 };
@@ -911,7 +911,7 @@ impl GpuRenderer {
                 passes: 0,
             };
             let (kernel, groups) = if builds {
-                (Kernel::TransformBounds, item_groups(n))
+                (Kernel::TransformBounds, transform_groups(n))
             } else {
                 (Kernel::Transform, n.div_ceil(WORKGROUP))
             };
