@@ -29,10 +29,10 @@ pub struct BoundsState {
 
 /// Stores the [`prim_summary`] of lane's primitives, `$summary` giving primitive `$i`'s, and
 /// folds their doubled centroids into the workgroup's bounds: `items_per_lane` primitives
-/// (or `$items`), every `WORKGROUP`-th of the group's, in order (the first's is where the fold starts). A
-/// macro, not a function taking a closure: a closure holding a kernel's buffers became a
-/// function-scope variable of storage-buffer pointers, whose pipeline crashed both lavapipe's
-/// and NVIDIA's compilers.
+/// (or `$items`), every `WORKGROUP`-th of the group's, in order (the first's is where the
+/// fold starts). A macro, not a function taking a closure: a closure holding a kernel's
+/// buffers became a function-scope variable of storage-buffer pointers, whose pipeline
+/// crashed both lavapipe's and NVIDIA's compilers.
 macro_rules! reduce {
     ($lane:expr, $group:expr, $st:expr, $p:expr, $summaries:expr, |$i:ident| $summary:expr) => {{
         reduce!($lane, $group, $st, $p, $summaries, items_per_lane($p.n), |$i| $summary)
