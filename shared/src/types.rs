@@ -49,8 +49,10 @@ pub fn item_groups(n: u32) -> u32 {
 
 /// Primitives per lane of the transform stage of a frame that builds (`transform_bounds`):
 /// [`items_per_lane`], at most [`TRANSFORM_ITEMS`]. Its lanes wait on each primitive's
-/// loads in turn, and a workgroup more costs it only its six bounds atomics (the Morton
-/// stage's digit counts, which cost more a workgroup, keep `items_per_lane`). H200, `bench
+/// loads in turn, and a workgroup more costs it only its six bounds atomics. The other
+/// reductions keep `items_per_lane`: the Morton stage's digit counts cost more a workgroup,
+/// and the bounds pass of a build without a transform reads the primitives alone, at its
+/// bandwidth with eight a lane (two measured slower at 16M). H200, `bench
 /// realtime --instancing off`, rebuild p50 at 8 / 4 / 2 / 1 a lane: sixteen bunnies (1.1M)
 /// 0.433 / 0.428 / 0.424 / 0.426 ms, the herd (10M) 2.905 / 2.896 / 2.889 / 2.942
 /// (bench/NOTES.md, session 59).
@@ -63,6 +65,7 @@ pub const TRANSFORM_ITEMS: u32 = 2;
 pub fn transform_groups(n: u32) -> u32 {
     n.div_ceil(WORKGROUP * transform_items(n))
 }
+
 /// Marks "no node" (the root's parent) and a leaf's `right` field.
 pub const INVALID: u32 = u32::MAX;
 
