@@ -101,8 +101,9 @@ pub fn refit_restructured(
 }
 
 /// The box fit (`shared::refit::fit`): `fit`, and `fit_wide`, which decides the wide
-/// collapse's nodes on the way (`shared::wide`); specialisation constant 0 is 1 for the
-/// ordered variant, 0 for the relaxed one (lavapipe).
+/// collapse's nodes on the way (`shared::wide`); specialisation constant 0 is a sum of
+/// `shared::refit::FIT_ORDERED` (the ordered variant; not on lavapipe) and, for `fit` only,
+/// `shared::refit::FIT_PAIRS` (the boxes written into their parents' pairs).
 macro_rules! fit_kernel {
     ($name:ident, $wide:literal) => {
         #[spirv(compute(threads(256)))]
@@ -129,10 +130,20 @@ macro_rules! fit_kernel {
             refit::fit_links(lid.x, group, st, p, visits, node_words);
             barrier();
             let nodes = &mut refit::FitNodes::bound(node_words, node_quads);
-            if ordered != 0 {
-                refit::fit::<true, $wide>(lid.x, group, st, p, leaf, parents, visits, nodes, scratch);
-            } else {
-                refit::fit::<false, $wide>(lid.x, group, st, p, leaf, parents, visits, nodes, scratch);
+            let (lane, pairs) = (lid.x, !$wide && ordered & refit::FIT_PAIRS != 0);
+            match (ordered & refit::FIT_ORDERED != 0, pairs) {
+                (true, true) => {
+                    refit::fit::<true, $wide, true>(lane, group, st, p, leaf, parents, visits, nodes, scratch)
+                }
+                (true, false) => {
+                    refit::fit::<true, $wide, false>(lane, group, st, p, leaf, parents, visits, nodes, scratch)
+                }
+                (false, true) => {
+                    refit::fit::<false, $wide, true>(lane, group, st, p, leaf, parents, visits, nodes, scratch)
+                }
+                (false, false) => {
+                    refit::fit::<false, $wide, false>(lane, group, st, p, leaf, parents, visits, nodes, scratch)
+                }
             }
         }
     };
@@ -496,14 +507,24 @@ pub fn wide_write(
 }
 
 /// After the tree's boxes are final: each internal node's pair, its children as the walk
-/// reads them (`shared::traverse::write_pairs`).
+/// reads them (`shared::traverse::write_pairs`); with specialisation constant 0 set, after a
+/// fit that wrote the boxes into the pairs (`shared::refit::FIT_PAIRS`), only the entries of
+/// the nodes above its blocks (`shared::refit::pair_entry_above`).
 #[spirv(compute(threads(256)))]
 pub fn pairs_write(
     #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(spec_constant(id = 0, default = 0))] above: u32,
     #[spirv(push_constant)] p: &BuildParams,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] words: &mut [spirv_std::glam::UVec4],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] parents: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] visits: &[u32],
 ) {
-    shared::traverse::write_pairs(flat_index(id.x, id.y), p.n, words);
+    let i = flat_index(id.x, id.y);
+    if above != 0 {
+        refit::pair_entry_above(i, p.n, parents, visits, words);
+    } else {
+        shared::traverse::write_pairs(i, p.n, words);
+    }
 }
 
 #[spirv(compute(threads(256)))]

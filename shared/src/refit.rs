@@ -20,6 +20,7 @@
 //! operations instead of six; [`fit`] as 32-bit words.
 use crate::node_words::{load_box, store, Boxed, WORDS};
 use crate::sync::{self, at, at_mut, elem, elem_mut};
+use crate::traverse;
 use crate::treelet;
 use crate::types::{f32_to_ordered, prim_box, BuildParams, Sphere, Triangle, INVALID, WORKGROUP};
 use crate::wide;
@@ -159,6 +160,13 @@ pub fn refit<const ORDERED: bool, const TREELETS: bool, const BLOCKS: bool>(
     }
 }
 
+/// The `fit` kernel's specialisation constant, a sum of these: acquire-release arrival
+/// flags (real GPUs; lavapipe runs without, see [`refit`]).
+pub const FIT_ORDERED: u32 = 1;
+/// The `fit` kernel's specialisation-constant bit for [`fit`]'s `PAIRS`: each box written
+/// where the binary walk reads it, in its parent's pair, rather than in its own node.
+pub const FIT_PAIRS: u32 = 2;
+
 /// [`restructured`]'s variant bit: acquire-release counters (real GPUs; lavapipe runs
 /// without, see [`refit`]).
 pub const ORDERED_COUNTERS: u32 = 1;
@@ -231,16 +239,69 @@ impl<'a> FitNodes<'a> {
         }
     }
 
+    /// The node buffer as 16-byte words.
+    fn quads(&mut self) -> &mut [UVec4] {
+        #[cfg(target_arch = "spirv")]
+        return &mut *self.quads;
+        #[cfg(not(target_arch = "spirv"))]
+        bytemuck::cast_slice_mut(&mut *self.words)
+    }
+
     /// Writes leaf node `node`: its primitive `prim` and box `(lo, hi)`.
     fn store_leaf(&mut self, node: u32, prim: u32, lo: [f32; 3], hi: [f32; 3]) {
-        #[cfg(target_arch = "spirv")]
-        let quads = &mut *self.quads;
-        #[cfg(not(target_arch = "spirv"))]
-        let quads: &mut [UVec4] = bytemuck::cast_slice_mut(&mut *self.words);
-        let bits = |v: [f32; 3], w: u32| UVec4::new(v[0].to_bits(), v[1].to_bits(), v[2].to_bits(), w);
+        let quads = self.quads();
         *at_mut(quads, 2 * node) = bits(lo, prim);
         *at_mut(quads, 2 * node + 1) = bits(hi, INVALID);
     }
+
+    /// Writes node `node`'s entry in its parent's pair (of an `n`-primitive tree; its left
+    /// child's entry where `left`), as [`traverse::write_pairs`] copies it: its box `(lo,
+    /// hi)`, the node, and its primitive `prim` ([`INVALID`] for an internal node).
+    #[allow(clippy::too_many_arguments)]
+    fn store_entry(&mut self, n: u32, parent: u32, left: bool, node: u32, prim: u32, lo: [f32; 3], hi: [f32; 3]) {
+        let k = entry_at(n, parent, left);
+        let quads = self.quads();
+        *at_mut(quads, k) = bits(lo, node);
+        *at_mut(quads, k + 1) = bits(hi, prim);
+    }
+}
+
+/// A box's corner and a word as a 16-byte word.
+fn bits(v: [f32; 3], w: u32) -> UVec4 {
+    UVec4::new(v[0].to_bits(), v[1].to_bits(), v[2].to_bits(), w)
+}
+
+/// The 16-byte word where internal node `parent`'s pair holds its left (`left`) or right
+/// child's entry, in the node buffer of an `n`-primitive tree ([`traverse::write_pairs`]).
+fn entry_at(n: u32, parent: u32, left: bool) -> u32 {
+    2 * (traverse::pairs_at(n) + 2 * parent + u32::from(!left))
+}
+
+/// Whether internal node `x` of an `n`-primitive Karras tree (its leaf range's far end at
+/// `visits[n + x]`) is *local*: its leaves all lie in one block, so [`fit`] fits it in
+/// workgroup memory (a node's index is one end of its leaf range).
+pub fn local(x: u32, n: u32, visits: &[u32]) -> bool {
+    *at(visits, n + x) / BLOCK == x / BLOCK
+}
+
+/// After [`fit`] with `PAIRS`: writes internal node `x`'s entry in its parent's pair where
+/// the fit did not, for a node above the blocks (not [`local`]), whose box the fit merged by
+/// atomics from many lanes and is final only now; `words` is the node buffer as 16-byte
+/// words, `parents` the tree's. (The `pairs_write` pass specialised, reading a word a node
+/// where the full pass reads three nodes and writes a pair.)
+pub fn pair_entry_above(x: u32, n: u32, parents: &[u32], visits: &[u32], words: &mut [UVec4]) {
+    if x + 1 >= n || local(x, n, visits) {
+        return;
+    }
+    let parent = *at(parents, x);
+    if parent == INVALID {
+        return;
+    }
+    let left = at(words, 2 * parent).w == x;
+    let (lo, hi) = (*at(words, 2 * x), *at(words, 2 * x + 1));
+    let k = entry_at(n, parent, left);
+    *at_mut(words, k) = UVec4::new(lo.x, lo.y, lo.z, x);
+    *at_mut(words, k + 1) = UVec4::new(hi.x, hi.y, hi.z, INVALID);
 }
 
 /// A link's flag: the parent's leaves all lie in the block (its slot is the low byte).
@@ -315,8 +376,8 @@ pub fn fit_links(lane: u32, group: u32, st: &mut FitState, p: &BuildParams, visi
     if x + 1 >= p.n {
         return;
     }
-    let (a, b, far) = (*at(words, 8 * x + 3), *at(words, 8 * x + 7), *at(visits, p.n + x));
-    if far.wrapping_sub(base) < BLOCK {
+    let (a, b) = (*at(words, 8 * x + 3), *at(words, 8 * x + 7));
+    if local(x, p.n, visits) {
         set_link(st, p.n, base, a, LOCAL | LEFT | lane);
         set_link(st, p.n, base, b, LOCAL | lane);
     }
@@ -379,9 +440,16 @@ pub fn fit_leaf(lane: u32, group: u32, p: &BuildParams, prims: Prims) -> Leaf {
 /// lane climbs on from its local root after its box merges, by [`wide::arrive`]'s flags,
 /// until it arrives first. (The first arrival's part in a workgroup array of its own, 1 KB
 /// more, cost the binary fit 2% at 16M primitives on the H200.)
+///
+/// `PAIRS` (not with `WIDE`; a tree of at least two primitives, with room for its pairs
+/// after it) writes each leaf's and each local node's box where the binary walk reads it,
+/// as its entry in its parent's pair ([`traverse::write_pairs`]), instead of in its own node:
+/// the same bytes stored, and no pass over the whole tree after the fit, only
+/// [`pair_entry_above`] for the nodes above the blocks, whose boxes the atomics merge (the
+/// root's box is kept in its node; the other leaves and local nodes keep only their links).
 #[allow(clippy::too_many_arguments)]
 #[allow(clippy::identity_op)] // `seq!` starts at 0
-pub fn fit<const ORDERED: bool, const WIDE: bool>(
+pub fn fit<const ORDERED: bool, const WIDE: bool, const PAIRS: bool>(
     lane: u32,
     group: u32,
     st: &mut FitState,
@@ -399,11 +467,16 @@ pub fn fit<const ORDERED: bool, const WIDE: bool>(
         return;
     }
     let mut node = n - 1 + i;
-    let (prim, mut lo, mut hi) = leaf;
-    nodes.store_leaf(node, prim, lo, hi);
+    let (mut prim, mut lo, mut hi) = leaf;
+    if !PAIRS {
+        nodes.store_leaf(node, prim, lo, hi);
+    }
     let mut part = wide::Part::LEAF;
     let mut up = *elem(&st.leaf_links, lane);
     while up & LOCAL != 0 {
+        if PAIRS {
+            nodes.store_entry(n, base + (up & 0xff), up & LEFT != 0, node, prim, lo, hi);
+        }
         let slot = 6 * lane;
         seq!(K in 0..3 {
             *elem_mut(&mut st.boxes, slot + K) = lo[K];
@@ -446,10 +519,25 @@ pub fn fit<const ORDERED: bool, const WIDE: bool>(
             hi[K] = l_hi.max(r_hi);
         });
         node = base + s;
-        store_box(nodes.words, node, lo, hi);
+        prim = INVALID;
+        if !PAIRS {
+            store_box(nodes.words, node, lo, hi);
+        }
         up = old & 0xffff;
     }
     let mut a = *at(parents, node);
+    if PAIRS {
+        // A local root: its box is final, so its entry is written now (the nodes above get
+        // theirs from `pair_entry_above`); the tree's root where all of it is local.
+        if a != INVALID {
+            let left = *at(nodes.words, 8 * a + 3) == node;
+            nodes.store_entry(n, a, left, node, prim, lo, hi);
+        } else if prim == INVALID {
+            store_box(nodes.words, node, lo, hi);
+        } else {
+            nodes.store_leaf(node, prim, lo, hi);
+        }
+    }
     while a != INVALID {
         let next = *at(parents, a);
         if !grow(nodes.words, a, lo, hi) {

@@ -1,7 +1,7 @@
 //! The build kernels run by the CPU executor: sort order and stability, Karras's worked
 //! example, valid trees on every input shape, the wide collapse's decisions, a validator
 //! that catches broken trees, and clear errors for bad mesh files.
-use raytrace::bvh::{clear_unreached, validate, validate_wide, BuildOptions, MortonBits};
+use raytrace::bvh::{clear_unreached, pairs, validate, validate_wide, BuildOptions, MortonBits};
 use raytrace::cpu;
 use raytrace::inputs::{generate, load_obj, Distribution};
 use shared::karras::range_and_split;
@@ -178,6 +178,14 @@ fn every_input_shape_gives_a_valid_tree() {
                     panic!("{dist:?} n={n} {bits:?} treelets {treelets} x{rounds} ploc {ploc}: {e}")
                 });
                 assert_eq!(stats.leaves, n);
+                // The pairs the walk reads are each node's children as the tree holds them,
+                // however they were written: by the fit, which writes the boxes into them
+                // (the Karras tree), or by the pass after the tree's boxes are final.
+                let expected = pairs(&r.nodes);
+                assert!(
+                    bytemuck::cast_slice::<_, u8>(&r.pairs) == bytemuck::cast_slice::<_, u8>(&expected),
+                    "{dist:?} n={n} {bits:?} treelets {treelets} x{rounds} ploc {ploc}: pairs differ from the tree's"
+                );
                 if dist == Distribution::AllEqual && n % 2 == 1 && !treelets {
                     // Only identical triangles (odd n has no spheres): every code is equal, and
                     // the index tie-break keeps the tree balanced.

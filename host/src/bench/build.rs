@@ -258,8 +258,10 @@ pub fn markdown(r: &BuildReport) -> String {
          built tree (internal boxes emptied, the fit run again; bounds, codes, sort and tree \
          kept; an H-PLOC tree's by the counter refit), timed as `total` (none for treelets or wide \
          trees, which cannot be refit); an H-PLOC build's tree and boxes are one kernel, timed in \
-         `tree`; a binary build's `refit` stage includes its pairs pass (each internal node's \
-         children copied into one 64-byte pair, as the binary walk reads them), a wide build's \
+         `tree`; a binary build's `refit` stage includes its pairs (each internal node's \
+         children as one 64-byte pair, as the binary walk reads them: written by the fit, and \
+         those of the nodes above its blocks by a pass after it; after treelets or H-PLOC by a \
+         pass over every node), a wide build's \
          the collapse's decisions (its fit decides which binary nodes root wide nodes; `wide` \
          is the pass writing them). BVH bytes count \
          the nodes traced (a binary build: the tree and its pairs; a wide build: the wide \

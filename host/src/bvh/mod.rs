@@ -195,6 +195,23 @@ pub fn clear_unreached(wide: &mut [WideNode]) {
     }
 }
 
+/// Completes the tree `nodes` of a fit that wrote the boxes of the leaves and of the nodes
+/// inside its blocks into their parents' pairs only (`shared::refit::FIT_PAIRS`): each
+/// child's box (and a leaf's primitive) copied back from its entry in `pairs`, so that the
+/// build's result holds the whole tree, as a fit without it writes it.
+pub fn boxes_from_pairs(nodes: &mut [Node], pairs: &[Node]) {
+    let first_leaf = nodes.len() / 2;
+    for e in pairs {
+        let Some(node) = nodes.get_mut(e.a as usize) else {
+            continue;
+        };
+        (node.min, node.max) = (e.min, e.max);
+        if e.a as usize >= first_leaf {
+            (node.a, node.b) = (e.b, INVALID);
+        }
+    }
+}
+
 /// The pairs a build with `opts` writes after its binary tree `nodes` ([`pairs`]; none for a
 /// wide build or without [`BuildOptions::pairs`]).
 pub fn pairs_if(opts: BuildOptions, nodes: &[Node]) -> Vec<Node> {

@@ -75,11 +75,13 @@ pub struct SceneArgs {
     /// least 16 samples per pixel and traces at least 32 samples per primitive).
     #[arg(long, value_enum, default_value = "auto")]
     pub treelets: Treelets,
-    /// Whether every build copies each node's children as one 64-byte pair after the tree,
-    /// which the binary walk reads a step instead of the node and then each child: a pass
-    /// over the tree and twice its bytes. `auto` writes them at every size, where a storage-
-    /// buffer binding holds them: they make every frame measured faster (H200, real-time
-    /// frames: the bunny 8%, the sixteen bunnies 9%, the herd's 10M primitives 10%).
+    /// Whether every build writes each node's children as one 64-byte pair after the tree,
+    /// which the binary walk reads a step instead of the node and then each child: twice the
+    /// tree's bytes (the radix tree's fit writes its boxes into them; after treelets or
+    /// H-PLOC, a pass over the tree copies them). `auto` writes them at every size, where a
+    /// storage-buffer binding holds them: they make every frame measured faster (H200,
+    /// real-time frames: the bunny 8%, the sixteen bunnies 9%, the herd's 10M primitives
+    /// 10%).
     #[arg(long, value_enum, default_value = "auto")]
     pub pairs: Pairs,
     /// Objects as instances of their meshes (two-level BVH: each mesh built once, the top

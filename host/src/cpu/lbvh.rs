@@ -10,7 +10,7 @@ use shared::refit::{ORDERED_COUNTERS as ORDERED, RESTRUCTURE as AGAIN};
 use shared::scan::{self, BlockScan};
 use shared::types::{item_groups, BuildParams, Node, OrderedBounds, Sphere, Triangle, SORT_ITEMS, WORKGROUP};
 use shared::wide::{self, WideNode};
-use shared::{karras, morton, ploc, refit};
+use shared::{karras, morton, ploc, refit, traverse};
 use std::time::Instant;
 
 const WG: usize = WORKGROUP as usize;
@@ -243,11 +243,14 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
             debug_assert!(visits[..n as usize - 1].iter().all(|&c| c == 0));
             restructured(ORDERED | AGAIN, &p, prims, &mut parents, &mut visits, &mut words);
         }
-        bytemuck::pod_collect_to_vec(&words)
+        let nodes: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
+        out.pairs = crate::bvh::pairs_if(opts, &nodes);
+        nodes
     } else {
-        fit(&p, prims, &parents, &visits, &nodes, &mut scratch)
+        let (nodes, pairs) = fit(&p, prims, &parents, &visits, &nodes, &mut scratch, opts);
+        out.pairs = pairs;
+        nodes
     };
-    out.pairs = crate::bvh::pairs_if(opts, &nodes);
     lap("refit", &mut times);
     if opts.wide && n > 0 {
         out.wide = collapse(&p, &nodes, &parents, &visits, &scratch);
@@ -259,9 +262,13 @@ fn build_keyed<K: SortKey + Pod + Default + Into<u64>>(
 }
 
 /// The build's fit (`shared::refit::fit`) over the Karras tree `nodes` (its leaf ranges'
-/// far ends in `visits[n..]`), as the GPU runs it; returns the fitted nodes. With the wide
-/// collapse's `scratch` (a word per internal node; empty for a binary build), it decides
-/// the collapse's nodes on the way (`fit_wide`).
+/// far ends in `visits[n..]`), as the GPU runs it, and the pairs a build with `opts`
+/// writes: returns the fitted nodes and their pairs. Where it writes pairs, the fit writes
+/// the boxes into them (`FIT_PAIRS`, as the GPU does where one binding holds them) and the
+/// `pairs_write` pass then those of the nodes above the blocks
+/// (`refit::pair_entry_above`), and the nodes' boxes are copied back from the pairs. With
+/// the wide collapse's `scratch` (a word per internal node; empty for a binary build), it
+/// decides the collapse's nodes on the way (`fit_wide`).
 fn fit(
     p: &BuildParams,
     prims: refit::Prims,
@@ -269,9 +276,15 @@ fn fit(
     visits: &[u32],
     nodes: &[Node],
     scratch: &mut [u32],
-) -> Vec<Node> {
-    // The fit sees the nodes as 32-bit words.
-    let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(nodes);
+    opts: BuildOptions,
+) -> (Vec<Node>, Vec<Node>) {
+    let pairs = opts.pairs && !opts.wide && scratch.is_empty() && p.n >= 2;
+    // The fit sees the nodes as 32-bit words (with room for the pairs after them).
+    let mut all = nodes.to_vec();
+    if pairs {
+        all.resize(traverse::traced_nodes(p.n) as usize, Node::default());
+    }
+    let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(&all);
     for g in 0..p.n.div_ceil(refit::BLOCK) {
         let mut st = refit::FitState {
             boxes: [0.0; 6 * refit::BLOCK as usize],
@@ -283,13 +296,25 @@ fn fit(
         lanes(|l| refit::fit_links(l, g, &mut st, p, visits, &words));
         let leaf = |l: u32| leaves[l as usize];
         let nodes = &mut refit::FitNodes { words: &mut words };
-        if scratch.is_empty() {
-            lanes(|l| refit::fit::<true, false>(l, g, &mut st, p, leaf(l), parents, visits, nodes, scratch));
+        if pairs {
+            lanes(|l| refit::fit::<true, false, true>(l, g, &mut st, p, leaf(l), parents, visits, nodes, scratch));
+        } else if scratch.is_empty() {
+            lanes(|l| refit::fit::<true, false, false>(l, g, &mut st, p, leaf(l), parents, visits, nodes, scratch));
         } else {
-            lanes(|l| refit::fit::<true, true>(l, g, &mut st, p, leaf(l), parents, visits, nodes, scratch));
+            lanes(|l| refit::fit::<true, true, false>(l, g, &mut st, p, leaf(l), parents, visits, nodes, scratch));
         }
     }
-    bytemuck::pod_collect_to_vec(&words)
+    let mut all: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
+    if !pairs {
+        let pairs = crate::bvh::pairs_if(opts, &all);
+        return (all, pairs);
+    }
+    let quads: &mut [glam::UVec4] = bytemuck::cast_slice_mut(&mut all);
+    (0..p.n - 1).for_each(|x| refit::pair_entry_above(x, p.n, parents, visits, quads));
+    let pairs = all.split_off(traverse::pairs_at(p.n) as usize);
+    all.truncate(nodes.len());
+    crate::bvh::boxes_from_pairs(&mut all, &pairs);
+    (all, pairs)
 }
 
 /// One dispatch of the `refit_restructured` kernel (`refit::restructured`, `variant` its
@@ -414,9 +439,9 @@ fn refit_with(
     let mut words: Vec<u32> = bytemuck::pod_collect_to_vec(&earlier.nodes);
     (0..n).for_each(|i| refit::empty_box(i, &p, &mut words));
     let emptied: Vec<Node> = bytemuck::pod_collect_to_vec(&words);
-    let nodes = fit(&p, prims, &earlier.parents, &visits, &emptied, &mut []);
+    let (nodes, pairs) = fit(&p, prims, &earlier.parents, &visits, &emptied, &mut [], opts);
     Ok(BuildResult {
-        pairs: crate::bvh::pairs_if(opts, &nodes),
+        pairs,
         nodes,
         wide: Vec::new(),
         ..earlier.clone()

@@ -558,7 +558,7 @@ impl Gpu {
     pub fn refit_kernel(&self, treelets: bool) -> (super::Kernel, Option<u32>) {
         use super::Kernel::*;
         match (treelets, self.is_lavapipe()) {
-            (false, lavapipe) => (Fit, Some(u32::from(!lavapipe))),
+            (false, lavapipe) => (Fit, Some(if lavapipe { 0 } else { shared::refit::FIT_ORDERED })),
             (true, false) => (RefitTreelets, None),
             (true, true) => (RefitTreeletsRelaxed, None),
         }
