@@ -100,10 +100,10 @@ pub fn refit_restructured(
     refit::restructured(variant, lid.x, group, st, p, prims, parents, visits, node_words);
 }
 
-/// The box fit (`shared::refit::fit`): `fit`, and `fit_wide`, which decides the wide
-/// collapse's nodes on the way (`shared::wide`); specialisation constant 0 is a sum of
-/// `shared::refit::FIT_ORDERED` (the ordered variant; not on lavapipe) and, for `fit` only,
-/// `shared::refit::FIT_PAIRS` (the boxes written into their parents' pairs).
+/// The box fit (`shared::refit::fit`): `fit`, and `fit_wide`, deciding the wide collapse on the way (`shared::wide`);
+/// constant 0 a sum of `refit::FIT_ORDERED` (not on lavapipe) and, for `fit`, `refit::FIT_PAIRS`. Unformatted: as
+/// rustfmt lays it out, the sort kernels below compile 30% slower at 1M keys (H200; bench/NOTES.md, session 60).
+#[rustfmt::skip]
 macro_rules! fit_kernel {
     ($name:ident, $wide:literal) => {
         #[spirv(compute(threads(256)))]
@@ -132,18 +132,10 @@ macro_rules! fit_kernel {
             let nodes = &mut refit::FitNodes::bound(node_words, node_quads);
             let (lane, pairs) = (lid.x, !$wide && ordered & refit::FIT_PAIRS != 0);
             match (ordered & refit::FIT_ORDERED != 0, pairs) {
-                (true, true) => {
-                    refit::fit::<true, $wide, true>(lane, group, st, p, leaf, parents, visits, nodes, scratch)
-                }
-                (true, false) => {
-                    refit::fit::<true, $wide, false>(lane, group, st, p, leaf, parents, visits, nodes, scratch)
-                }
-                (false, true) => {
-                    refit::fit::<false, $wide, true>(lane, group, st, p, leaf, parents, visits, nodes, scratch)
-                }
-                (false, false) => {
-                    refit::fit::<false, $wide, false>(lane, group, st, p, leaf, parents, visits, nodes, scratch)
-                }
+                (true, true) => refit::fit::<true, $wide, true>(lane, group, st, p, leaf, parents, visits, nodes, scratch),
+                (true, false) => refit::fit::<true, $wide, false>(lane, group, st, p, leaf, parents, visits, nodes, scratch),
+                (false, true) => refit::fit::<false, $wide, true>(lane, group, st, p, leaf, parents, visits, nodes, scratch),
+                (false, false) => refit::fit::<false, $wide, false>(lane, group, st, p, leaf, parents, visits, nodes, scratch),
             }
         }
     };

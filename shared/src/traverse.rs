@@ -371,10 +371,9 @@ pub fn traced_nodes(n: u32) -> u32 {
 /// nodes `pairs_at(n) + 2 i` and `+ 1`. The walk then reads one pair a step (one 64-byte load)
 /// where the tree alone needs the node's links and then each child's box (H200, bunny
 /// diffuse bounces 2.71 -> 2.80 Grays/s, the thesis frame's trace 53.4 -> 51.3 ms:
-/// bench/NOTES.md, session 41). A copy made after the boxes are final (the `pairs_write`
-/// pass after treelets or H-PLOC; the CPU executor's `bvh::pairs`), so the backends' pairs
-/// are equal whenever their trees are; a Karras tree's fit writes the same entries itself
-/// (`refit::fit`'s `PAIRS`).
+/// bench/NOTES.md, session 41). A copy made after the boxes are final (`pairs_write` after
+/// treelets or H-PLOC; the CPU executor's `bvh::pairs`), so the backends' pairs are equal
+/// whenever their trees are; a Karras tree's fit writes them itself (`refit::fit`, `PAIRS`).
 pub fn write_pairs(i: u32, n: u32, words: &mut [UVec4]) {
     if n < 2 || i >= n - 1 {
         return;
