@@ -592,7 +592,7 @@ impl GpuLbvh {
             cmds.barrier();
             stamp(cmds, STAGES[3]);
             // Its "refit" stage: the pairs.
-            self.record_pairs(cmds, &p, opts, false)?;
+            self.record_pairs(cmds, &p, opts)?;
             cmds.timestamp(if stages { STAGES[4] } else { "build" });
             return Ok(());
         }
@@ -626,7 +626,7 @@ impl GpuLbvh {
         } else {
             // The pairs' pass is timed in the refit stage: after a fit that wrote the boxes
             // into the pairs, only the entries of the nodes above its blocks.
-            self.record_pairs(cmds, &p, opts, self.fit_pairs(opts) != 0)?;
+            self.record_pairs(cmds, &p, opts)?;
             cmds.timestamp(if stages { STAGES[4] } else { "build" });
         }
         Ok(())
@@ -649,7 +649,7 @@ impl GpuLbvh {
     /// restructured): where the build writes pairs, the fit writes the boxes into them
     /// (`shared::refit::FIT_PAIRS`; H200, the sixteen bunnies' rebuild 0.427 -> 0.375 ms:
     /// the full pass after the fit took 0.057).
-    pub fn fit_pairs(&self, opts: BuildOptions) -> u32 {
+    fn fit_pairs(&self, opts: BuildOptions) -> u32 {
         if self.writes_pairs(opts) && !opts.counter_refit() {
             shared::refit::FIT_PAIRS
         } else {
@@ -659,16 +659,17 @@ impl GpuLbvh {
 
     /// Records the pairs' pass after the tree's boxes are final (`pairs_write`: each internal
     /// node's children copied as a flattened scene's binary walk reads them,
-    /// `traverse::write_pairs`); with `above`, after a fit that wrote the boxes into the pairs
+    /// `traverse::write_pairs`); after a fit that wrote the boxes into the pairs
     /// ([`Self::fit_pairs`]), only the entries of the nodes above its blocks
     /// (`shared::refit::pair_entry_above`). Not for nodes placed in another buffer (the levels
     /// of a scene in two levels, whose walk reads the tree itself).
-    fn record_pairs(&self, cmds: &mut Commands, p: &BuildParams, opts: BuildOptions, above: bool) -> Result<()> {
+    fn record_pairs(&self, cmds: &mut Commands, p: &BuildParams, opts: BuildOptions) -> Result<()> {
         if !self.writes_pairs(opts) {
             return Ok(());
         }
         let b = self.bufs.as_ref().context("no primitives uploaded")?;
         let k = &self.kernels;
+        let above = self.fit_pairs(opts) != 0;
         let pass = k.specialised(Kernel::PairsWrite, u32::from(above))?;
         let (x, y) = grid((self.n - 1).div_ceil(WORKGROUP));
         cmds.dispatch_pipeline(k, pass, &[b.sets.sets[0]], bytemuck::bytes_of(p), x, y);
@@ -720,7 +721,7 @@ impl GpuLbvh {
             let (x, y) = grid(items);
             cmds.dispatch_pipeline(k, refit, &[set], bytemuck::bytes_of(&p), x, y);
             cmds.barrier();
-            self.record_pairs(cmds, &p, opts, self.fit_pairs(opts) != 0)?;
+            self.record_pairs(cmds, &p, opts)?;
         }
         cmds.timestamp("refit");
         Ok(())
