@@ -1,6 +1,6 @@
 //! `raytrace render`: rendering a prepared scene on either backend with progress, the
 //! backend `auto` picks, the summary line.
-use super::scene::{Pairs, Prepared, SceneArgs, Tree, Treelets};
+use super::scene::{segments, Pairs, Prepared, SceneArgs, Tree, Treelets};
 use crate::cpu::{render_cpu_samples, CpuDenoiser, CpuRender};
 use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Instance, Kernels};
 use crate::picture::Picture;
@@ -94,26 +94,52 @@ struct Traced {
     first_s: f64,
 }
 
-/// Traces `spp` samples per pixel of the scene loaded in `r`, in submissions of growing
-/// size.
+/// Path segments ([`segments`]) a submission of samples after a frame's first holds at most:
+/// about a quarter of a second of an H200's tracing (4.5 G segments a second in the closed
+/// box), so that the progress bar moves and no submission runs long enough for a display
+/// driver's watchdog. Each submission costs the trace time of its own (a dispatch's tail of
+/// lanes finishing the longest paths, the GPU idle between submissions: 0.2 ms a submission
+/// at 800x800 and depth 16, more at 1920x1080), so a frame of less work than this is traced
+/// in two (H200, 800x800 at 32 spp and depth 16, against the submissions of 1, 1, 2, 4, 8
+/// and 16 samples before: the closed box 75.7 -> 74.9 ms, the bunny 14.1 -> 13.4 with NEE
+/// off, the Cornell box with NEE 18.6 -> 17.3; bench/NOTES.md, session 61).
+const SUBMISSION_SEGMENTS: u64 = 1 << 30;
+
+/// Seconds a submission aims at on a device too slow for [`SUBMISSION_SEGMENTS`] in it
+/// (twice an H200's time for them, so that the segments decide there).
+const SUBMISSION_S: f64 = 0.5;
+
+/// Samples a submission after the first holds: [`SUBMISSION_SEGMENTS`]'s worth, fewer where
+/// the first sample's trace (`first`'s stages; `first_s` host seconds where the device has no
+/// timestamps) says that would take longer than [`SUBMISSION_S`]. Where the segments decide
+/// (an H200's frames: they trace about twice as fast), the submissions do not depend on the
+/// clock, nor do the image's bits (a dispatch sums its samples of a pixel before adding them
+/// to the accumulation).
+fn submission_samples(frame: &Frame, first: &[(&'static str, f64)], first_s: f64) -> u32 {
+    let pixels = frame.width as u64 * frame.height as u64;
+    let by_segments = SUBMISSION_SEGMENTS / segments(frame, pixels, 1).max(1);
+    let trace: f64 = first.iter().filter(|t| t.0 == "trace").map(|t| t.1).sum();
+    let per_sample = if trace > 0.0 { trace } else { first_s };
+    let by_clock = (SUBMISSION_S / per_sample.max(1e-9)).min(u32::MAX as f64) as u64;
+    by_segments.min(by_clock).clamp(1, u32::MAX as u64) as u32
+}
+
+/// Traces `spp` samples per pixel of the scene loaded in `r`: the first sample in a
+/// submission of its own (with the build), the rest in submissions of
+/// [`submission_samples`].
 fn trace_loaded(r: &mut GpuRenderer, spp: u32, quiet: bool) -> Result<Traced> {
     let start = Instant::now();
     let mut timings = r.render(1.min(spp), true)?;
     let first_s = start.elapsed().as_secs_f64();
     let mut submissions = 1;
-    let mut chunk = 1;
+    let chunk = submission_samples(r.frame(), &timings, first_s);
     let bar = (!quiet).then(|| progress_bar(spp as u64, "samples"));
     while r.samples() < spp {
-        let t = Instant::now();
         let n = chunk.min(spp - r.samples());
         timings.extend(r.render(n, false)?);
         submissions += 1;
         if let Some(b) = &bar {
             b.set_position(r.samples() as u64);
-        }
-        // About a quarter of a second per submission.
-        if t.elapsed().as_secs_f64() < 0.25 {
-            chunk *= 2;
         }
     }
     if let Some(b) = bar {
@@ -889,5 +915,36 @@ pub fn ms(t: f64) -> String {
         format!("{t:.2} s")
     } else {
         format!("{:.3} ms", t * 1e3)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::types::FLAG_NEE;
+
+    #[test]
+    fn submissions_hold_a_budget_of_segments_or_half_a_second() {
+        let frame = |size, depth, flags| Frame {
+            width: size,
+            height: size,
+            max_depth: depth,
+            flags,
+            ..Default::default()
+        };
+        let trace = |s| [("transform", 1e-5), ("trace", s), ("display", 1e-5)];
+        // The closed box (800x800, depth 16, no NEE: 10.24M segments a sample) on an H200
+        // (2.4 ms a sample): the segments decide, 104 samples a submission.
+        let closed_box = frame(800, 16, 0);
+        assert_eq!(submission_samples(&closed_box, &trace(2.4e-3), 0.5), 104);
+        assert_eq!(submission_samples(&closed_box, &trace(2.5e-3), 0.1), 104);
+        // NEE counts each segment's shadow ray: half as many.
+        assert_eq!(submission_samples(&frame(800, 16, FLAG_NEE), &trace(2.4e-3), 0.5), 52);
+        // A device ten times slower: half a second's samples.
+        assert_eq!(submission_samples(&closed_box, &trace(24e-3), 0.5), 20);
+        // No timestamps: the first submission's host seconds; never less than a sample.
+        assert_eq!(submission_samples(&closed_box, &[], 0.05), 10);
+        assert_eq!(submission_samples(&closed_box, &[], 3.0), 1);
+        assert_eq!(submission_samples(&frame(16384, 64, FLAG_NEE), &trace(1e-3), 1.0), 1);
     }
 }
