@@ -830,3 +830,14 @@ scene_kernel! {
 pub fn fma_probe(#[spirv(storage_buffer, descriptor_set = 0, binding = 0)] io: &mut [f32]) {
     io[3] = shared::math::fma(io[0], io[1], io[2]);
 }
+
+/// Adds a persistent path tracer's sample groups' sums to the accumulation
+/// (`path::add_groups`): `p.flags` groups of `p.count` pixels.
+#[spirv(compute(threads(256)))]
+pub fn accum_groups(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &RenderPush,
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
+) {
+    path::add_groups(flat_index(id.x, id.y), p.count, p.flags, accum);
+}

@@ -22,6 +22,7 @@ use crate::types::{
     xyz, Camera, Frame, Hit, Material, MaterialKind, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY,
     CAST_OBJECT, CAST_SPAWN, FEATURE_ENVMAP, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FEATURE_PUNCTUAL,
     FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
+    VARIANT_GROUPS,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -743,6 +744,62 @@ fn shade<T: Trace>(
     true
 }
 
+/// Work items a dispatch of the persistent stepped loop aims at ([`sample_groups`]): a lane
+/// takes an item (a pixel's samples, or a group of them) and traces all of it before it takes
+/// the next, so once the items run out the lanes end at times spread over a whole item's
+/// work. With about 135K lanes (an H200) and 800x800 pixels a lane traced five pixels, and the
+/// frame 8-13% slower than the same samples over 3200x3200 pixels; in groups, H200, 800x800
+/// at 32 spp, depth 16: the closed box 74.9 -> 72.0 ms, the bunny without NEE 13.4 -> 12.3,
+/// the sixteen bunnies 33.3-34.2 -> 28.4. Not for the segment loop's frames (with NEE): the
+/// Cornell box's cheap paths then waited on the one counter's six times as many atomics, 16.9
+/// -> 18.4 ms (bench/NOTES.md, session 61).
+pub const GROUP_ITEMS: u32 = 1 << 22;
+
+/// The most groups a pixel's samples of a dispatch are split into.
+pub const MAX_GROUPS: u32 = 32;
+
+/// Groups a persistent stepped dispatch of `samples` samples of `pixels` pixels splits each pixel's
+/// samples into: enough for about [`GROUP_ITEMS`] items, at most [`MAX_GROUPS`], none empty.
+/// From the frame alone, not the device, so that every device sums the same groups (the
+/// image's bits: [`add_groups`]).
+pub fn sample_groups(pixels: u32, samples: u32) -> u32 {
+    let want = (GROUP_ITEMS / pixels.max(1)).clamp(1, MAX_GROUPS).min(samples.max(1));
+    let per = samples.div_ceil(want).max(1);
+    samples.div_ceil(per).max(1)
+}
+
+/// Group `g`'s samples of a dispatch of `samples` samples in `groups` groups: the first
+/// (from the dispatch's first) and how many.
+pub fn group_samples(samples: u32, groups: u32, g: u32) -> (u32, u32) {
+    let per = samples.div_ceil(groups.max(1));
+    let first = (g * per).min(samples);
+    (first, per.min(samples - first))
+}
+
+/// Where group `g`'s sums of pixel `pixel` are written, past the frame's `pixels` sums.
+pub fn group_slot(pixels: u32, g: u32, pixel: u32) -> u32 {
+    pixels * (1 + g) + pixel
+}
+
+/// Adds pixel `pixel`'s `groups` group sums (written by a dispatch of `groups` groups) to
+/// its accumulation: the groups' sums added in group order, then to what the pixel held (as
+/// a dispatch of one group adds its samples' sum). The host's `Kernel::AccumGroups`, after
+/// such a dispatch.
+pub fn add_groups(pixel: u32, pixels: u32, groups: u32, accum: &mut [[f32; 4]]) {
+    if pixel >= pixels {
+        return;
+    }
+    let mut s = *sync::at(accum, group_slot(pixels, 0, pixel));
+    let mut g = 1;
+    while g < groups {
+        let t = *sync::at(accum, group_slot(pixels, g, pixel));
+        s = [s[0] + t[0], s[1] + t[1], s[2] + t[2], s[3] + t[3]];
+        g += 1;
+    }
+    let a = sync::at_mut(accum, pixel);
+    *a = [a[0] + s[0], a[1] + s[1], a[2] + s[2], a[3] + s[3]];
+}
+
 /// Persistent path tracing (the host's `Kernel::PathTracePersistent`, workgroups of 1,024):
 /// every invocation renders pixel after pixel ([`render_pixel`]), each the next number of a
 /// counter (the first word of `guides`' last entry, zeroed before the dispatch), until the
@@ -1012,6 +1069,11 @@ fn stepped_pixels(
     let tiles_x = f.width.div_ceil(8);
     let n = tiles_x * f.height.div_ceil(4) * 32;
     let (mut x, mut y) = (x, y);
+    // Fetched items are a pixel's samples, or with `VARIANT_GROUPS` a group of them
+    // ([`sample_groups`]): the item's group, its first sample and how many.
+    let grouped = fetch && w.scene.features & VARIANT_GROUPS != 0;
+    let groups = if grouped { p.flags.max(1) } else { 1 };
+    let (mut group, mut base, mut count) = (0, p.sample_base, p.samples);
     // The pixel's samples so far (`open`: a pixel is held), as in `pixel_samples_guided`.
     let mut open = !fetch;
     let (mut sum, mut emission, mut rays, mut started) = (Vec3::ZERO, Vec3::ZERO, 0, 0);
@@ -1083,37 +1145,49 @@ fn stepped_pixels(
             }
         }
         if !live {
-            if !open || started == p.samples {
+            if !open || started == count {
                 if open {
                     let (s, g) = pixel_result(x, y, p, w, &first, sum, emission, rays);
                     if !fetch {
                         return (s, g);
                     }
-                    add_pixel(y * f.width + x, s, &g, p, w, accum, guides);
+                    if grouped {
+                        let slot = group_slot(f.width * f.height, group, y * f.width + x);
+                        *sync::at_mut(accum, slot) = s;
+                    } else {
+                        add_pixel(y * f.width + x, s, &g, p, w, accum, guides);
+                    }
                 }
                 // The next pixel of the frame (numbered through tiles of 8x4, as
                 // `render_tiles` takes them), if any.
                 let last = guides.len() as u32 - 1;
                 let mut i = sync::atomic_add_device::<false>(&mut sync::at_mut(guides, last)[0], 1);
+                let items = if grouped { n * groups } else { n };
                 loop {
-                    let (tile, lane) = (i / 32, i % 32);
+                    let j = if grouped { i % n } else { i };
+                    let (tile, lane) = (j / 32, j % 32);
                     (x, y) = ((tile % tiles_x) * 8 + lane % 8, (tile / tiles_x) * 4 + lane / 8);
-                    if i >= n || (x < f.width && y < f.height) {
+                    if i >= items || (x < f.width && y < f.height) {
                         break;
                     }
                     i = sync::atomic_add_device::<false>(&mut sync::at_mut(guides, last)[0], 1);
                 }
-                if i >= n {
+                if i >= items {
                     return (Default::default(), Guide::NONE);
+                }
+                if grouped {
+                    group = i / n;
+                    let (first_sample, c) = group_samples(p.samples, groups, group);
+                    (base, count) = (p.sample_base + first_sample, c);
                 }
                 open = true;
                 (sum, emission, rays, started) = (Vec3::ZERO, Vec3::ZERO, 0, 0);
                 first = Found::MISS;
-                if p.samples == 0 {
+                if count == 0 {
                     continue;
                 }
             }
-            rng = Rng::new(y * f.width + x, p.sample_base + started, f.seed);
+            rng = Rng::new(y * f.width + x, base + started, f.seed);
             let (o, d) = camera_ray(&f.camera, f.width, f.height, x, y, w.scene.features, &mut rng);
             q = Path::new(o, d, f.pixel_spread);
             started += 1;

@@ -531,7 +531,9 @@ pub struct RenderPush {
     pub samples: u32,
     /// Number of rays (ray casts).
     pub count: u32,
-    /// `DISPLAY_*` flags (display pass) or `CAST_*` flags (ray casts).
+    /// `DISPLAY_*` flags (display pass), `CAST_*` flags (ray casts), or the sample groups a
+    /// persistent stepped dispatch splits each pixel's samples into (with `VARIANT_GROUPS`;
+    /// `crate::path::sample_groups`).
     pub flags: u32,
     /// The shadow queue's passes: the band of rows `row_base..row_base + rows` the dispatch
     /// renders (`crate::path::queue_pixel`, `crate::path::resolve_pixel`).
@@ -612,6 +614,12 @@ pub const VARIANT_NO_PAIRS: u32 = 1 << 19;
 /// which the GPU renderer then traces with the stepped loop's kernels (off lavapipe unless
 /// asked: `GpuRenderer::set_stepped`; the kernels themselves do not read the bit).
 pub const VARIANT_STEPPED: u32 = 1 << 20;
+
+/// The persistent stepped loop's items are groups of a pixel's samples
+/// (`path::sample_groups`: the count in [`RenderPush::flags`]), each group's sums written past
+/// the image for `path::add_groups`: set by the host for a dispatch of more than one group.
+/// Frames of one group (real time) run the kernel without it.
+pub const VARIANT_GROUPS: u32 = 1 << 21;
 
 /// Exact products without a fused multiply-add (`math::two_product_split`): set by the host
 /// where the device's `Fma` rounds twice (Vulkan allows it; llvmpipe's does), so the sphere

@@ -529,3 +529,84 @@ fn a_pipeline_asked_for_at_once_is_made_once() {
     assert_eq!(made.len(), 1, "made {made:?}");
     assert_no_validation_errors(&gpu);
 }
+
+/// The sample groups of a persistent dispatch (`path::sample_groups`, `group_samples`):
+/// enough for about `GROUP_ITEMS` items, at most `MAX_GROUPS`, each sample in one group, no
+/// group empty, and from the frame's pixels alone.
+#[test]
+fn sample_groups_cover_each_sample_once() {
+    use shared::path::{group_samples, sample_groups, GROUP_ITEMS, MAX_GROUPS};
+    // 800x800 at 31 samples a dispatch: six groups (3.84M items), five of 6 samples and one of 1.
+    assert_eq!(sample_groups(640_000, 31), 6);
+    assert_eq!(group_samples(31, 6, 0), (0, 6));
+    assert_eq!(group_samples(31, 6, 5), (30, 1));
+    // 1920x1080 at one sample (real time), and 4K at 32: one group.
+    assert_eq!(sample_groups(1920 * 1080, 1), 1);
+    assert_eq!(sample_groups(3840 * 2160, 32), 1);
+    for pixels in [1, 36, 576, 4096, 518_400, 640_000, 2_073_600, 1 << 24] {
+        for samples in [1, 2, 3, 5, 7, 8, 16, 31, 32] {
+            let groups = sample_groups(pixels, samples);
+            assert!(
+                (1..=MAX_GROUPS.min(samples)).contains(&groups),
+                "{pixels} {samples}: {groups}"
+            );
+            assert!(groups == 1 || groups as u64 * pixels as u64 <= GROUP_ITEMS as u64);
+            let mut next = 0;
+            for g in 0..groups {
+                let (first, count) = group_samples(samples, groups, g);
+                assert!(first == next && count > 0, "{pixels} {samples}: group {g} of {groups}");
+                next += count;
+            }
+            assert_eq!(next, samples, "{pixels} {samples}");
+        }
+    }
+}
+
+/// A persistent stepped dispatch of 32 samples at 720x720 splits each pixel's samples into
+/// eight groups of four (`path::sample_groups`, `VARIANT_GROUPS`), writes each group's sums
+/// past the image and adds them in group order (`path::add_groups`): the image is, bit for
+/// bit, the eight groups traced apart by the tiles (each from an empty image) and added in
+/// that order. Skipped on lavapipe, which renders with the tiles (see
+/// `the_persistent_path_tracer_renders_every_pixel_as_the_tiles_do`).
+#[test]
+fn persistent_sample_groups_add_in_group_order() {
+    let Some((gpu, mut r)) = renderer("persistent_sample_groups_add_in_group_order") else {
+        return;
+    };
+    if gpu.is_lavapipe() {
+        eprintln!("SKIPPED: lavapipe renders with the tiles");
+        return;
+    }
+    let spp = 32;
+    assert_eq!(shared::path::sample_groups(720 * 720, spp), 8);
+    for extra in [&["--no-nee"][..]] {
+        let p = prepared("bunny", 720, spp, extra);
+        r.set_persistent(Some(true));
+        r.set_first_sample(0);
+        r.load(&p.data, &p.frame).expect("load");
+        r.render(spp, true).expect("render");
+        let grouped = r.sums().expect("sums");
+        // Each group of four samples apart, through the tiles.
+        r.set_persistent(Some(false));
+        let mut expected: Vec<[f32; 4]> = Vec::new();
+        for g in 0..8 {
+            r.set_first_sample(4 * g);
+            r.load(&p.data, &p.frame).expect("load");
+            r.render(4, true).expect("render");
+            let part = r.sums().expect("sums");
+            if expected.is_empty() {
+                expected = part;
+            } else {
+                for (e, s) in expected.iter_mut().zip(&part) {
+                    *e = [e[0] + s[0], e[1] + s[1], e[2] + s[2], e[3] + s[3]];
+                }
+            }
+        }
+        r.set_persistent(None);
+        r.set_first_sample(0);
+        assert!(expected.iter().all(|s| s[3] > 0.0), "{extra:?}: a pixel without rays");
+        let apart = grouped.iter().zip(&expected).filter(|(a, b)| a != b).count();
+        assert_eq!(apart, 0, "{extra:?}: {apart} pixels differ");
+    }
+    assert_no_validation_errors(&gpu);
+}

@@ -57,6 +57,7 @@ pub enum Kernel {
     PathQueuePersistent,
     ShadowResolve,
     ShadowResolvePersistent,
+    AccumGroups,
     DisplayImage,
     CastRays,
     FmaProbe,
@@ -82,7 +83,7 @@ impl Kernel {
         )
     }
 
-    pub const ALL: [Kernel; 43] = [
+    pub const ALL: [Kernel; 44] = [
         Kernel::BoundsReduce,
         Kernel::Morton30Counted,
         Kernel::Morton63Counted,
@@ -120,6 +121,7 @@ impl Kernel {
         Kernel::PathQueuePersistent,
         Kernel::ShadowResolve,
         Kernel::ShadowResolvePersistent,
+        Kernel::AccumGroups,
         Kernel::DisplayImage,
         Kernel::CastRays,
         Kernel::FmaProbe,
@@ -173,6 +175,7 @@ impl Kernel {
             Kernel::PathQueuePersistent => "path_queue_persistent",
             Kernel::ShadowResolve => "shadow_resolve",
             Kernel::ShadowResolvePersistent => "shadow_resolve_persistent",
+            Kernel::AccumGroups => "accum_groups",
             Kernel::DisplayImage => "display_image",
             Kernel::CastRays => "cast_rays",
             Kernel::FmaProbe => "fma_probe",

@@ -13,10 +13,11 @@ use bytemuck::Pod;
 use gpu_allocator::MemoryLocation;
 use shared::denoise::GUIDE_PLANES;
 use shared::envmap::EnvEntry;
+use shared::path::{sample_groups, GROUP_ITEMS, MAX_GROUPS};
 use shared::types::{
     grid, transform_groups, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY,
     CAST_OBJECT, CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FLAG_BVH,
-    INVALID, TILE_SIDE, VARIANT_NO_PAIRS, VARIANT_STEPPED, WORKGROUP,
+    INVALID, TILE_SIDE, VARIANT_GROUPS, VARIANT_NO_PAIRS, VARIANT_STEPPED, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -204,6 +205,19 @@ const QUEUE_BYTES: u64 = 512 << 20;
 /// forest 7.99 -> 7.96 ms (NEE 10.09-10.15 -> 10.04-10.11), pond 1.71-1.72 -> 1.66-1.67
 /// (NEE 2.66 -> 2.62); bench/NOTES.md, session 34.
 pub const GROUP_REFITS: u32 = 3;
+
+/// Entries of the accumulation image past a frame's `pixels` sums where persistent dispatches
+/// write their sample groups' sums (`shared::path::sample_groups`, `group_slot`): room for
+/// [`GROUP_ITEMS`] at most, none where that would take the image past the device's
+/// `max_binding` bytes (its frames then trace a pixel's samples as one item).
+fn group_room(pixels: u64, max_binding: u64) -> u64 {
+    let room = (GROUP_ITEMS as u64).min(MAX_GROUPS as u64 * pixels);
+    if (pixels + room) * 16 <= max_binding {
+        room
+    } else {
+        0
+    }
+}
 
 /// Workgroups of 1,024 invocations the persistent path tracer is dispatched as at most
 /// (those the device cannot hold at once start when others end, find no pixels left and
@@ -629,7 +643,8 @@ impl GpuRenderer {
         let light_words = scene.light_words();
         let lights = dev("lights", size_of_val(light_words.as_slice()))?;
         let frame_buf = host("frame", size_of::<Frame>())?;
-        let accum = dev("accumulation image", pixels * 16)?;
+        let room = group_room(pixels as u64, gpu.max_binding) as usize;
+        let accum = dev("accumulation image", (pixels + room) * 16)?;
         let image = dev("display image", pixels * 4)?;
         let rays = dev("rays", size_of::<Ray>())?;
         let hits = dev("hits", size_of::<Hit>())?;
@@ -805,9 +820,15 @@ impl GpuRenderer {
             bail!("the frame does not fit the loaded scene (primitive count changed): load it again");
         }
         let pixels = (frame.width * frame.height) as u64;
-        if b.accum.size < pixels * 16 || b.image.size < pixels * 4 {
+        let room = group_room(pixels, self.gpu.max_binding);
+        if b.accum.size < (pixels + room) * 16 || b.image.size < pixels * 4 {
             b.set = None;
-            b.accum = Buffer::new(&self.gpu, "accumulation image", pixels * 16, MemoryLocation::GpuOnly)?;
+            b.accum = Buffer::new(
+                &self.gpu,
+                "accumulation image",
+                (pixels + room) * 16,
+                MemoryLocation::GpuOnly,
+            )?;
             b.image = Buffer::new(&self.gpu, "display image", pixels * 4, MemoryLocation::GpuOnly)?;
             b.bind(&self.gpu, &self.kernels, self.levels.as_ref())?;
         }
@@ -898,7 +919,7 @@ impl GpuRenderer {
         let sets = [self.trace_set()?, b.set()?];
         cmds.timestamp("begin");
         if self.samples == 0 {
-            cmds.fill_range(&b.accum, 0, b.accum.size, 0);
+            cmds.fill_range(&b.accum, 0, f.width as u64 * f.height as u64 * 16, 0);
             cmds.barrier();
         }
         // The transform stage; before a build of the project's BVH it reduces the build's
@@ -1021,17 +1042,45 @@ impl GpuRenderer {
             }
             done = samples;
         }
+        // The persistent stepped loop splits each pixel's samples into groups where the image
+        // has room for their sums (not with the denoiser's guides, which the first sample
+        // makes), in a kernel specialised for it (`VARIANT_GROUPS`).
+        let pixels = f.width * f.height;
+        let room = self.bufs.as_ref().context("no scene loaded")?.accum.size / 16 - pixels as u64;
+        let grouped = path_kernel == Kernel::PathSteppedPersistent
+            && self.driver.is_none()
+            && self.path_trace_constant() & FEATURE_GUIDES == 0;
         while done < samples {
             let n = (samples - done).min(SAMPLES_PER_DISPATCH);
+            let groups = match sample_groups(pixels, n) {
+                g if grouped && g as u64 * pixels as u64 <= room => g,
+                _ => 1,
+            };
             let push = RenderPush {
                 sample_base: self.first_sample + self.samples + done,
                 samples: n,
                 count: guides_from + done,
                 rows: f.height,
+                flags: groups,
                 ..Default::default()
             };
             match self.driver.as_mut() {
                 Some(d) => d.record_launch(cmds, PATH_TRACE, driver_features, sets, &push, f.width, f.height)?,
+                None if groups > 1 => {
+                    let constant = self.path_trace_constant() | VARIANT_GROUPS;
+                    let grouped_trace = self.kernels.specialised(path_kernel, constant)?;
+                    let (gx, gy) = persistent_grid(cmds, pixels * groups);
+                    cmds.dispatch_pipeline(k, grouped_trace, &sets, bytemuck::bytes_of(&push), gx, gy);
+                    cmds.barrier();
+                    let add = RenderPush {
+                        count: pixels,
+                        flags: groups,
+                        ..Default::default()
+                    };
+                    let (x, y) = grid(pixels.div_ceil(WORKGROUP));
+                    cmds.dispatch_sets(k, &sets, Kernel::AccumGroups, bytemuck::bytes_of(&add), x, y)?;
+                    cmds.barrier();
+                }
                 None => trace_rows(cmds, &push),
             }
             done += n;
