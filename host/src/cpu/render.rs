@@ -286,7 +286,7 @@ pub fn render_cpu_samples(
 mod tests {
     use super::*;
     use crate::cli::SceneArgs;
-    use shared::types::{FEATURE_INSTANCES, FEATURE_NEE};
+    use shared::types::{FEATURE_INSTANCES, FEATURE_NEE, VARIANT_GROUPS};
 
     /// The shadow queue's passes run on the CPU over one band of a scene in two levels: the
     /// persistent resolve (one invocation taking every pixel, its next ray started as its walk
@@ -375,7 +375,8 @@ mod tests {
     /// samples exactly as the loop of a segment at a time does, both for one pixel (the
     /// `path_stepped` kernel) and pixel after pixel from the counter (`path_stepped_persistent`,
     /// which runs off lavapipe only): samples, rays and guides bit for bit, also without the
-    /// BVH and at depth 0 (where the host leaves the loop out).
+    /// BVH and at depth 0 (where the host leaves the loop out); and with `VARIANT_GROUPS` its
+    /// groups of a pixel's samples add up, in group order, to the groups traced apart.
     #[test]
     fn the_stepped_path_loop_traces_what_a_segment_at_a_time_traces() {
         let cases: [&[&str]; 4] = [
@@ -415,6 +416,11 @@ mod tests {
                     features: crate::render::tracer_features(&frame, build),
                 };
                 let lights = scene.light_words();
+                let grouped = Scene {
+                    features: traced.features | VARIANT_GROUPS,
+                    ..traced
+                };
+                let grouped_world = world(scene, grouped, &scene.objects, &lights, &frame);
                 let world = world(scene, traced, &scene.objects, &lights, &frame);
                 let push = RenderPush {
                     samples: 2,
@@ -444,6 +450,45 @@ mod tests {
                     assert!(rays >= (w * h * 2) as f32, "{extra:?}: {rays} rays");
                 } else {
                     assert_eq!(rays, 0.0, "{extra:?}");
+                }
+                if frame.features & FEATURE_GUIDES == 0 {
+                    // With `VARIANT_GROUPS` (the host's persistent dispatches of several
+                    // groups): 7 samples in groups of 3, 3 and 1, each group's sums written
+                    // past the image, then added in group order to what each pixel held.
+                    let (samples, groups, pixels) = (7, 3, w * h);
+                    let push = RenderPush {
+                        samples,
+                        sample_base: 5,
+                        flags: groups,
+                        ..Default::default()
+                    };
+                    let held = [0.5, 0.25, 2.0, 3.0];
+                    let mut accum = vec![held; (pixels * (1 + groups)) as usize];
+                    let mut guides = vec![[0u32; 4]; (pixels * 4 + 1) as usize];
+                    path::stepped_tiles(&push, &grouped_world, &mut accum, &mut guides);
+                    let items = w.div_ceil(8) * h.div_ceil(4) * 32 * groups;
+                    assert_eq!(guides[(pixels * 4) as usize][0], items + 1, "{extra:?}");
+                    for pixel in 0..pixels {
+                        path::add_groups(pixel, pixels, groups, &mut accum);
+                    }
+                    for (pixel, got) in accum[..pixels as usize].iter().enumerate() {
+                        let (x, y) = (pixel as u32 % w, pixel as u32 / w);
+                        let sums: Vec<[f32; 4]> = (0..groups)
+                            .map(|g| {
+                                let (first, count) = path::group_samples(samples, groups, g);
+                                let q = RenderPush {
+                                    sample_base: 5 + first,
+                                    samples: count,
+                                    ..Default::default()
+                                };
+                                path::pixel_samples(x, y, &q, &world)
+                            })
+                            .collect();
+                        let add = |a: [f32; 4], b: [f32; 4]| [a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3]];
+                        let expected = add(held, sums[1..].iter().fold(sums[0], |t, s| add(t, *s)));
+                        let at = format!("{extra:?} depth {depth} pixel ({x}, {y}), grouped");
+                        assert_eq!(got.map(f32::to_bits), expected.map(f32::to_bits), "{at}");
+                    }
                 }
             }
         }
