@@ -2,7 +2,7 @@
 //! backend `auto` picks, the summary line.
 use super::scene::{segments, Pairs, Prepared, SceneArgs, Tree, Treelets};
 use crate::cpu::{render_cpu_samples, CpuDenoiser, CpuRender};
-use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Instance, Kernels};
+use crate::gpu::{Denoise, Gpu, GpuOptions, GpuRenderer, Instance, Kernels, SAMPLES_PER_DISPATCH};
 use crate::picture::Picture;
 use crate::render::{self, Accel, AccelChoice, Backend};
 use crate::shard::{self, Shard};
@@ -789,11 +789,15 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
             && p.data.instancing.is_none()
             && crate::render::tracer_features(&p.frame, b) & VARIANT_STEPPED != 0;
         if stepped {
-            let pixels = p.frame.width * p.frame.height;
-            let groups = shared::path::sample_groups(pixels, p.spp.min(32));
+            // As the renderer groups a full dispatch's samples (not with the denoiser's guides).
+            let (pixels, n) = (p.frame.width * p.frame.height, p.spp.min(SAMPLES_PER_DISPATCH));
+            let groups = match p.frame.flags & FLAG_DENOISE {
+                0 => shared::path::sample_groups(pixels, n),
+                _ => 1,
+            };
             println!("path loop on a GPU: each lane's walk stepped in a loop of its own; lanes whose walks have ended shade together once half of their subgroup waits (VARIANT_STEPPED: paths of more than one segment, flattened, through the binary BVH, without next-event estimation; the CPU executor and lavapipe run a segment at a time)");
             if groups > 1 {
-                println!("persistent dispatches hand out groups of a pixel's samples, not whole pixels, so that lanes do not end over a long tail (VARIANT_GROUPS: {groups} groups of a dispatch of {} samples at {pixels} pixels, about {} items; each group's sums added in group order after the dispatch)", p.spp.min(32), shared::path::GROUP_ITEMS);
+                println!("persistent dispatches hand out groups of a pixel's samples, not whole pixels, so that lanes do not end over a long tail (VARIANT_GROUPS: {groups} groups of a dispatch of {n} samples at {pixels} pixels, about {} items; each group's sums added in group order after the dispatch)", shared::path::GROUP_ITEMS);
             }
         } else {
             println!("path loop: a segment at a time, each lane's walk to its end before the subgroup shades (VARIANT_STEPPED only for paths of more than one segment, flattened, through the binary BVH, without next-event estimation)");

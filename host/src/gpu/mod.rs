@@ -21,7 +21,7 @@ pub use denoise::{denoise_ms, is_denoise, PASSES as DENOISE_PASSES};
 pub use kernels::{BindingSets, Kernel, Kernels, BINDINGS};
 pub use lbvh::GpuLbvh;
 pub use levels::{GpuLevels, TOP_REFITS};
-pub use render::{frame_timings, stage_ms, Denoise, GpuRenderer, GROUP_REFITS};
+pub use render::{frame_timings, stage_ms, Denoise, GpuRenderer, GROUP_REFITS, SAMPLES_PER_DISPATCH};
 pub use swapchain::Swapchain;
 
 include!(concat!(env!("OUT_DIR"), "/shader_modules.rs"));

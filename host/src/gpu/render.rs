@@ -30,7 +30,7 @@ pub const DENOISE_UNTIL: u32 = 96;
 /// Samples per pixel one path-tracing dispatch adds at most. Lanes run their samples back to
 /// back (`path::pixel_samples`), so longer runs leave less idle tail per dispatch: 32
 /// instead of 8 took 2-3% off 800x800 x 32 spp frames on the H100.
-const SAMPLES_PER_DISPATCH: u32 = 32;
+pub const SAMPLES_PER_DISPATCH: u32 = 32;
 
 /// Device buffers of the scene and the images (descriptor set 1).
 struct SceneBuffers {
