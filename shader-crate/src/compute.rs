@@ -670,8 +670,11 @@ macro_rules! scene_kernel {
 scene_kernel! {
     /// The path tracer in 8x8 tiles, an invocation a pixel (`path::render_pixel`).
     #[spirv(compute(threads(8, 8)))]
-    path_trace(#[spirv(global_invocation_id)] id: UVec3) |p, w, accum, guides| {
-        path::render_pixel(id.x, id.y, p, &w, &mut path::Walk, accum, guides);
+    path_trace(
+        #[spirv(global_invocation_id)] id: UVec3,
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32]
+    ) |p, w, accum, guides| {
+        path::render_pixel(id.x, id.y, p, &w, &mut path::Walk, accum, guides, image);
     }
 }
 
@@ -679,8 +682,10 @@ scene_kernel! {
     /// `path_trace` persistent (`path::render_tiles`): what every frame runs off lavapipe
     /// (`GpuRenderer::path_kernel`).
     #[spirv(compute(threads(1024)))]
-    path_trace_persistent() |p, w, accum, guides| {
-        path::render_tiles(p, &w, &mut path::Walk, accum, guides);
+    path_trace_persistent(
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32]
+    ) |p, w, accum, guides| {
+        path::render_tiles(p, &w, &mut path::Walk, accum, guides, image);
     }
 }
 
@@ -690,16 +695,21 @@ scene_kernel! {
 scene_kernel! {
     /// `path_trace` through the stepped loop (`path::stepped_pixel`).
     #[spirv(compute(threads(8, 8)))]
-    path_stepped(#[spirv(global_invocation_id)] id: UVec3) |p, w, accum, guides| {
-        path::stepped_pixel(id.x, id.y, p, &w, accum, guides);
+    path_stepped(
+        #[spirv(global_invocation_id)] id: UVec3,
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32]
+    ) |p, w, accum, guides| {
+        path::stepped_pixel(id.x, id.y, p, &w, accum, guides, image);
     }
 }
 
 scene_kernel! {
     /// `path_trace_persistent` through the stepped loop (`path::stepped_tiles`).
     #[spirv(compute(threads(1024)))]
-    path_stepped_persistent() |p, w, accum, guides| {
-        path::stepped_tiles(p, &w, accum, guides);
+    path_stepped_persistent(
+        #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32]
+    ) |p, w, accum, guides| {
+        path::stepped_tiles(p, &w, accum, guides, image);
     }
 }
 

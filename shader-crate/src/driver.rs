@@ -32,6 +32,7 @@ pub fn path_trace_driver(
     #[spirv(storage_buffer, descriptor_set = 1, binding = 5)] lights: &[u32],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 6)] frame: &Frame,
     #[spirv(storage_buffer, descriptor_set = 1, binding = 7)] accum: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 1, binding = 8)] image: &mut [u32],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 11)] attrs: &[VertexAttrs],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 12)] punctual: &[PunctualLight],
     #[spirv(storage_buffer, descriptor_set = 1, binding = 13)] env: &[EnvEntry],
@@ -63,7 +64,7 @@ pub fn path_trace_driver(
         features
     );
     let mut tracer = Driver { accel, payload };
-    path::render_pixel(id.x, id.y, p, &w, &mut tracer, accum, guides);
+    path::render_pixel(id.x, id.y, p, &w, &mut tracer, accum, guides, image);
 }
 
 /// Ray generation of the ray casts (`path::cast`: picking, the tests' ray sets): one

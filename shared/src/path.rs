@@ -7,6 +7,7 @@
 //! GPU, a scene in two levels with next-event estimation in two passes: [`queue_pixel`] traces
 //! a sample and queues its shadow rays, [`resolve_pixel`] casts them and adds the sample).
 use crate::denoise::{self, Guide};
+use crate::display;
 use crate::envmap::{Env, EnvEntry};
 use crate::instance::Placed;
 use crate::intersect::{self, offset_origin};
@@ -20,9 +21,9 @@ use crate::texture::TextureInfo;
 use crate::traverse::{self, Scene};
 use crate::types::{
     xyz, Camera, Frame, Hit, Material, MaterialKind, Object, PunctualLight, Ray, RenderPush, VertexAttrs, CAST_ANY,
-    CAST_OBJECT, CAST_SPAWN, FEATURE_ENVMAP, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FEATURE_PUNCTUAL,
-    FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID, LIGHT_DIRECTIONAL, LIGHT_SPOT,
-    VARIANT_GROUPS,
+    CAST_OBJECT, CAST_SPAWN, DISPLAY_IN_TRACE, FEATURE_ENVMAP, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE,
+    FEATURE_PUNCTUAL, FEATURE_THIN_LENS, FLAG_BVH, FLAG_MIS, FLAG_NEE, FLAG_RUSSIAN_ROULETTE, INVALID,
+    LIGHT_DIRECTIONAL, LIGHT_SPOT, VARIANT_GROUPS,
 };
 use core::f32::consts::PI;
 use spirv_std::glam::Vec3;
@@ -806,7 +807,14 @@ pub fn add_groups(pixel: u32, pixels: u32, groups: u32, accum: &mut [[f32; 4]]) 
 /// frame has none left. Numbers run through tiles of 8x4 pixels, 32 to a tile, so the lanes
 /// of a warp that take numbers together trace neighbouring pixels, as in the 8x8 tiles of
 /// `path_trace`. Every pixel is rendered once, whichever invocation takes it.
-pub fn render_tiles<T: Trace>(p: &RenderPush, w: &World, tr: &mut T, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
+pub fn render_tiles<T: Trace>(
+    p: &RenderPush,
+    w: &World,
+    tr: &mut T,
+    accum: &mut [[f32; 4]],
+    guides: &mut [[u32; 4]],
+    image: &mut [u32],
+) {
     let f = w.frame;
     let tiles_x = f.width.div_ceil(8);
     let n = tiles_x * f.height.div_ceil(4) * 32;
@@ -818,7 +826,7 @@ pub fn render_tiles<T: Trace>(p: &RenderPush, w: &World, tr: &mut T, accum: &mut
         }
         let (tile, lane) = (i / 32, i % 32);
         let (x, y) = ((tile % tiles_x) * 8 + lane % 8, (tile / tiles_x) * 4 + lane / 8);
-        render_pixel(x, y, p, w, tr, accum, guides);
+        render_pixel(x, y, p, w, tr, accum, guides, image);
     }
 }
 
@@ -1062,6 +1070,7 @@ fn stepped_pixels(
     w: &World,
     accum: &mut [[f32; 4]],
     guides: &mut [[u32; 4]],
+    image: &mut [u32],
 ) -> ([f32; 4], Guide) {
     let f = w.frame;
     let guided = w.scene.features & FEATURE_GUIDES != 0;
@@ -1155,7 +1164,7 @@ fn stepped_pixels(
                         let slot = group_slot(f.width * f.height, group, y * f.width + x);
                         *sync::at_mut(accum, slot) = s;
                     } else {
-                        add_pixel(y * f.width + x, s, &g, p, w, accum, guides);
+                        add_pixel(y * f.width + x, s, &g, p, w, accum, guides, image);
                     }
                 }
                 // The next pixel of the frame (numbered through tiles of 8x4, as
@@ -1210,6 +1219,8 @@ fn stepped_pixels(
 /// Adds `p.samples` samples of pixel `(x, y)` to `accum`: see [`pixel_samples`]. With
 /// [`FEATURE_GUIDES`] also the pixel's guide: written by the frame's first dispatch
 /// (`p.count == 0`, the samples the frame traced before), its sums added to by the rest.
+/// With [`DISPLAY_IN_TRACE`] the samples are written, not added, and displayed to `image`.
+#[allow(clippy::too_many_arguments)]
 pub fn render_pixel<T: Trace>(
     x: u32,
     y: u32,
@@ -1218,41 +1229,52 @@ pub fn render_pixel<T: Trace>(
     tr: &mut T,
     accum: &mut [[f32; 4]],
     guides: &mut [[u32; 4]],
+    image: &mut [u32],
 ) {
     let f = w.frame;
     if x >= f.width || y >= f.height {
         return;
     }
     let (s, g) = segment_samples(x, y, p, w, tr);
-    add_pixel(y * f.width + x, s, &g, p, w, accum, guides);
+    add_pixel(y * f.width + x, s, &g, p, w, accum, guides, image);
 }
 
 /// [`render_pixel`] through the stepped loop ([`stepped_pixels`]): the host's
 /// `Kernel::PathStepped`, 8x8 tiles of an invocation a pixel.
-pub fn stepped_pixel(x: u32, y: u32, p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
+pub fn stepped_pixel(
+    x: u32,
+    y: u32,
+    p: &RenderPush,
+    w: &World,
+    accum: &mut [[f32; 4]],
+    guides: &mut [[u32; 4]],
+    image: &mut [u32],
+) {
     let f = w.frame;
     if x >= f.width || y >= f.height {
         return;
     }
-    let (s, g) = stepped_pixels(x, y, false, p, w, accum, guides);
-    add_pixel(y * f.width + x, s, &g, p, w, accum, guides);
+    let (s, g) = stepped_pixels(x, y, false, p, w, accum, guides, image);
+    add_pixel(y * f.width + x, s, &g, p, w, accum, guides, image);
 }
 
 /// [`render_tiles`] through the stepped loop ([`stepped_pixels`]): the host's
 /// `Kernel::PathSteppedPersistent`.
-pub fn stepped_tiles(p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]]) {
-    stepped_pixels(0, 0, true, p, w, accum, guides);
+pub fn stepped_tiles(p: &RenderPush, w: &World, accum: &mut [[f32; 4]], guides: &mut [[u32; 4]], image: &mut [u32]) {
+    stepped_pixels(0, 0, true, p, w, accum, guides, image);
 }
 
 /// [`pixel_samples_guided`] through the stepped loop, on the CPU (one lane a subgroup: the
 /// tests compare the two loops' bits).
 #[cfg(not(target_arch = "spirv"))]
 pub fn stepped_samples(x: u32, y: u32, p: &RenderPush, w: &World) -> ([f32; 4], Guide) {
-    stepped_pixels(x, y, false, p, w, &mut [], &mut [])
+    stepped_pixels(x, y, false, p, w, &mut [], &mut [], &mut [])
 }
 
-/// Adds a pixel's samples `s` (and its guide `g`) to `accum` (and `guides`): see
+/// Adds a pixel's samples `s` (and its guide `g`) to `accum` (and `guides`), or with
+/// [`DISPLAY_IN_TRACE`] writes them there and their display code to `image`: see
 /// [`render_pixel`].
+#[allow(clippy::too_many_arguments)]
 fn add_pixel(
     pixel: u32,
     s: [f32; 4],
@@ -1261,10 +1283,16 @@ fn add_pixel(
     w: &World,
     accum: &mut [[f32; 4]],
     guides: &mut [[u32; 4]],
+    image: &mut [u32],
 ) {
     let f = w.frame;
     let a = sync::at_mut(accum, pixel);
-    *a = [a[0] + s[0], a[1] + s[1], a[2] + s[2], a[3] + s[3]];
+    if p.flags & DISPLAY_IN_TRACE != 0 {
+        *a = s;
+        *sync::at_mut(image, pixel) = display::pixel(s, p, f);
+    } else {
+        *a = [a[0] + s[0], a[1] + s[1], a[2] + s[2], a[3] + s[3]];
+    }
     if w.scene.features & FEATURE_GUIDES != 0 {
         let n = f.width * f.height;
         if p.count == 0 {

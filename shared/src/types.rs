@@ -531,8 +531,9 @@ pub struct RenderPush {
     pub samples: u32,
     /// Number of rays (ray casts).
     pub count: u32,
-    /// `DISPLAY_*` flags (display pass), `CAST_*` flags (ray casts), or the sample groups a
-    /// persistent stepped dispatch splits each pixel's samples into (with `VARIANT_GROUPS`;
+    /// `DISPLAY_*` flags (display pass, and path tracer dispatches that display:
+    /// [`DISPLAY_IN_TRACE`]), `CAST_*` flags (ray casts), or the sample groups a persistent
+    /// stepped dispatch splits each pixel's samples into (with `VARIANT_GROUPS`;
     /// `crate::path::sample_groups`).
     pub flags: u32,
     /// The shadow queue's passes: the band of rows `row_base..row_base + rows` the dispatch
@@ -638,6 +639,11 @@ pub const CAST_OBJECT: u32 = 4;
 
 /// Display pass: pack pixels as B, G, R, A bytes (for BGRA swapchain images).
 pub const DISPLAY_BGRA: u32 = 1;
+/// A path tracer dispatch (without `VARIANT_GROUPS`) that traces all of a frame's samples from
+/// none: each pixel's sums are written to the accumulation, not added (it needs no clearing
+/// first), and its display code to the display image (`crate::display::pixel`, with the
+/// push's `samples` and [`DISPLAY_BGRA`]), so that the frame needs no display pass.
+pub const DISPLAY_IN_TRACE: u32 = 2;
 
 /// A ray: origin `xyz` (`w`: smallest distance), direction `xyz` (`w`: largest distance).
 #[repr(C)]

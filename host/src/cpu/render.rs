@@ -286,7 +286,7 @@ pub fn render_cpu_samples(
 mod tests {
     use super::*;
     use crate::cli::SceneArgs;
-    use shared::types::{FEATURE_INSTANCES, FEATURE_NEE, VARIANT_GROUPS};
+    use shared::types::{DISPLAY_BGRA, DISPLAY_IN_TRACE, FEATURE_INSTANCES, FEATURE_NEE, VARIANT_GROUPS};
 
     /// The shadow queue's passes run on the CPU over one band of a scene in two levels: the
     /// persistent resolve (one invocation taking every pixel, its next ray started as its walk
@@ -375,8 +375,10 @@ mod tests {
     /// samples exactly as the loop of a segment at a time does, both for one pixel (the
     /// `path_stepped` kernel) and pixel after pixel from the counter (`path_stepped_persistent`,
     /// which runs off lavapipe only): samples, rays and guides bit for bit, also without the
-    /// BVH and at depth 0 (where the host leaves the loop out); and with `VARIANT_GROUPS` its
-    /// groups of a pixel's samples add up, in group order, to the groups traced apart.
+    /// BVH and at depth 0 (where the host leaves the loop out); with `DISPLAY_IN_TRACE` it
+    /// writes the same sums over whatever the accumulation held and displays them; and with
+    /// `VARIANT_GROUPS` its groups of a pixel's samples add up, in group order, to the groups
+    /// traced apart.
     #[test]
     fn the_stepped_path_loop_traces_what_a_segment_at_a_time_traces() {
         let cases: [&[&str]; 4] = [
@@ -431,8 +433,18 @@ mod tests {
                 // The persistent loop: accumulation, guides (the counter in the last entry).
                 let mut accum = vec![[0.0f32; 4]; (w * h) as usize];
                 let mut guides = vec![[0u32; 4]; (w * h * 4 + 1) as usize];
-                path::stepped_tiles(&push, &world, &mut accum, &mut guides);
+                path::stepped_tiles(&push, &world, &mut accum, &mut guides, &mut []);
                 assert_eq!(guides[(w * h * 4) as usize][0], w.div_ceil(8) * h.div_ceil(4) * 32 + 1);
+                // A frame's one dispatch that displays it (`DISPLAY_IN_TRACE`): sums written over
+                // what the accumulation held, display codes as the display pass packs them.
+                let shown = RenderPush {
+                    flags: DISPLAY_IN_TRACE | DISPLAY_BGRA,
+                    ..push
+                };
+                let mut written = vec![[7.5f32, -1.0, f32::NAN, 3.0]; (w * h) as usize];
+                let mut image = vec![0u32; (w * h) as usize];
+                let mut counter = vec![[0u32; 4]; (w * h * 4 + 1) as usize];
+                path::stepped_tiles(&shown, &world, &mut written, &mut counter, &mut image);
                 let mut rays = 0.0;
                 for y in 0..h {
                     for x in 0..w {
@@ -443,6 +455,9 @@ mod tests {
                         assert_eq!(bits(stepped), bits(segments), "{at}");
                         assert_eq!(bytemuck::bytes_of(&g1), bytemuck::bytes_of(&g2), "{at}");
                         assert_eq!(bits(accum[(y * w + x) as usize]), bits(stepped), "{at}");
+                        assert_eq!(bits(written[(y * w + x) as usize]), bits(stepped), "{at}");
+                        let code = shared::display::pixel(stepped, &shown, &frame);
+                        assert_eq!(image[(y * w + x) as usize], code, "{at}");
                         rays += stepped[3];
                     }
                 }
@@ -465,7 +480,7 @@ mod tests {
                     let held = [0.5, 0.25, 2.0, 3.0];
                     let mut accum = vec![held; (pixels * (1 + groups)) as usize];
                     let mut guides = vec![[0u32; 4]; (pixels * 4 + 1) as usize];
-                    path::stepped_tiles(&push, &grouped_world, &mut accum, &mut guides);
+                    path::stepped_tiles(&push, &grouped_world, &mut accum, &mut guides, &mut []);
                     let items = w.div_ceil(8) * h.div_ceil(4) * 32 * groups;
                     assert_eq!(guides[(pixels * 4) as usize][0], items + 1, "{extra:?}");
                     for pixel in 0..pixels {

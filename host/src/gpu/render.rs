@@ -16,8 +16,8 @@ use shared::envmap::EnvEntry;
 use shared::path::{sample_groups, GROUP_ITEMS, MAX_GROUPS};
 use shared::types::{
     grid, transform_groups, BuildParams, Camera, Frame, Hit, Object, Ray, RenderPush, Sphere, Triangle, CAST_ANY,
-    CAST_OBJECT, CAST_SPAWN, DISPLAY_BGRA, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES, FEATURE_NEE, FLAG_BVH,
-    INVALID, TILE_SIDE, VARIANT_GROUPS, VARIANT_NO_PAIRS, VARIANT_STEPPED, WORKGROUP,
+    CAST_OBJECT, CAST_SPAWN, DISPLAY_BGRA, DISPLAY_IN_TRACE, FEATURE_ALPHA, FEATURE_GUIDES, FEATURE_INSTANCES,
+    FEATURE_NEE, FLAG_BVH, INVALID, TILE_SIDE, VARIANT_GROUPS, VARIANT_NO_PAIRS, VARIANT_STEPPED, WORKGROUP,
 };
 use std::sync::Arc;
 
@@ -885,8 +885,8 @@ impl GpuRenderer {
     }
 
     /// Records (into `cmds`, which is recording) what [`GpuRenderer::render`] runs: a
-    /// timestamp `begin`, then transform and build, `trace`, `display`. The samples count
-    /// as accumulated from here on.
+    /// timestamp `begin`, then transform and build, `trace`, `display` (none where the trace
+    /// displays the frame: `DISPLAY_IN_TRACE`). The samples count as accumulated from here on.
     pub fn record(&mut self, cmds: &mut Commands, samples: u32, rebuild: bool) -> Result<()> {
         // The first wide build, or the first with pairs, makes the builder's buffers again
         // with room for it (other builds leave it out): the frame transforms and builds anew.
@@ -917,9 +917,31 @@ impl GpuRenderer {
         let k = &self.kernels;
         let f = self.frame;
         let sets = [self.trace_set()?, b.set()?];
+        // The persistent stepped loop splits each pixel's samples into groups where the image
+        // has room for their sums (not with the denoiser's guides, which the first sample
+        // makes), in a kernel specialised for it (`VARIANT_GROUPS`).
+        let pixels = f.width * f.height;
+        let room = b.accum.size / 16 - pixels as u64;
+        let grouped = path_kernel == Kernel::PathSteppedPersistent
+            && self.driver.is_none()
+            && self.path_trace_constant() & FEATURE_GUIDES == 0;
+        let groups_of = |n: u32| match sample_groups(pixels, n) {
+            g if grouped && g as u64 * pixels as u64 <= room => g,
+            _ => 1,
+        };
+        // A frame from no samples whose samples one path tracer dispatch traces (not in
+        // groups, nor through the shadow queue) and that the denoiser does not show writes its
+        // accumulation and display image in that dispatch (`DISPLAY_IN_TRACE`): no clearing
+        // before it, no display pass after.
+        let denoised = denoise && self.denoiser.is_some();
+        let in_trace = self.samples == 0
+            && (1..=SAMPLES_PER_DISPATCH).contains(&samples)
+            && groups_of(samples) == 1
+            && !self.shadow_queue()
+            && !denoised;
         cmds.timestamp("begin");
-        if self.samples == 0 {
-            cmds.fill_range(&b.accum, 0, f.width as u64 * f.height as u64 * 16, 0);
+        if self.samples == 0 && !in_trace {
+            cmds.fill_range(&b.accum, 0, pixels as u64 * 16, 0);
             cmds.barrier();
         }
         // The transform stage; before a build of the project's BVH it reduces the build's
@@ -1042,26 +1064,19 @@ impl GpuRenderer {
             }
             done = samples;
         }
-        // The persistent stepped loop splits each pixel's samples into groups where the image
-        // has room for their sums (not with the denoiser's guides, which the first sample
-        // makes), in a kernel specialised for it (`VARIANT_GROUPS`).
-        let pixels = f.width * f.height;
-        let room = self.bufs.as_ref().context("no scene loaded")?.accum.size / 16 - pixels as u64;
-        let grouped = path_kernel == Kernel::PathSteppedPersistent
-            && self.driver.is_none()
-            && self.path_trace_constant() & FEATURE_GUIDES == 0;
         while done < samples {
             let n = (samples - done).min(SAMPLES_PER_DISPATCH);
-            let groups = match sample_groups(pixels, n) {
-                g if grouped && g as u64 * pixels as u64 <= room => g,
-                _ => 1,
-            };
+            let groups = groups_of(n);
             let push = RenderPush {
                 sample_base: self.first_sample + self.samples + done,
                 samples: n,
                 count: guides_from + done,
                 rows: f.height,
-                flags: groups,
+                flags: match groups {
+                    1 if in_trace => DISPLAY_IN_TRACE | self.display_flags,
+                    1 => 0,
+                    g => g,
+                },
                 ..Default::default()
             };
             match self.driver.as_mut() {
@@ -1093,7 +1108,7 @@ impl GpuRenderer {
             } else {
                 d.record(cmds, k, sets[1], samples, true, still, bgra)?;
             }
-        } else {
+        } else if !in_trace {
             let push = RenderPush {
                 samples: self.samples + samples,
                 flags: self.display_flags,
