@@ -802,6 +802,9 @@ pub fn render_command(args: &SceneArgs, job: &RenderJob, opts: &GpuOptions) -> R
         } else {
             println!("path loop: a segment at a time, each lane's walk to its end before the subgroup shades (VARIANT_STEPPED only for paths of more than one segment, flattened, through the binary BVH, without next-event estimation)");
         }
+        if p.frame.flags & FLAG_DENOISE == 0 {
+            println!("display on a GPU: a frame's first samples, traced in one dispatch (real time; render's first submission), write the display image from the trace, with no clearing before and no display pass after (DISPLAY_IN_TRACE; not in sample groups nor through the shadow queue); samples added later are displayed by the display pass");
+        }
     }
     let name = &p.scene.name;
     let frames_tag = if job.frames.is_some() { "-####" } else { "" };
